@@ -1,0 +1,91 @@
+"""chassis_sdk: an asyncio client SDK for robot bases that speak binary serial protocols.
+
+Two devices are supported:
+
+* :class:`Chassis`, a four-wheel skid-steer chassis (protocol A, ``ED DE`` frames);
+* :class:`Board`, a controller board with IMU, LED, buzzer, motors and servos
+  (protocol B, ``FE CE`` / ``AB BC`` frames).
+
+Example::
+
+    import asyncio
+    from chassis_sdk import Chassis
+
+    async def main() -> None:
+        async with Chassis("/dev/ttyUSB0") as robot:
+            print(await robot.get_chassis_info())
+            await robot.set_velocity(0.3, 0.0)
+            async for t in robot.telemetry():
+                print(t.linear, t.voltage)
+
+    asyncio.run(main())
+
+The sans-IO codecs live in :mod:`chassis_sdk.protocol`; the simulators in
+:mod:`chassis_sdk.sim`.
+"""
+
+from ._device import ConnectionState, LinkStats
+from ._dispatch import Subscription
+from .board import Board
+from .chassis import Chassis
+from .errors import (
+    ChassisError,
+    ConnectionLostError,
+    NotConnectedError,
+    PortOpenError,
+    ProtocolError,
+    RequestTimeoutError,
+)
+from .protocol import (
+    BatteryReading,
+    ChassisInfo,
+    ChassisStatus,
+    DockingState,
+    DriverError,
+    DriverStatus,
+    ImuSample,
+    Motor,
+    MotorStatus,
+    PowerTelemetry,
+    Servo,
+    Telemetry,
+    Vector3,
+    VelocityFeedback,
+    WheelCurrents,
+    WheelDriver,
+    WheelSpeeds,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BatteryReading",
+    "Board",
+    "Chassis",
+    "ChassisError",
+    "ChassisInfo",
+    "ChassisStatus",
+    "ConnectionLostError",
+    "ConnectionState",
+    "DockingState",
+    "DriverError",
+    "DriverStatus",
+    "ImuSample",
+    "LinkStats",
+    "Motor",
+    "MotorStatus",
+    "NotConnectedError",
+    "PortOpenError",
+    "PowerTelemetry",
+    "ProtocolError",
+    "RequestTimeoutError",
+    "Servo",
+    "Subscription",
+    "Telemetry",
+    "Vector3",
+    "VelocityFeedback",
+    "WheelCurrents",
+    "WheelDriver",
+    "WheelSpeeds",
+    "__version__",
+]

@@ -1,0 +1,514 @@
+"""What both devices share: lifetime, link supervision, reconnect, requests, streams,
+the velocity watchdog and stats. ``Chassis`` and ``Board`` add only their protocol.
+
+Lifetime
+--------
+``connect()`` opens the port, then starts a runner task that owns an anyio task group
+with the background tasks (the watchdog and the link supervisor). Running the group in
+its own task, rather than in the caller's, keeps the caller's cancel scopes out of it,
+so ``connect()`` and ``close()`` may be called from different tasks, and a failure in
+the background never cancels application code in the middle of a request.
+
+``close()`` writes a zero-velocity frame first (synchronously, before anything that can
+be interrupted), waits a bounded time for it to leave, then closes the port and stops
+the background tasks, shielded from cancellation so that leaving ``async with`` on
+cancellation still stops the robot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import enum
+import logging
+import math
+import random
+import time
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, fields
+from types import TracebackType
+from typing import Any, Generic, Self, TypeVar
+
+import anyio
+import anyio.lowlevel
+
+from ._dispatch import Broadcast, RequestTable, Subscription
+from ._transport import BACKEND, Link, open_link
+from ._watchdog import FrameFactory, VelocityWatchdog
+from .errors import (
+    ChassisError,
+    ConnectionLostError,
+    NotConnectedError,
+    PortOpenError,
+    RequestTimeoutError,
+)
+from .protocol import DecoderStats
+from .protocol._scale import check_duration
+
+__all__ = ["ConnectionState", "LinkStats"]
+
+M = TypeVar("M")
+K = TypeVar("K", bound=Hashable)
+
+#: Reconnect backoff: first delay, growth factor, cap (seconds).
+_BACKOFF_START = 0.1
+_BACKOFF_FACTOR = 2.0
+_BACKOFF_CAP = 2.0
+#: How long close() waits for the zero frame to leave, and for the port to close.
+_DRAIN_TIMEOUT = 0.25
+_CLOSE_TIMEOUT = 1.0
+
+
+class ConnectionState(enum.Enum):
+    """Where a device is in its lifetime."""
+
+    DISCONNECTED = "disconnected"  #: constructed, or closed; no I/O
+    CONNECTING = "connecting"  #: opening the port
+    CONNECTED = "connected"  #: the port is open
+    RECONNECTING = "reconnecting"  #: the link dropped; reopening with backoff
+    LOST = "lost"  #: the link dropped and ``reconnect`` is off; call ``close()``
+
+
+@dataclass(frozen=True, slots=True)
+class LinkStats:
+    """A snapshot of a device's link counters (cumulative over reconnects).
+
+    Attributes:
+        bytes_received: Bytes read from the port.
+        bytes_sent: Bytes written to the port.
+        frames: Frames decoded.
+        frames_sent: Frames written.
+        bytes_dropped: Received bytes skipped as noise.
+        checksum_errors: Received candidate frames with a bad check.
+        malformed_frames: Frames that checked out but carried invalid content.
+        length_mismatches: Frames accepted despite a wrong length byte.
+        unmatched_replies: Replies nobody was waiting for.
+        queue_drops: Messages dropped because a subscriber fell behind.
+        sequence_gaps: Breaks in the device's telemetry sequence numbers.
+        reconnects: Successful reconnects.
+        resends: Velocity frames re-sent by the watchdog.
+        command_expiries: Velocity commands zeroed by the deadman or ``duration``.
+    """
+
+    bytes_received: int = 0
+    bytes_sent: int = 0
+    frames: int = 0
+    frames_sent: int = 0
+    bytes_dropped: int = 0
+    checksum_errors: int = 0
+    malformed_frames: int = 0
+    length_mismatches: int = 0
+    unmatched_replies: int = 0
+    queue_drops: int = 0
+    sequence_gaps: int = 0
+    reconnects: int = 0
+    resends: int = 0
+    command_expiries: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Return the counters as a plain ``dict``."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _check_positive(name: str, value: float, *, allow_none: bool = False) -> None:
+    if value is None and allow_none:
+        return
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+class Device(Generic[M, K]):
+    """Base of :class:`~chassis_sdk.Chassis` and :class:`~chassis_sdk.Board`.
+
+    Not for direct use; see those classes for the arguments.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 115200,
+        request_timeout: float = 1.0,
+        retries: int = 2,
+        resend_interval: float = 0.05,
+        command_timeout: float | None = 0.5,
+        reconnect: bool = False,
+        queue_size: int = 64,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        if not isinstance(port, str) or not port:
+            raise ValueError(f"port must be a device path or URL string, got {port!r}")
+        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+            raise ValueError(f"baudrate must be a positive integer, got {baudrate!r}")
+        _check_positive("request_timeout", request_timeout)
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+        _check_positive("resend_interval", resend_interval)
+        _check_positive("command_timeout", command_timeout, allow_none=True)  # type: ignore[arg-type]
+        if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
+            raise ValueError(f"queue_size must be an integer >= 1, got {queue_size!r}")
+        self.port = port
+        self.baudrate = baudrate
+        self.request_timeout = float(request_timeout)
+        self.retries = retries
+        self.reconnect = bool(reconnect)
+        self.queue_size = queue_size
+        self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
+        self._decoder = self._make_decoder()
+        self._requests: RequestTable[K, Any] = RequestTable()
+        self._streams: list[Broadcast[Any]] = []
+        self._state = ConnectionState.DISCONNECTED
+        self._states: Broadcast[ConnectionState] = Broadcast(queue_size)
+        self._state_changed = asyncio.Event()
+        self._link: Link[M] | None = None
+        self._lost = asyncio.Event()
+        self._lost_exc: Exception | None = None
+        self._closing = asyncio.Event()
+        self._runner: asyncio.Task[None] | None = None
+        self._watchdog = VelocityWatchdog(
+            self._write,
+            interval=float(resend_interval),
+            command_timeout=None if command_timeout is None else float(command_timeout),
+            logger=self._log,
+        )
+        self._bytes_sent = 0
+        self._frames_sent = 0
+        self._unmatched = 0
+        self._sequence_gaps = 0
+        self._reconnects = 0
+
+    # --- hooks for the subclasses ---------------------------------------------------------
+
+    def _make_decoder(self) -> Any:
+        raise NotImplementedError
+
+    def _handle(self, msg: M) -> None:
+        """Route one decoded message (called synchronously from ``data_received``)."""
+        raise NotImplementedError
+
+    def _zero_frame(self) -> bytes:
+        """Build a zero-velocity frame."""
+        raise NotImplementedError
+
+    def _velocity_frame(self, linear: float, angular: float) -> FrameFactory:
+        """Validate and return a factory of velocity frames (raises ``ValueError``)."""
+        raise NotImplementedError
+
+    def _on_link_up(self) -> None:
+        """Reset per-connection state (called on connect and each reconnect)."""
+
+    # --- lifetime -------------------------------------------------------------------------
+
+    @property
+    def connection_state(self) -> ConnectionState:
+        """The current :class:`ConnectionState`."""
+        return self._state
+
+    @property
+    def is_connected(self) -> bool:
+        """True while the port is open."""
+        return self._state is ConnectionState.CONNECTED
+
+    @property
+    def transport_backend(self) -> str:
+        """Which pyserial asyncio package carries the link."""
+        return BACKEND
+
+    def connection_states(self) -> Subscription[ConnectionState]:
+        """An async iterator of connection state changes, starting with the next one."""
+        return self._states.subscribe()
+
+    async def wait_connected(self, timeout: float | None = None) -> None:
+        """Wait until the device is connected (for example, after a reconnect).
+
+        Raises:
+            TimeoutError: ``timeout`` elapsed first.
+            NotConnectedError: The device is closed or lost and will not reconnect.
+        """
+        with anyio.fail_after(timeout):
+            while self._state is not ConnectionState.CONNECTED:
+                if self._state in (ConnectionState.DISCONNECTED, ConnectionState.LOST):
+                    raise NotConnectedError(f"{self.port} is {self._state.value}")
+                self._state_changed.clear()
+                await self._state_changed.wait()
+
+    def _set_state(self, state: ConnectionState) -> None:
+        if state is self._state:
+            return
+        self._log.info("%s: %s -> %s", self.port, self._state.value, state.value)
+        self._state = state
+        self._states.publish(state)
+        self._state_changed.set()
+
+    async def connect(self) -> None:
+        """Open the port and start the background tasks.
+
+        Raises:
+            PortOpenError: The port cannot be opened (the message says why).
+            ChassisError: Already connected.
+        """
+        if self._runner is not None:
+            raise ChassisError(f"{self.port} is already connected; close() it first")
+        self._set_state(ConnectionState.CONNECTING)
+        for stream in self._streams:
+            stream.reopen()
+        self._closing.clear()
+        try:
+            await self._open()
+        except BaseException:
+            self._set_state(ConnectionState.DISCONNECTED)
+            raise
+        self._runner = asyncio.create_task(self._run(), name=f"chassis_sdk:{self.port}")
+        self._set_state(ConnectionState.CONNECTED)
+
+    async def _open(self) -> None:
+        self._lost.clear()
+        self._lost_exc = None
+        self._decoder.reset()
+        self._on_link_up()
+        self._link = await open_link(
+            self.port,
+            self.baudrate,
+            lambda: Link(self._decoder, self._handle, self._on_lost, self._log),
+        )
+        self._log.info("%s: opened at %d baud via %s", self.port, self.baudrate, BACKEND)
+
+    def _on_lost(self, exc: Exception | None) -> None:
+        self._link = None
+        self._lost_exc = exc
+        self._lost.set()
+
+    async def _run(self) -> None:
+        try:
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._watchdog.run, name=f"watchdog:{self.port}")
+                tg.start_soon(self._supervise, name=f"supervisor:{self.port}")
+                await self._closing.wait()
+                tg.cancel_scope.cancel()
+        except Exception as exc:  # a bug in a background task: fail loudly, stop safely
+            self._log.exception("%s: background task failed", self.port)
+            error = ChassisError(f"background task failed: {exc!r}")
+            self._watchdog.clear()
+            self._requests.fail_all(error)
+            for stream in self._streams:
+                stream.fail(error)
+            self._set_state(ConnectionState.LOST)
+
+    async def _supervise(self) -> None:
+        while True:
+            await self._lost.wait()
+            if self._closing.is_set():
+                return
+            # Never resume motion after an outage: forget the command before anything.
+            self._watchdog.clear()
+            cause = self._lost_exc
+            error = ConnectionLostError(
+                f"lost connection to {self.port}" + (f": {cause}" if cause else "")
+            )
+            self._log.warning("%s", error)
+            self._requests.fail_all(error)
+            if not self.reconnect:
+                for stream in self._streams:
+                    stream.fail(error)
+                self._set_state(ConnectionState.LOST)
+                return
+            self._set_state(ConnectionState.RECONNECTING)
+            await self._reopen()
+
+    async def _reopen(self) -> None:
+        delay = _BACKOFF_START
+        while not self._closing.is_set():
+            # Full jitter keeps a fleet of clients from retrying in lockstep.
+            await anyio.sleep(delay * random.uniform(0.5, 1.0))
+            try:
+                await self._open()
+            except PortOpenError as exc:
+                self._log.debug("%s: reconnect failed: %s", self.port, exc)
+                delay = min(delay * _BACKOFF_FACTOR, _BACKOFF_CAP)
+                continue
+            self._reconnects += 1
+            self._set_state(ConnectionState.CONNECTED)
+            return
+
+    async def close(self) -> None:
+        """Stop the robot, close the port and stop the background tasks.
+
+        A zero-velocity frame is written and given a bounded time to leave before the
+        port closes. Safe to call more than once, and from any task.
+        """
+        runner = self._runner
+        if runner is None:
+            return
+        self._runner = None
+        link = self._link
+        self._watchdog.clear()
+        if link is not None and link.write(self._zero_frame()):
+            self._count_sent(1)
+        with anyio.CancelScope(shield=True):
+            if link is not None:
+                await link.drain(_DRAIN_TIMEOUT)
+            self._closing.set()
+            if link is not None:
+                await link.aclose(_CLOSE_TIMEOUT)
+            await runner
+        self._link = None
+        closed = NotConnectedError(f"{self.port} was closed")
+        self._requests.fail_all(closed)
+        for stream in self._streams:
+            stream.fail(None)
+        self._set_state(ConnectionState.DISCONNECTED)
+
+    async def __aenter__(self) -> Self:
+        await self.connect()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    # --- writing, requests, streams ---------------------------------------------------------
+
+    def _count_sent(self, n_bytes: int) -> None:
+        self._bytes_sent += n_bytes
+        self._frames_sent += 1
+
+    def _write(self, frame: bytes) -> None:
+        link = self._link
+        if link is None or not link.write(frame):
+            raise NotConnectedError(f"{self.port} is {self._state.value}, not connected")
+        self._count_sent(len(frame))
+
+    def _ensure_connected(self) -> None:
+        if self._link is None or self._state is not ConnectionState.CONNECTED:
+            raise NotConnectedError(f"{self.port} is {self._state.value}, not connected")
+
+    async def _send(self, frame: bytes) -> None:
+        """Write a command that has no reply; return once it is handed to the port."""
+        self._write(frame)
+        await anyio.lowlevel.checkpoint()
+
+    async def _request(
+        self, build: Callable[[], tuple[bytes, K]], *, read_only: bool, what: str
+    ) -> Any:
+        """Write a request and wait for its reply, retrying read-only requests.
+
+        Args:
+            build: Returns ``(frame, reply key)``; called per attempt, so each attempt
+                gets a fresh sequence number or request id.
+            read_only: Retry up to ``retries`` times on timeout.
+            what: Names the request in errors.
+        """
+        attempts = self.retries + 1 if read_only else 1
+        for attempt in range(1, attempts + 1):
+            self._ensure_connected()
+            frame, key = build()
+            fut = self._requests.expect(key)
+            try:
+                self._write(frame)
+                with anyio.fail_after(self.request_timeout):
+                    return await fut
+            except TimeoutError:
+                self._log.debug("%s: %s attempt %d timed out", self.port, what, attempt)
+            finally:
+                self._requests.discard(key, fut)
+        raise RequestTimeoutError(
+            f"no reply to {what} from {self.port} within {self.request_timeout:g} s "
+            f"({attempts} attempt{'s' if attempts > 1 else ''})"
+        )
+
+    def _resolve(self, key: K, msg: Any) -> None:
+        if not self._requests.resolve(key, msg):
+            self._unmatched += 1
+            self._log.info("%s: unmatched reply %r", self.port, msg)
+
+    def _stream(self) -> Broadcast[Any]:
+        stream: Broadcast[Any] = Broadcast(self.queue_size)
+        self._streams.append(stream)
+        return stream
+
+    def _subscribe(self, stream: Broadcast[Any]) -> Subscription[Any]:
+        if self._state is ConnectionState.DISCONNECTED:
+            raise NotConnectedError(f"{self.port} is not connected; use `async with` first")
+        return stream.subscribe()
+
+    # --- motion -----------------------------------------------------------------------------
+
+    async def set_velocity(
+        self, linear: float, angular: float, *, duration: float | None = None
+    ) -> None:
+        """Drive with a linear (m/s) and angular (rad/s) velocity.
+
+        The frame is written at once and re-sent every ``resend_interval``. Without
+        ``duration`` it stays active until ``command_timeout`` after the *last* call
+        (keep calling, as with ROS ``cmd_vel``); with ``duration`` it holds exactly that
+        long. Then one zero frame is written.
+
+        Raises:
+            ValueError: NaN, infinity, a value that overflows the wire field, or a bad
+                ``duration``; nothing is written.
+            NotConnectedError: The port is not open.
+        """
+        factory = self._velocity_frame(linear, angular)
+        self._drive(factory, check_duration(duration), f"({linear}, {angular})")
+        await anyio.lowlevel.checkpoint()
+
+    def _drive(self, factory: FrameFactory, duration: float | None, description: str) -> None:
+        self._ensure_connected()
+        self._watchdog.command(factory, self._zero_frame, duration, description)
+
+    async def stop(self) -> None:
+        """Write zero velocity now and end the active command.
+
+        Raises:
+            NotConnectedError: The port is not open (the command is ended anyway).
+        """
+        self._watchdog.clear()
+        self._ensure_connected()
+        self._watchdog.stop(self._zero_frame)
+        await anyio.lowlevel.checkpoint()
+
+    # --- observability ------------------------------------------------------------------------
+
+    def _link_stats(self, **extra: int) -> LinkStats:
+        d: DecoderStats = self._decoder.stats
+        return LinkStats(
+            bytes_received=d.bytes_received,
+            bytes_sent=self._bytes_sent,
+            frames=d.frames,
+            frames_sent=self._frames_sent,
+            bytes_dropped=d.bytes_dropped,
+            checksum_errors=d.checksum_errors,
+            malformed_frames=d.malformed_frames,
+            length_mismatches=d.length_mismatches,
+            unmatched_replies=self._unmatched,
+            queue_drops=sum(s.dropped for s in self._streams),
+            sequence_gaps=self._sequence_gaps,
+            reconnects=self._reconnects,
+            resends=self._watchdog.resends,
+            command_expiries=self._watchdog.expiries,
+            **extra,
+        )
+
+    @property
+    def stats(self) -> LinkStats:
+        """A snapshot of the link counters (see :class:`LinkStats`)."""
+        return self._link_stats()
+
+    @property
+    def last_frame_age(self) -> float | None:
+        """Seconds since the last valid frame arrived, or ``None`` if none has."""
+        link = self._link
+        if link is None or link.last_frame_time is None:
+            return None
+        return time.monotonic() - link.last_frame_time
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.port!r} {self._state.value}>"

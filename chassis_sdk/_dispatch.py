@@ -1,0 +1,223 @@
+"""Dispatch: telemetry fan-out and the pending-request table, shared by both devices.
+
+Both are driven synchronously from the link's ``data_received`` (no task per chunk,
+no task per message): publishing appends to each subscriber's buffer and wakes it;
+resolving a request sets a future's result.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+import weakref
+from collections import deque
+from collections.abc import Hashable
+from types import TracebackType
+from typing import Generic, TypeVar
+
+__all__ = ["Broadcast", "RequestTable", "Subscription"]
+
+T = TypeVar("T")
+K = TypeVar("K", bound=Hashable)
+
+
+class Subscription(Generic[T]):
+    """One consumer's view of a stream: an async iterator with its own bounded buffer.
+
+    Every message published after the subscription was created is delivered, in order,
+    unless the consumer falls more than ``maxlen`` messages behind: then the oldest
+    buffered message is dropped (and counted), so a slow consumer always sees the newest
+    data and never holds more than ``maxlen`` messages in memory.
+
+    Breaking out of ``async for`` unsubscribes: the broadcast holds subscriptions only
+    weakly, so an abandoned iterator is gone as soon as nothing refers to it. Use
+    ``async with`` or :meth:`close` to unsubscribe explicitly.
+    """
+
+    __slots__ = ("__weakref__", "_broadcast", "_buffer", "_ended", "_error", "_waiter", "dropped")
+
+    def __init__(self, broadcast: Broadcast[T], maxlen: int) -> None:
+        self._broadcast = broadcast
+        self._buffer: deque[T] = deque(maxlen=maxlen)
+        self._waiter: asyncio.Future[None] | None = None
+        self._error: BaseException | None = None
+        self._ended = False
+        #: Messages dropped from this subscription's buffer because it fell behind.
+        self.dropped = 0
+
+    def _push(self, item: T) -> None:
+        buffer = self._buffer
+        if len(buffer) == buffer.maxlen:
+            self.dropped += 1
+            self._broadcast.dropped += 1
+        buffer.append(item)
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def _finish(self, error: BaseException | None) -> None:
+        self._ended = True
+        self._error = error
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def close(self) -> None:
+        """Unsubscribe; a pending or later ``__anext__`` ends the iteration."""
+        self._broadcast._discard(self)
+        self._buffer.clear()
+        self._finish(None)
+
+    def __aiter__(self) -> Subscription[T]:
+        return self
+
+    async def __anext__(self) -> T:
+        while True:
+            if self._buffer:
+                return self._buffer.popleft()
+            if self._ended:
+                if self._error is not None:
+                    raise self._error
+                raise StopAsyncIteration
+            waiter = asyncio.get_running_loop().create_future()
+            self._waiter = waiter
+            try:
+                await waiter
+            finally:
+                self._waiter = None
+
+    async def __aenter__(self) -> Subscription[T]:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class Broadcast(Generic[T]):
+    """A stream with any number of subscribers; each gets every message.
+
+    Args:
+        maxlen: Per-subscriber buffer size (``queue_size`` of the device).
+    """
+
+    __slots__ = ("_closed", "_error", "_subscribers", "dropped", "maxlen")
+
+    def __init__(self, maxlen: int) -> None:
+        self.maxlen = maxlen
+        self._subscribers: weakref.WeakSet[Subscription[T]] = weakref.WeakSet()
+        self._closed = False
+        self._error: BaseException | None = None
+        #: Messages dropped across all subscribers because one fell behind.
+        self.dropped = 0
+
+    def __len__(self) -> int:
+        return len(self._subscribers)
+
+    def subscribe(self) -> Subscription[T]:
+        """Return a new subscription; it receives everything published from now on.
+
+        If the stream has failed (link lost, no reconnect), the subscription raises that
+        error at once; if it has been closed, it ends at once.
+        """
+        sub = Subscription(self, self.maxlen)
+        if self._closed:
+            sub._finish(copy.copy(self._error))
+        else:
+            self._subscribers.add(sub)
+        return sub
+
+    def publish(self, item: T) -> None:
+        """Deliver ``item`` to every subscriber (synchronous, never blocks)."""
+        for sub in self._subscribers:
+            sub._push(item)
+
+    def fail(self, error: BaseException | None) -> None:
+        """End every subscription after its buffered items: with ``error`` raised, or,
+        if it is ``None``, with a normal end of iteration. Later subscriptions end the
+        same way at once, until :meth:`reopen`."""
+        self._closed = True
+        self._error = error
+        subs = list(self._subscribers)
+        self._subscribers = weakref.WeakSet()
+        for sub in subs:
+            # One instance each: an exception raised in several tasks would collect
+            # all their tracebacks.
+            sub._finish(copy.copy(error))
+
+    def reopen(self) -> None:
+        """Accept subscribers again (after :meth:`fail`, on a new connection)."""
+        self._closed = False
+        self._error = None
+
+    def _discard(self, sub: Subscription[T]) -> None:
+        self._subscribers.discard(sub)
+
+
+class RequestTable(Generic[K, T]):
+    """Futures waiting for replies, keyed by what the reply carries.
+
+    Several waiters may share a key (protocol A replies carry no tag, so concurrent
+    requests for the same reply id are answered in order): they queue, first in, first
+    served. Protocol B keys are unique while in flight; :meth:`pending` lets the
+    allocator skip ids in use.
+    """
+
+    __slots__ = ("_waiters",)
+
+    def __init__(self) -> None:
+        self._waiters: dict[K, deque[asyncio.Future[T]]] = {}
+
+    def __len__(self) -> int:
+        return sum(len(q) for q in self._waiters.values())
+
+    def expect(self, key: K) -> asyncio.Future[T]:
+        """Register a waiter for ``key`` and return its future."""
+        fut: asyncio.Future[T] = asyncio.get_running_loop().create_future()
+        self._waiters.setdefault(key, deque()).append(fut)
+        return fut
+
+    def pending(self, key: K) -> bool:
+        """True if a waiter for ``key`` is registered."""
+        return key in self._waiters
+
+    def resolve(self, key: K, value: T) -> bool:
+        """Give ``value`` to the oldest live waiter for ``key``.
+
+        Returns:
+            False if nobody was waiting (the caller counts it as unmatched).
+        """
+        queue = self._waiters.get(key)
+        while queue:
+            fut = queue.popleft()
+            if not queue:
+                del self._waiters[key]
+            if not fut.done():
+                fut.set_result(value)
+                return True
+            queue = self._waiters.get(key)
+        return False
+
+    def discard(self, key: K, fut: asyncio.Future[T]) -> None:
+        """Remove a waiter (after its timeout or cancellation)."""
+        queue = self._waiters.get(key)
+        if queue is None:
+            return
+        try:
+            queue.remove(fut)
+        except ValueError:
+            return
+        if not queue:
+            del self._waiters[key]
+
+    def fail_all(self, error: BaseException) -> None:
+        """Fail every waiter with ``error`` (the link is gone)."""
+        waiters, self._waiters = self._waiters, {}
+        for queue in waiters.values():
+            for fut in queue:
+                if not fut.done():
+                    fut.set_exception(error)

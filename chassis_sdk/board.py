@@ -1,0 +1,235 @@
+"""``Board``: the protocol B controller board (IMU, LED, buzzer, motors, servos)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import anyio
+
+from ._device import Device
+from ._dispatch import Subscription
+from ._watchdog import FrameFactory
+from .protocol.board import (
+    BatteryReading,
+    BoardDecoder,
+    BoardEncoder,
+    BoardMessage,
+    BoardType,
+    BuzzerCommand,
+    BuzzerReply,
+    ImuSample,
+    LedCommand,
+    LedReply,
+    LogMessage,
+    SwitchAction,
+    VelocityCommand,
+    VelocityFeedback,
+    motor_pwm_command,
+    servo_command,
+    velocity_command,
+)
+
+__all__ = ["Board"]
+
+_ZERO = VelocityCommand(0, 0)
+_Key = tuple[BoardType, int]
+
+
+class Board(Device[BoardMessage, _Key]):
+    """A controller board speaking protocol B, over a serial port, pty or TCP socket.
+
+    Lifetime, options, the velocity watchdog and the deadman are exactly those of
+    :class:`~chassis_sdk.Chassis`.
+
+    LED and buzzer requests carry a one-byte request id that the board copies into its
+    reply. Ids are allocated round-robin, skipping any still in flight, so any number of
+    requests (up to 256) may be outstanding and replies may come back in any order.
+
+    Example:
+        >>> async def main() -> None:  # doctest: +SKIP
+        ...     async with Board("/dev/ttyUSB0") as board:
+        ...         await board.set_led(True)
+        ...         async for sample in board.imu():
+        ...             print(sample.accel.z)
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 115200,
+        request_timeout: float = 1.0,
+        retries: int = 2,
+        resend_interval: float = 0.05,
+        command_timeout: float | None = 0.5,
+        reconnect: bool = False,
+        queue_size: int = 64,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        super().__init__(
+            port,
+            baudrate=baudrate,
+            request_timeout=request_timeout,
+            retries=retries,
+            resend_interval=resend_interval,
+            command_timeout=command_timeout,
+            reconnect=reconnect,
+            queue_size=queue_size,
+            logger=logger,
+        )
+        self._encoder = BoardEncoder()
+        self._next_id = 0
+        self._id_slots: anyio.Semaphore | None = None
+        self._imu = self._stream()
+        self._velocity = self._stream()
+        self._battery = self._stream()
+        self._logs = self._stream()
+        self._latest_imu: ImuSample | None = None
+        self._latest_velocity: VelocityFeedback | None = None
+        self._latest_battery: BatteryReading | None = None
+        self._handlers: dict[type, Callable[[Any], None]] = {
+            ImuSample: self._on_imu,
+            VelocityFeedback: self._on_velocity,
+            BatteryReading: self._on_battery,
+            LogMessage: self._on_log,
+            LedReply: lambda m: self._resolve((BoardType.LED, m.request_id), m),
+            BuzzerReply: lambda m: self._resolve((BoardType.BUZZER, m.request_id), m),
+        }
+
+    # --- Device hooks -----------------------------------------------------------------------
+
+    def _make_decoder(self) -> BoardDecoder:
+        return BoardDecoder()
+
+    def _handle(self, msg: BoardMessage) -> None:
+        self._handlers[type(msg)](msg)
+
+    def _on_imu(self, m: ImuSample) -> None:
+        self._latest_imu = m
+        self._imu.publish(m)
+
+    def _on_velocity(self, m: VelocityFeedback) -> None:
+        self._latest_velocity = m
+        self._velocity.publish(m)
+
+    def _on_battery(self, m: BatteryReading) -> None:
+        self._latest_battery = m
+        self._battery.publish(m)
+
+    def _on_log(self, m: LogMessage) -> None:
+        self._log.debug("%s: board log: %s", self.port, m.text)
+        self._logs.publish(m.text)
+
+    def _zero_frame(self) -> bytes:
+        return self._encoder.encode(_ZERO)
+
+    def _velocity_frame(self, linear: float, angular: float) -> FrameFactory:
+        frame = self._encoder.encode(velocity_command(linear, angular))
+        return lambda: frame  # no sequence number: the same bytes every time
+
+    # --- commands without a reply -------------------------------------------------------------
+
+    async def set_motor_pwm(self, motor: int, pwm: int) -> None:
+        """Set one motor's raw PWM value (0x21, for testing the drive train).
+
+        Args:
+            motor: A :class:`~chassis_sdk.protocol.Motor` (1 rear-left, 2 rear-right,
+                3 front-left, 4 front-right).
+            pwm: Signed PWM value (int16).
+
+        Raises:
+            ValueError: Unknown motor or PWM out of int16 range; nothing is written.
+        """
+        await self._send(self._encoder.encode(motor_pwm_command(motor, pwm)))
+
+    async def set_servo(self, servo: int, angle: float) -> None:
+        """Move a servo (0x31) to ``angle`` degrees (0.1° resolution).
+
+        Raises:
+            ValueError: Unknown servo (not 1 or 2) or an angle that overflows.
+        """
+        await self._send(self._encoder.encode(servo_command(servo, angle)))
+
+    # --- requests -------------------------------------------------------------------------------
+
+    def _allocate_id(self, kind: BoardType) -> int:
+        # Unique across LED and buzzer so a stray reply can never be taken for another.
+        pending = self._requests.pending
+        for _ in range(256):
+            rid = self._next_id
+            self._next_id = (rid + 1) & 0xFF
+            if not pending((BoardType.LED, rid)) and not pending((BoardType.BUZZER, rid)):
+                return rid
+        raise AssertionError("no free request id although a slot was acquired")
+
+    async def _switch(self, kind: BoardType, action: SwitchAction) -> bool:
+        if self._id_slots is None:
+            self._id_slots = anyio.Semaphore(256)
+        cls = LedCommand if kind is BoardType.LED else BuzzerCommand
+        encode = self._encoder.encode
+
+        def build() -> tuple[bytes, _Key]:
+            rid = self._allocate_id(kind)
+            return encode(cls(action, rid)), (kind, rid)
+
+        async with self._id_slots:
+            reply: LedReply | BuzzerReply = await self._request(
+                build, read_only=action is SwitchAction.READ, what=f"{kind.name} {action.name}"
+            )
+        return reply.on
+
+    async def set_led(self, on: bool) -> bool:
+        """Switch the LED; return the state the board reports afterwards.
+
+        Raises:
+            RequestTimeoutError: No reply within ``request_timeout``.
+            ConnectionLostError, NotConnectedError: The link is down.
+        """
+        return await self._switch(BoardType.LED, SwitchAction.ON if on else SwitchAction.OFF)
+
+    async def get_led(self) -> bool:
+        """Read the LED state (retried up to ``retries`` times)."""
+        return await self._switch(BoardType.LED, SwitchAction.READ)
+
+    async def set_buzzer(self, on: bool) -> bool:
+        """Switch the buzzer; return the state the board reports afterwards."""
+        return await self._switch(BoardType.BUZZER, SwitchAction.ON if on else SwitchAction.OFF)
+
+    async def get_buzzer(self) -> bool:
+        """Read the buzzer state (retried up to ``retries`` times)."""
+        return await self._switch(BoardType.BUZZER, SwitchAction.READ)
+
+    # --- streams --------------------------------------------------------------------------------
+
+    def imu(self) -> Subscription[ImuSample]:
+        """Subscribe to IMU samples (0x11): accelerometer, gyroscope, magnetometer."""
+        return self._subscribe(self._imu)
+
+    def velocity(self) -> Subscription[VelocityFeedback]:
+        """Subscribe to velocity feedback (0x12), m/s and rad/s."""
+        return self._subscribe(self._velocity)
+
+    def battery(self) -> Subscription[BatteryReading]:
+        """Subscribe to battery readings (0x13), volts."""
+        return self._subscribe(self._battery)
+
+    def logs(self) -> Subscription[str]:
+        """Subscribe to the board's log lines (0xF1)."""
+        return self._subscribe(self._logs)
+
+    @property
+    def latest_imu(self) -> ImuSample | None:
+        """The most recent :class:`ImuSample`, or ``None``."""
+        return self._latest_imu
+
+    @property
+    def latest_velocity(self) -> VelocityFeedback | None:
+        """The most recent :class:`VelocityFeedback`, or ``None``."""
+        return self._latest_velocity
+
+    @property
+    def latest_battery(self) -> BatteryReading | None:
+        """The most recent :class:`BatteryReading`, or ``None``."""
+        return self._latest_battery

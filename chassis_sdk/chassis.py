@@ -1,0 +1,289 @@
+"""``Chassis``: the protocol A robot base, with SI units at the API."""
+
+from __future__ import annotations
+
+import datetime
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import anyio.lowlevel
+
+from ._device import Device
+from ._dispatch import Subscription
+from ._watchdog import FrameFactory
+from .errors import ProtocolError
+from .protocol._scale import check_duration
+from .protocol.chassis import (
+    REPLY_TO,
+    ChassisDecoder,
+    ChassisEncoder,
+    ChassisInfo,
+    ChassisMessage,
+    CommandId,
+    DriverStatus,
+    DriveVelocity,
+    FaultClear,
+    FirmwareVersion,
+    HardwareVersion,
+    PowerTelemetry,
+    ReplyId,
+    ShipDate,
+    Telemetry,
+    velocity_command,
+    wheel_speeds_command,
+)
+
+__all__ = ["Chassis"]
+
+_ZERO = DriveVelocity(0, 0.0)
+
+
+class Chassis(Device[ChassisMessage, ReplyId]):
+    """A robot chassis speaking protocol A, over a serial port, pty or TCP socket.
+
+    Constructing does no I/O. ``async with`` (or :meth:`connect`) opens the port and
+    starts the background tasks; leaving it writes zero velocity, waits for it to leave,
+    and closes the port, also on an exception or cancellation.
+
+    Example:
+        >>> async def main() -> None:  # doctest: +SKIP
+        ...     async with Chassis("/dev/ttyUSB0") as robot:
+        ...         print(await robot.get_chassis_info())
+        ...         async for t in robot.telemetry():
+        ...             print(t.voltage, t.linear, t.status)
+
+    Args:
+        port: Device path (``/dev/ttyUSB0``), pty path, or ``socket://host:port``.
+        baudrate: Serial speed.
+        request_timeout: Seconds to wait for each attempt of a request.
+        retries: Extra attempts for read-only requests after a timeout.
+        resend_interval: Watchdog period: the active velocity command is re-sent this
+            often (s); the firmware stops the wheels after 0.5 s without one.
+        command_timeout: Deadman (s): a velocity command without ``duration`` expires
+            this long after the last call. ``None`` disables it (hold until stop()).
+        reconnect: Reopen the port with backoff when the link drops, instead of failing.
+        queue_size: Buffer per stream subscriber; on overflow the oldest is dropped.
+        logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
+
+    Raises:
+        ValueError: An option is out of range.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 115200,
+        request_timeout: float = 1.0,
+        retries: int = 2,
+        resend_interval: float = 0.05,
+        command_timeout: float | None = 0.5,
+        reconnect: bool = False,
+        queue_size: int = 64,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        super().__init__(
+            port,
+            baudrate=baudrate,
+            request_timeout=request_timeout,
+            retries=retries,
+            resend_interval=resend_interval,
+            command_timeout=command_timeout,
+            reconnect=reconnect,
+            queue_size=queue_size,
+            logger=logger,
+        )
+        self._encoder = ChassisEncoder()
+        self._telemetry = self._stream()
+        self._power = self._stream()
+        self._latest: Telemetry | None = None
+        self._latest_power: PowerTelemetry | None = None
+        self._last_seq: int | None = None
+        self._handlers: dict[type, Callable[[Any], None]] = {
+            Telemetry: self._on_telemetry,
+            PowerTelemetry: self._on_power,
+            DriverStatus: lambda m: self._resolve(ReplyId.DRIVER_STATUS, m),
+            FirmwareVersion: lambda m: self._resolve(ReplyId.FIRMWARE_VERSION, m),
+            HardwareVersion: lambda m: self._resolve(ReplyId.HARDWARE_VERSION, m),
+            ChassisInfo: lambda m: self._resolve(ReplyId.CHASSIS_INFO, m),
+            ShipDate: lambda m: self._resolve(ReplyId.SHIP_DATE, m),
+        }
+
+    # --- Device hooks -----------------------------------------------------------------------
+
+    def _make_decoder(self) -> ChassisDecoder:
+        return ChassisDecoder()
+
+    def _handle(self, msg: ChassisMessage) -> None:
+        self._handlers[type(msg)](msg)
+
+    def _on_telemetry(self, t: Telemetry) -> None:
+        last = self._last_seq
+        if last is not None and t.seq != (last + 1) & 0xFFFF:
+            self._sequence_gaps += 1
+        self._last_seq = t.seq
+        self._latest = t
+        self._telemetry.publish(t)
+
+    def _on_power(self, p: PowerTelemetry) -> None:
+        self._latest_power = p
+        self._power.publish(p)
+
+    def _on_link_up(self) -> None:
+        self._last_seq = None
+
+    def _zero_frame(self) -> bytes:
+        return self._encoder.encode(_ZERO)
+
+    def _velocity_frame(self, linear: float, angular: float) -> FrameFactory:
+        cmd = velocity_command(linear, angular)
+        encode = self._encoder.encode
+        return lambda: encode(cmd)
+
+    # --- motion (set_velocity and stop come from Device) ---------------------------------------
+
+    async def set_wheel_speeds(
+        self, left: float, right: float, *, duration: float | None = None
+    ) -> None:
+        """Drive in wheel mode: left and right side speeds in m/s.
+
+        The front and rear wheel of a side turn alike. Watchdog, deadman and ``duration``
+        behave as for :meth:`set_velocity`.
+
+        Raises:
+            ValueError: NaN, infinity, out of int16 mm/s range, or a bad ``duration``.
+            NotConnectedError: The port is not open.
+        """
+        cmd = wheel_speeds_command(left, right)
+        encode = self._encoder.encode
+        self._drive(lambda: encode(cmd), check_duration(duration), f"wheels ({left}, {right})")
+        await anyio.lowlevel.checkpoint()
+
+    async def emergency_stop(self) -> None:
+        """Engage the software emergency stop (0x03) and end any velocity command.
+
+        The chassis reports it in ``Telemetry.status`` (``SOFTWARE_ESTOP``).
+        """
+        self._ensure_connected()
+        self._watchdog.clear()
+        self._write(self._encoder.emergency_stop(True))
+        await self.stop()
+
+    async def release_emergency_stop(self) -> None:
+        """Release the software emergency stop (0x03, 0). The robot does not move until
+        the next velocity command."""
+        await self._send(self._encoder.emergency_stop(False))
+
+    async def clear_faults(
+        self, *, driver: bool = True, front_bumper: bool = True, rear_bumper: bool = True
+    ) -> None:
+        """Clear latched faults (0x05).
+
+        Raises:
+            ValueError: Nothing selected to clear.
+        """
+        what = FaultClear(0)
+        if driver:
+            what |= FaultClear.DRIVER
+        if front_bumper:
+            what |= FaultClear.FRONT_BUMPER
+        if rear_bumper:
+            what |= FaultClear.REAR_BUMPER
+        if not what:
+            raise ValueError("clear_faults() with nothing to clear: select at least one")
+        await self._send(self._encoder.clear_faults(what))
+
+    async def start_docking(self) -> None:
+        """Start automatic docking (0x06, 1); follow ``Telemetry.docking``."""
+        await self._send(self._encoder.docking(True))
+
+    async def stop_docking(self) -> None:
+        """Stop automatic docking (0x06, 0)."""
+        await self._send(self._encoder.docking(False))
+
+    async def enable_telemetry(self, enabled: bool = True) -> None:
+        """Switch the 50 Hz telemetry stream on or off (0x01). On at power-up."""
+        await self._send(self._encoder.set_telemetry(enabled))
+
+    async def enable_power_telemetry(self, enabled: bool = True) -> None:
+        """Switch the 20 Hz driver current/voltage stream on or off (0xB1)."""
+        await self._send(self._encoder.set_power_telemetry(enabled))
+
+    # --- requests -------------------------------------------------------------------------------
+
+    async def _read(self, what: CommandId) -> Any:
+        reply = REPLY_TO[what]
+        encoder = self._encoder
+        return await self._request(
+            lambda: (encoder.read(what), reply), read_only=True, what=f"{what.name} (0x{what:02X})"
+        )
+
+    async def get_firmware_version(self) -> int:
+        """Read the firmware version number (0x07 → 0x87).
+
+        Raises:
+            RequestTimeoutError: No reply within ``request_timeout`` on any attempt.
+            ConnectionLostError: The link dropped while waiting.
+            NotConnectedError: The port is not open.
+        """
+        reply: FirmwareVersion = await self._read(CommandId.FIRMWARE_VERSION)
+        return reply.version
+
+    async def get_hardware_version(self) -> str:
+        """Read the hardware version string (0x08 → 0x88). Raises as
+        :meth:`get_firmware_version`."""
+        reply: HardwareVersion = await self._read(CommandId.HARDWARE_VERSION)
+        return reply.text
+
+    async def get_chassis_info(self) -> ChassisInfo:
+        """Read the geometry (0x09 → 0x89), lengths in metres. Raises as
+        :meth:`get_firmware_version`."""
+        reply: ChassisInfo = await self._read(CommandId.CHASSIS_INFO)
+        return reply
+
+    async def get_ship_date(self) -> datetime.date:
+        """Read the ship date (0x0A → 0x8A).
+
+        Raises:
+            ProtocolError: The device sent an impossible date.
+            RequestTimeoutError, ConnectionLostError, NotConnectedError: As for
+                :meth:`get_firmware_version`.
+        """
+        reply: ShipDate = await self._read(CommandId.SHIP_DATE)
+        try:
+            return reply.to_date()
+        except ValueError as exc:
+            raise ProtocolError(f"device sent an invalid ship date {reply}: {exc}") from None
+
+    async def get_driver_status(self) -> DriverStatus:
+        """Read the four motor drivers' status (0xB0 → 0xB0). Raises as
+        :meth:`get_firmware_version`."""
+        reply: DriverStatus = await self._read(CommandId.DRIVER_STATUS)
+        return reply
+
+    # --- streams --------------------------------------------------------------------------------
+
+    def telemetry(self) -> Subscription[Telemetry]:
+        """Subscribe to the 50 Hz telemetry: an async iterator of :class:`Telemetry`.
+
+        Every subscriber gets every frame from the moment of the call; one that falls
+        ``queue_size`` frames behind loses the oldest (counted in ``stats.queue_drops``).
+        Breaking out of the loop unsubscribes. Without ``reconnect`` the iterator raises
+        :class:`ConnectionLostError` when the link drops; it ends when the device closes.
+        """
+        return self._subscribe(self._telemetry)
+
+    def power(self) -> Subscription[PowerTelemetry]:
+        """Subscribe to the 20 Hz 0xB1 stream (after :meth:`enable_power_telemetry`)."""
+        return self._subscribe(self._power)
+
+    @property
+    def latest_telemetry(self) -> Telemetry | None:
+        """The most recent :class:`Telemetry`, or ``None`` before the first."""
+        return self._latest
+
+    @property
+    def latest_power(self) -> PowerTelemetry | None:
+        """The most recent :class:`PowerTelemetry`, or ``None``."""
+        return self._latest_power

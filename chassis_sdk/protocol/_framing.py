@@ -1,0 +1,152 @@
+"""The incremental framing core shared by every decoder in this package.
+
+Why it is shaped this way
+-------------------------
+A serial port hands us bytes in arbitrary chunks: one byte, half a frame, ten frames,
+and on a noisy line, garbage anywhere. Both protocols frame messages the same way: a
+two-byte head, a header from which the frame's length can be worked out, and a check.
+What differs is how the length is found and how the frame is checked, so the scanning
+loop lives here once and each protocol supplies a single ``_try_frame`` method.
+
+The loop keeps one rule that makes it robust: a candidate frame that fails (bad tail,
+bad checksum, impossible length) gives up **only its first byte**. Scanning resumes at
+the next head *inside the same buffer*, so a false head in the noise can never swallow
+a good frame that starts within the bytes it claimed. The price is that a false head
+with a long claimed length delays (never loses) the frames behind it until enough bytes
+have arrived to reject it; frame lengths are bounded by the one-byte length fields, so
+that delay is bounded too.
+
+The buffer never holds more than one incomplete candidate after ``feed`` returns (at
+most the largest frame, 259 bytes), plus a possible first head byte: its size is bounded
+without any explicit limit, whatever the input.
+
+Nothing here does I/O or reads a clock: the caller passes a timestamp in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Generic, TypeVar
+
+__all__ = ["INVALID", "NEED_DATA", "DecoderStats", "FrameDecoder"]
+
+T = TypeVar("T")
+
+#: ``_try_frame`` result: the candidate at this offset is incomplete; wait for more bytes.
+NEED_DATA = 0
+#: ``_try_frame`` result: the candidate at this offset is not a frame; skip one byte.
+INVALID = -1
+
+
+@dataclass(slots=True)
+class DecoderStats:
+    """Counters of what a decoder has seen and dropped.
+
+    Attributes:
+        bytes_received: Every byte fed in.
+        frames: Frames decoded into messages.
+        bytes_dropped: Bytes skipped as noise (garbage, false heads, rejected frames).
+        checksum_errors: Candidates with a plausible header and tail whose check failed.
+        malformed_frames: Frames that passed the check but whose content was invalid
+            (an unknown drive mode, log text that is not UTF-8, ...).
+        length_mismatches: Frames accepted although their length byte was wrong (the
+            vendor's 0x89 example has this defect; real firmware may too).
+    """
+
+    bytes_received: int = 0
+    frames: int = 0
+    bytes_dropped: int = 0
+    checksum_errors: int = 0
+    malformed_frames: int = 0
+    length_mismatches: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Return the counters as a plain ``dict`` (handy for logging and JSON)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+class FrameDecoder(Generic[T]):
+    """Incremental decoder: ``feed`` bytes in any chunking, get complete messages out.
+
+    Subclasses set ``_head`` (the two head bytes) and implement :meth:`_try_frame`.
+    """
+
+    _head: bytes = b""
+
+    __slots__ = ("_buf", "stats")
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self.stats = DecoderStats()
+
+    def reset(self) -> None:
+        """Forget any partial frame (after a reconnect, for example). Stats are kept."""
+        self._buf.clear()
+
+    @property
+    def buffered(self) -> int:
+        """How many bytes are held waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview, timestamp: float = 0.0) -> list[T]:
+        """Consume ``data`` and return every message completed by it, in wire order.
+
+        Args:
+            data: The bytes as they arrived; any chunking, garbage included.
+            timestamp: Time of receipt, stored on timestamped messages. The decoder never
+                reads a clock itself; the link passes ``time.monotonic()``.
+
+        Returns:
+            The decoded messages (possibly none). Never raises for any input.
+        """
+        buf = self._buf
+        buf += data
+        stats = self.stats
+        stats.bytes_received += len(data)
+        out: list[T] = []
+        head = self._head
+        first = head[0]
+        n = len(buf)
+        pos = 0
+        dropped = 0
+        try_frame = self._try_frame
+        while pos < n:
+            start = buf.find(head, pos)
+            if start < 0:
+                # Keep a trailing first head byte: its partner may be in the next chunk.
+                keep = n - 1 if buf[n - 1] == first else n
+                dropped += keep - pos
+                pos = keep
+                break
+            dropped += start - pos
+            consumed = try_frame(buf, start, n, out, timestamp)
+            if consumed > 0:
+                pos = start + consumed
+            elif consumed == NEED_DATA:
+                pos = start
+                break
+            else:
+                dropped += 1
+                pos = start + 1
+        if pos:
+            del buf[:pos]
+        if dropped:
+            stats.bytes_dropped += dropped
+        return out
+
+    def _try_frame(self, buf: bytearray, start: int, end: int, out: list[T], ts: float) -> int:
+        """Try to decode one frame whose head is at ``buf[start]``.
+
+        Args:
+            buf: The buffer; valid bytes are ``buf[start:end]``.
+            start: Offset of the head.
+            end: End of the valid bytes.
+            out: Append the decoded message here (or nothing, for a frame that is
+                recognised but carries no message).
+            ts: Timestamp to store on the message.
+
+        Returns:
+            The frame's length in bytes if it was consumed, :data:`NEED_DATA` if the
+            candidate is still incomplete, :data:`INVALID` if it is not a frame.
+        """
+        raise NotImplementedError

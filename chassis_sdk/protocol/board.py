@@ -1,0 +1,499 @@
+"""Protocol B, the controller-board protocol: frames, typed messages, encoder and decoders.
+
+Frame layout (integers little-endian)::
+
+    head (FE CE board->host, AB BC host->board) | type u8 | len u8 | data (len - 1) | check u8
+
+``len`` counts the data bytes plus the check byte; ``check`` is
+``(type + len + sum(data)) & 0xFF`` (the head is not summed).
+
+Why the decoder is stricter than the framing requires
+------------------------------------------------------
+There is no tail and no sequence number, and the check is a single byte, so one random
+candidate in 256 passes it. To keep noise from producing phantom messages the decoder
+only accepts the known types, each with its exact length; log text (the one variable
+frame) must be printable UTF-8. A candidate that fails any test gives up only its first
+byte, and scanning resumes inside the buffer (see ``_framing``).
+
+This module is I/O-free.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, ClassVar, NamedTuple, TypeAlias, TypeVar
+
+from ._framing import INVALID, NEED_DATA, FrameDecoder
+from ._scale import INT16, UINT8, scale_to_int
+
+__all__ = [
+    "DEVICE_HEAD",
+    "HOST_HEAD",
+    "BatteryReading",
+    "BoardCommand",
+    "BoardCommandDecoder",
+    "BoardDecoder",
+    "BoardEncoder",
+    "BoardMessage",
+    "BoardType",
+    "BuzzerCommand",
+    "BuzzerReply",
+    "ImuSample",
+    "LedCommand",
+    "LedReply",
+    "LogMessage",
+    "Motor",
+    "MotorPwmCommand",
+    "Servo",
+    "ServoCommand",
+    "SwitchAction",
+    "Vector3",
+    "VelocityCommand",
+    "VelocityFeedback",
+    "encode_frame",
+    "motor_pwm_command",
+    "servo_command",
+    "velocity_command",
+]
+
+#: Head of frames from the board to the host.
+DEVICE_HEAD = b"\xfe\xce"
+#: Head of frames from the host to the board.
+HOST_HEAD = b"\xab\xbc"
+
+#: Accelerometer scale: raw / 164.0 (per the vendor document).
+ACCEL_SCALE = 164.0
+#: Gyroscope scale: raw / 16.4 (per the vendor document).
+GYRO_SCALE = 16.4
+
+
+class BoardType(IntEnum):
+    """Message types of protocol B (both directions)."""
+
+    LED = 0x01  #: LED command (host) or LED state reply (board)
+    BUZZER = 0x02  #: buzzer command (host) or buzzer state reply (board)
+    IMU = 0x11  #: IMU sample: accelerometer, gyroscope, magnetometer
+    VELOCITY_FEEDBACK = 0x12  #: measured linear and angular velocity
+    BATTERY = 0x13  #: battery voltage
+    MOTOR_PWM = 0x21  #: raw PWM for one motor (test use)
+    VELOCITY = 0x22  #: velocity command
+    SERVO = 0x31  #: servo angle command
+    LOG = 0xF1  #: a line of log text
+
+
+class SwitchAction(IntEnum):
+    """The command byte of an LED or buzzer request."""
+
+    OFF = 0  #: switch off
+    ON = 1  #: switch on
+    READ = 2  #: only report the state
+
+
+class Motor(IntEnum):
+    """Motor numbers of the 0x21 PWM command."""
+
+    REAR_LEFT = 1  #: rear-left wheel
+    REAR_RIGHT = 2  #: rear-right wheel
+    FRONT_LEFT = 3  #: front-left wheel
+    FRONT_RIGHT = 4  #: front-right wheel
+
+
+class Servo(IntEnum):
+    """Servo channels of the 0x31 servo command."""
+
+    FIRST = 1  #: servo channel 1
+    SECOND = 2  #: servo channel 2
+
+
+class Vector3(NamedTuple):
+    """Three axes of one sensor."""
+
+    x: float
+    y: float
+    z: float
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    """The 0x11 IMU frame.
+
+    Attributes:
+        accel: Acceleration, raw / 164.0 (the vendor's scale; in g for a ±2 g part).
+        gyro: Angular rate, raw / 16.4 (the vendor's scale; degrees per second).
+        mag: Magnetic field, raw counts (the document gives no scale).
+        timestamp: ``time.monotonic()`` at receipt (0.0 without a clock).
+    """
+
+    accel: Vector3
+    gyro: Vector3
+    mag: Vector3
+    timestamp: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class VelocityFeedback:
+    """The 0x12 velocity feedback frame (m/s and rad/s)."""
+
+    linear: float
+    angular: float
+    timestamp: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class BatteryReading:
+    """The 0x13 battery frame (V)."""
+
+    voltage: float
+    timestamp: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class LogMessage:
+    """The 0xF1 log frame: one line of text from the board's firmware."""
+
+    text: str
+    timestamp: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class LedReply:
+    """The 0x01 reply: the LED state after the request tagged ``request_id``."""
+
+    request_id: int
+    on: bool
+
+
+@dataclass(frozen=True, slots=True)
+class BuzzerReply:
+    """The 0x02 reply: the buzzer state after the request tagged ``request_id``."""
+
+    request_id: int
+    on: bool
+
+
+@dataclass(frozen=True, slots=True)
+class LedCommand:
+    """0x01 request: switch or read the LED; the reply carries ``request_id`` back."""
+
+    action: SwitchAction
+    request_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class BuzzerCommand:
+    """0x02 request: switch or read the buzzer; the reply carries ``request_id`` back."""
+
+    action: SwitchAction
+    request_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class MotorPwmCommand:
+    """0x21: raw PWM value for one motor."""
+
+    motor: Motor
+    pwm: int
+
+
+@dataclass(frozen=True, slots=True)
+class VelocityCommand:
+    """0x22: linear and angular velocity in thousandths (mm/s and mrad/s)."""
+
+    linear_milli: int
+    angular_milli: int
+
+
+@dataclass(frozen=True, slots=True)
+class ServoCommand:
+    """0x31: servo angle in tenths of a degree."""
+
+    servo: Servo
+    angle_tenths: int
+
+
+#: Every message the board sends.
+BoardMessage: TypeAlias = (
+    ImuSample | VelocityFeedback | BatteryReading | LogMessage | LedReply | BuzzerReply
+)
+#: Every frame the host sends.
+BoardCommand: TypeAlias = (
+    LedCommand | BuzzerCommand | MotorPwmCommand | VelocityCommand | ServoCommand
+)
+
+
+def velocity_command(linear: float, angular: float) -> VelocityCommand:
+    """Build a 0x22 command from m/s and rad/s (each sent × 1000 as int16).
+
+    Raises:
+        ValueError: NaN, infinite, or out of int16 range after scaling (±32.767).
+    """
+    return VelocityCommand(
+        scale_to_int(linear, 1000, INT16, "linear", "m/s"),
+        scale_to_int(angular, 1000, INT16, "angular", "rad/s"),
+    )
+
+
+def motor_pwm_command(motor: int, pwm: int) -> MotorPwmCommand:
+    """Build a 0x21 command, checking the motor number and the int16 PWM value.
+
+    Raises:
+        ValueError: Unknown motor, or a PWM value that is not an int16 integer.
+    """
+    try:
+        m = Motor(motor)
+    except ValueError:
+        raise ValueError(
+            f"unknown motor {motor!r}: use Motor.REAR_LEFT (1), REAR_RIGHT (2), "
+            "FRONT_LEFT (3) or FRONT_RIGHT (4)"
+        ) from None
+    if isinstance(pwm, bool) or not isinstance(pwm, int):
+        raise ValueError(f"pwm must be an integer, got {pwm!r}")
+    if not INT16[0] <= pwm <= INT16[1]:
+        raise ValueError(f"pwm={pwm} is out of range: the wire field holds -32768..32767")
+    return MotorPwmCommand(m, pwm)
+
+
+def servo_command(servo: int, angle: float) -> ServoCommand:
+    """Build a 0x31 command from a servo number and an angle in degrees (sent × 10).
+
+    Raises:
+        ValueError: Unknown servo, or an angle that is NaN, infinite or overflows int16
+            after scaling (±3276.7°).
+    """
+    try:
+        s = Servo(servo)
+    except ValueError:
+        raise ValueError(f"unknown servo {servo!r}: use 1 or 2") from None
+    return ServoCommand(s, scale_to_int(angle, 10, INT16, "angle", "degrees"))
+
+
+def encode_frame(head: bytes, msg_type: int, data: bytes) -> bytes:
+    """Wrap ``data`` in a protocol B frame with the given head.
+
+    Raises:
+        ValueError: ``msg_type`` out of range or more than 254 data bytes.
+    """
+    if not 0 <= msg_type <= 0xFF:
+        raise ValueError(f"message type must be 0..255, got {msg_type}")
+    length = len(data) + 1
+    if length > 0xFF:
+        raise ValueError(f"{len(data)} data bytes do not fit a frame (max 254)")
+    check = (msg_type + length + sum(data)) & 0xFF
+    return head + bytes((msg_type, length)) + data + bytes((check,))
+
+
+_I16 = struct.Struct("<h")
+_IMU = struct.Struct("<9h")
+_TWO_I16 = struct.Struct("<hh")
+_ID_I16 = struct.Struct("<Bh")
+
+
+def _request_id(rid: int) -> int:
+    if not UINT8[0] <= rid <= UINT8[1]:
+        raise ValueError(f"request id must be 0..255, got {rid}")
+    return rid
+
+
+def _pack(msg: BoardMessage | BoardCommand) -> tuple[bytes, int, bytes]:
+    """Return ``(head, type, data)`` for any message of this protocol."""
+    if isinstance(msg, LedCommand | BuzzerCommand):
+        t = BoardType.LED if isinstance(msg, LedCommand) else BoardType.BUZZER
+        return HOST_HEAD, t, bytes((SwitchAction(msg.action), _request_id(msg.request_id)))
+    if isinstance(msg, MotorPwmCommand):
+        return HOST_HEAD, BoardType.MOTOR_PWM, _ID_I16.pack(msg.motor, msg.pwm)
+    if isinstance(msg, VelocityCommand):
+        return HOST_HEAD, BoardType.VELOCITY, _TWO_I16.pack(msg.linear_milli, msg.angular_milli)
+    if isinstance(msg, ServoCommand):
+        return HOST_HEAD, BoardType.SERVO, _ID_I16.pack(msg.servo, msg.angle_tenths)
+    if isinstance(msg, ImuSample):
+        raw = (
+            *(round(v * ACCEL_SCALE) for v in msg.accel),
+            *(round(v * GYRO_SCALE) for v in msg.gyro),
+            *(round(v) for v in msg.mag),
+        )
+        return DEVICE_HEAD, BoardType.IMU, _IMU.pack(*raw)
+    if isinstance(msg, VelocityFeedback):
+        return (
+            DEVICE_HEAD,
+            BoardType.VELOCITY_FEEDBACK,
+            _TWO_I16.pack(round(msg.linear * 1000), round(msg.angular * 1000)),
+        )
+    if isinstance(msg, BatteryReading):
+        return DEVICE_HEAD, BoardType.BATTERY, _I16.pack(round(msg.voltage * 100))
+    if isinstance(msg, LogMessage):
+        return DEVICE_HEAD, BoardType.LOG, msg.text.encode("utf-8")
+    if isinstance(msg, LedReply | BuzzerReply):
+        t = BoardType.LED if isinstance(msg, LedReply) else BoardType.BUZZER
+        return DEVICE_HEAD, t, bytes((_request_id(msg.request_id), int(msg.on)))
+    raise TypeError(f"not a protocol B message: {msg!r}")
+
+
+class BoardEncoder:
+    """Turns protocol B messages into frames (host commands with ``AB BC``, board
+    messages with ``FE CE``). Stateless: protocol B has no sequence number.
+
+    Example:
+        >>> BoardEncoder().encode(LedCommand(SwitchAction.ON, 1)).hex(" ")
+        'ab bc 01 03 01 01 06'
+    """
+
+    __slots__ = ()
+
+    def encode(self, msg: BoardMessage | BoardCommand) -> bytes:
+        """Encode one message.
+
+        Raises:
+            ValueError: A field does not fit its wire type.
+        """
+        try:
+            head, msg_type, data = _pack(msg)
+        except (struct.error, OverflowError, UnicodeEncodeError) as exc:
+            raise ValueError(f"{msg!r} does not fit the wire format: {exc}") from None
+        return encode_frame(head, msg_type, data)
+
+
+# --- decoding ----------------------------------------------------------------------------
+
+_Parser = Callable[[bytearray, int, int, float], Any]
+_ALLOWED_CONTROL = frozenset(b"\t\n\r")
+
+
+def _parse_imu(b: bytearray, o: int, n: int, ts: float) -> ImuSample:
+    ax, ay, az, gx, gy, gz, mx, my, mz = _IMU.unpack_from(b, o)
+    return ImuSample(
+        Vector3(ax / ACCEL_SCALE, ay / ACCEL_SCALE, az / ACCEL_SCALE),
+        Vector3(gx / GYRO_SCALE, gy / GYRO_SCALE, gz / GYRO_SCALE),
+        Vector3(float(mx), float(my), float(mz)),
+        ts,
+    )
+
+
+def _parse_velocity(b: bytearray, o: int, n: int, ts: float) -> VelocityFeedback:
+    v, w = _TWO_I16.unpack_from(b, o)
+    return VelocityFeedback(v / 1000, w / 1000, ts)
+
+
+def _parse_battery(b: bytearray, o: int, n: int, ts: float) -> BatteryReading:
+    return BatteryReading(_I16.unpack_from(b, o)[0] / 100, ts)
+
+
+def _parse_log(b: bytearray, o: int, n: int, ts: float) -> LogMessage | None:
+    raw = bytes(b[o : o + n])
+    if any(c < 0x20 and c not in _ALLOWED_CONTROL for c in raw) or 0x7F in raw:
+        return None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    return LogMessage(text.rstrip("\r\n"), ts)
+
+
+def _parse_switch_reply(b: bytearray, o: int, n: int, ts: float) -> LedReply | BuzzerReply | None:
+    state = b[o + 1]
+    if state > 1:
+        return None
+    cls = LedReply if b[o - 2] == BoardType.LED else BuzzerReply
+    return cls(b[o], bool(state))
+
+
+def _parse_switch_cmd(b: bytearray, o: int, n: int, ts: float) -> LedCommand | BuzzerCommand | None:
+    action = b[o]
+    if action > 2:
+        return None
+    cls = LedCommand if b[o - 2] == BoardType.LED else BuzzerCommand
+    return cls(SwitchAction(action), b[o + 1])
+
+
+def _parse_pwm(b: bytearray, o: int, n: int, ts: float) -> MotorPwmCommand | None:
+    motor, pwm = _ID_I16.unpack_from(b, o)
+    if not 1 <= motor <= 4:
+        return None
+    return MotorPwmCommand(Motor(motor), pwm)
+
+
+def _parse_velocity_cmd(b: bytearray, o: int, n: int, ts: float) -> VelocityCommand:
+    v, w = _TWO_I16.unpack_from(b, o)
+    return VelocityCommand(v, w)
+
+
+def _parse_servo(b: bytearray, o: int, n: int, ts: float) -> ServoCommand | None:
+    servo, angle = _ID_I16.unpack_from(b, o)
+    if not 1 <= servo <= 2:
+        return None
+    return ServoCommand(Servo(servo), angle)
+
+
+#: type -> (len byte, or 0 if variable; parser)
+_FrameTable = dict[int, tuple[int, _Parser]]
+
+_DEVICE_FRAMES: _FrameTable = {
+    BoardType.IMU: (0x13, _parse_imu),
+    BoardType.VELOCITY_FEEDBACK: (0x05, _parse_velocity),
+    BoardType.BATTERY: (0x03, _parse_battery),
+    BoardType.LED: (0x03, _parse_switch_reply),
+    BoardType.BUZZER: (0x03, _parse_switch_reply),
+    BoardType.LOG: (0, _parse_log),
+}
+
+_HOST_FRAMES: _FrameTable = {
+    BoardType.LED: (0x03, _parse_switch_cmd),
+    BoardType.BUZZER: (0x03, _parse_switch_cmd),
+    BoardType.MOTOR_PWM: (0x04, _parse_pwm),
+    BoardType.VELOCITY: (0x05, _parse_velocity_cmd),
+    BoardType.SERVO: (0x04, _parse_servo),
+}
+
+_M = TypeVar("_M")
+
+
+class _ProtocolBDecoder(FrameDecoder[_M]):
+    """Framing for protocol B, parametrised by head and the table of accepted types."""
+
+    _table: ClassVar[_FrameTable] = {}
+
+    def _try_frame(self, buf: bytearray, start: int, end: int, out: list[_M], ts: float) -> int:
+        if end - start < 4:
+            return NEED_DATA
+        msg_type = buf[start + 2]
+        entry = self._table.get(msg_type)
+        if entry is None:
+            return INVALID
+        expected, parser = entry
+        length = buf[start + 3]
+        if length != expected and (expected or length == 0):
+            return INVALID
+        stop = start + 4 + length
+        if stop > end:
+            return NEED_DATA
+        if (msg_type + length + sum(buf[start + 4 : stop - 1])) & 0xFF != buf[stop - 1]:
+            self.stats.checksum_errors += 1
+            return INVALID
+        msg = parser(buf, start + 4, length - 1, ts)
+        if msg is None:
+            self.stats.malformed_frames += 1
+            return INVALID
+        self.stats.frames += 1
+        out.append(msg)
+        return stop - start
+
+
+class BoardDecoder(_ProtocolBDecoder[BoardMessage]):
+    """Sans-IO decoder of everything the board sends (0x11, 0x12, 0x13, 0xF1, replies).
+
+    Example:
+        >>> BoardDecoder().feed(bytes.fromhex("FE CE 01 03 01 01 06"))
+        [LedReply(request_id=1, on=True)]
+    """
+
+    _head = DEVICE_HEAD
+    _table = _DEVICE_FRAMES
+
+
+class BoardCommandDecoder(_ProtocolBDecoder[BoardCommand]):
+    """Sans-IO decoder of what the host sends to the board (simulator, captures)."""
+
+    _head = HOST_HEAD
+    _table = _HOST_FRAMES

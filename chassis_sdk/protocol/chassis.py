@@ -1,0 +1,761 @@
+"""Protocol A, the chassis protocol: frames, typed messages, encoder and decoders.
+
+Frame layout (all integers little-endian)::
+
+    ED DE | seq u16 | id u8 | len u8 | data (len - 10 bytes) | check u16 | BD BC
+
+``len`` counts the whole frame, head to tail; ``check`` is the sum of every byte before
+it, modulo 65536. See ``PROTOCOL_NOTES.md`` for the field tables and the errata.
+
+This module is I/O-free: bytes in, messages out; messages in, bytes out.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum, IntFlag
+from typing import Any, ClassVar, NamedTuple, TypeAlias, TypeVar
+
+from ._framing import INVALID, NEED_DATA, FrameDecoder
+from ._scale import INT16, scale_to_int
+
+__all__ = [
+    "HEAD",
+    "TAIL",
+    "ChassisCommandDecoder",
+    "ChassisDecoder",
+    "ChassisEncoder",
+    "ChassisInfo",
+    "ChassisMessage",
+    "ChassisStatus",
+    "Command",
+    "CommandId",
+    "DockingState",
+    "DriveVelocity",
+    "DriveWheels",
+    "DriverError",
+    "DriverStatus",
+    "FaultClear",
+    "FirmwareVersion",
+    "HardwareVersion",
+    "HostCommand",
+    "MotorStatus",
+    "PowerTelemetry",
+    "ReplyId",
+    "ShipDate",
+    "Telemetry",
+    "WheelCurrents",
+    "WheelDriver",
+    "WheelSpeeds",
+    "encode_frame",
+    "velocity_command",
+    "wheel_speeds_command",
+]
+
+#: The two head bytes (0xDEED little-endian).
+HEAD = b"\xed\xde"
+#: The two tail bytes (0xBCBD little-endian).
+TAIL = b"\xbd\xbc"
+_HEADER = struct.Struct("<HHBB")
+_CHECK = struct.Struct("<H")
+_OVERHEAD = 10  # head 2 + seq 2 + id 1 + len 1 + check 2 + tail 2
+_FLOAT32_MAX = 3.4028234663852886e38
+
+
+class CommandId(IntEnum):
+    """Frame ids the host sends to the chassis."""
+
+    TELEMETRY = 0x01  #: switch the 50 Hz 0x81 telemetry on or off
+    DRIVE = 0x02  #: velocity command, linear mode (0) or wheel mode (1)
+    EMERGENCY_STOP = 0x03  #: software emergency stop (1) or release (0)
+    CLEAR_FAULTS = 0x05  #: clear driver and bumper faults (bit mask)
+    DOCKING = 0x06  #: start (1) or stop (0) automatic docking
+    FIRMWARE_VERSION = 0x07  #: read the firmware version; reply 0x87
+    HARDWARE_VERSION = 0x08  #: read the hardware version string; reply 0x88
+    CHASSIS_INFO = 0x09  #: read the geometry; reply 0x89
+    SHIP_DATE = 0x0A  #: read the ship date; reply 0x8A
+    DRIVER_STATUS = 0xB0  #: read the motor-driver status; reply 0xB0
+    POWER_TELEMETRY = 0xB1  #: switch the 20 Hz 0xB1 current/voltage upload on or off
+
+
+class ReplyId(IntEnum):
+    """Frame ids the chassis sends to the host."""
+
+    TELEMETRY = 0x81  #: 50 Hz telemetry (28 bytes)
+    DRIVER_STATUS = 0xB0  #: motor-driver status (50 bytes), reply to 0xB0
+    POWER = 0xB1  #: 20 Hz driver currents and voltages (22 bytes)
+    FIRMWARE_VERSION = 0x87  #: firmware version (12 bytes)
+    HARDWARE_VERSION = 0x88  #: hardware version, ASCII text (10 + N bytes)
+    CHASSIS_INFO = 0x89  #: geometry (20 bytes)
+    SHIP_DATE = 0x8A  #: ship date (13 bytes)
+
+
+class ChassisStatus(IntFlag):
+    """Status bits of the 0x81 telemetry frame."""
+
+    HARDWARE_ESTOP = 1 << 0  #: the hardware emergency-stop button is pressed
+    REMOTE_ESTOP = 1 << 1  #: the remote control's emergency stop is active
+    SOFTWARE_ESTOP = 1 << 2  #: the host's software emergency stop (0x03) is active
+    REMOTE_OFFLINE = 1 << 3  #: the remote control is off or out of range
+    FRONT_DRIVER_OFFLINE = 1 << 4  #: the front motor driver does not answer
+    REAR_DRIVER_OFFLINE = 1 << 5  #: the rear motor driver does not answer
+    FRONT_LEFT_DRIVER_ERROR = 1 << 6  #: the front-left driver reports an error
+    FRONT_RIGHT_DRIVER_ERROR = 1 << 7  #: the front-right driver reports an error
+    REAR_LEFT_DRIVER_ERROR = 1 << 8  #: the rear-left driver reports an error
+    REAR_RIGHT_DRIVER_ERROR = 1 << 9  #: the rear-right driver reports an error
+    FRONT_BUMPER = 1 << 10  #: the front bumper is triggered
+    REAR_BUMPER = 1 << 11  #: the rear bumper is triggered
+    DOCKING_ENABLED = 1 << 12  #: automatic docking is switched on
+
+    ESTOP = HARDWARE_ESTOP | REMOTE_ESTOP | SOFTWARE_ESTOP  #: any emergency stop
+    DRIVER_FAULT = (
+        FRONT_DRIVER_OFFLINE
+        | REAR_DRIVER_OFFLINE
+        | FRONT_LEFT_DRIVER_ERROR
+        | FRONT_RIGHT_DRIVER_ERROR
+        | REAR_LEFT_DRIVER_ERROR
+        | REAR_RIGHT_DRIVER_ERROR
+    )  #: any driver offline or in error
+    BUMPER = FRONT_BUMPER | REAR_BUMPER  #: either bumper
+
+
+class DockingState(IntEnum):
+    """Docking state of the 0x81 telemetry frame.
+
+    A value the document does not list decodes to a pseudo-member named
+    ``UNKNOWN_<value>`` instead of failing, so new firmware cannot break a loop.
+    """
+
+    SEARCHING = 0  #: searching for the dock's centre line
+    CENTER_FOUND = 1  #: centre line found, approaching
+    SIGNAL_LOST = 2  #: the dock's signal was lost
+    CONTACT = 3  #: the charging contacts touch
+    DOCKED = 4  #: docked and charging
+    ERROR = 5  #: docking failed
+    TIMEOUT = 6  #: docking timed out
+    EXITED = 7  #: left the charging state
+
+    @classmethod
+    def _missing_(cls, value: object) -> DockingState | None:
+        if isinstance(value, int) and 0 <= value <= 0xFFFF:
+            member = int.__new__(cls, value)
+            member._name_ = f"UNKNOWN_{value}"
+            member._value_ = value
+            return member
+        return None
+
+
+class DriverError(IntFlag):
+    """Error bits of one motor driver (0xB0 reply)."""
+
+    UNDER_VOLTAGE = 1 << 0  #: battery under-voltage
+    POSITION_ERROR = 1 << 1  #: position error
+    HALL_SENSOR = 1 << 2  #: hall sensor error
+    OVER_CURRENT = 1 << 3  #: over-current
+    OVERLOAD = 1 << 4  #: overload
+    EEPROM = 1 << 5  #: EEPROM fault
+    IGBT = 1 << 6  #: IGBT (power stage) fault
+    DRIVER_OVER_TEMPERATURE = 1 << 7  #: driver over-temperature
+    MOTOR_DEFECT = 1 << 8  #: motor defect
+    SUPPLY_OUT_OF_TOLERANCE = 1 << 9  #: supply voltage out of tolerance
+    SPEED_OUT_OF_TOLERANCE = 1 << 10  #: speed out of tolerance
+    MOTOR_OVER_TEMPERATURE = 1 << 11  #: motor over-temperature
+    SUPPLY_OVER_VOLTAGE = 1 << 12  #: supply over-voltage
+    RUNAWAY = 1 << 13  #: runaway (speed not under control)
+    #: driver over-temperature, second bit (the document names bits 7 and 14 alike)
+    DRIVER_OVER_TEMPERATURE_2 = 1 << 14
+
+
+class MotorStatus(IntFlag):
+    """Motor status bits of one motor driver (0xB0 reply)."""
+
+    SERVO_STARTED = 1 << 0  #: servo enabled
+    SERVO_RUNNING = 1 << 1  #: servo running
+    ZERO_SPEED = 1 << 2  #: running at zero speed
+    TARGET_SPEED_REACHED = 1 << 3  #: target speed reached
+    TARGET_POSITION_REACHED = 1 << 4  #: target position reached
+    TORQUE_LIMITING = 1 << 5  #: torque limit active
+    WARNING = 1 << 6  #: warning
+    BRAKE_OUTPUT = 1 << 7  #: brake output active
+    HOMING_DONE = 1 << 8  #: homing complete
+    OVERLOAD_THRESHOLD = 1 << 9  #: overload threshold exceeded
+    ERROR_WARNING = 1 << 10  #: error warning
+    COMMAND_COMPLETE = 1 << 11  #: command complete
+    REVERSE_STALL = 1 << 12  #: stalled in reverse
+    FORWARD_STALL = 1 << 13  #: stalled forwards
+
+
+class FaultClear(IntFlag):
+    """What a 0x05 clear-faults frame clears."""
+
+    DRIVER = 1 << 0  #: motor-driver faults
+    FRONT_BUMPER = 1 << 1  #: front bumper latch
+    REAR_BUMPER = 1 << 2  #: rear bumper latch
+
+
+class WheelSpeeds(NamedTuple):
+    """A value per wheel (m/s for speeds)."""
+
+    front_left: float
+    front_right: float
+    rear_left: float
+    rear_right: float
+
+
+class WheelCurrents(NamedTuple):
+    """Motor current per wheel, in amperes."""
+
+    front_left: float
+    front_right: float
+    rear_left: float
+    rear_right: float
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """The 50 Hz 0x81 telemetry frame, in SI units.
+
+    Attributes:
+        voltage: Battery voltage (V).
+        status: Status bits.
+        docking: Docking state.
+        linear: Measured linear velocity (m/s, forward positive).
+        angular: Measured angular velocity (rad/s, counter-clockwise positive).
+        wheels: Measured wheel speeds (m/s).
+        seq: The device's frame sequence number (wraps at 65536).
+        timestamp: ``time.monotonic()`` when the frame was received (0.0 when decoded
+            without a clock).
+    """
+
+    voltage: float
+    status: ChassisStatus
+    docking: DockingState
+    linear: float
+    angular: float
+    wheels: WheelSpeeds
+    seq: int = 0
+    timestamp: float = 0.0
+
+    @property
+    def emergency_stopped(self) -> bool:
+        """True if any emergency stop (hardware, remote or software) is active."""
+        return bool(self.status & ChassisStatus.ESTOP)
+
+
+@dataclass(frozen=True, slots=True)
+class WheelDriver:
+    """Status of one wheel's motor driver.
+
+    Attributes:
+        errors: Driver error bits (empty when healthy).
+        motor: Motor status bits.
+        current: Motor current (A, signed).
+        peak_current: Peak current (A).
+    """
+
+    errors: DriverError
+    motor: MotorStatus
+    current: float
+    peak_current: float
+
+
+@dataclass(frozen=True, slots=True)
+class DriverStatus:
+    """The 0xB0 motor-driver status reply.
+
+    Attributes:
+        front_left: Front-left wheel driver.
+        front_right: Front-right wheel driver.
+        rear_left: Rear-left wheel driver.
+        rear_right: Rear-right wheel driver.
+        temperature_front: Front driver temperature (°C).
+        temperature_rear: Rear driver temperature (°C).
+        voltage_front: Front driver supply voltage (V).
+        voltage_rear: Rear driver supply voltage (V).
+    """
+
+    front_left: WheelDriver
+    front_right: WheelDriver
+    rear_left: WheelDriver
+    rear_right: WheelDriver
+    temperature_front: float
+    temperature_rear: float
+    voltage_front: float
+    voltage_rear: float
+
+    @property
+    def wheels(self) -> tuple[WheelDriver, WheelDriver, WheelDriver, WheelDriver]:
+        """The four drivers in wire order (FL, FR, RL, RR)."""
+        return (self.front_left, self.front_right, self.rear_left, self.rear_right)
+
+
+@dataclass(frozen=True, slots=True)
+class PowerTelemetry:
+    """The 20 Hz 0xB1 driver current and voltage frame.
+
+    Attributes:
+        currents: Motor current per wheel (A).
+        voltage_front: Front driver supply voltage (V).
+        voltage_rear: Rear driver supply voltage (V).
+        seq: The device's frame sequence number.
+        timestamp: ``time.monotonic()`` at receipt (0.0 without a clock).
+    """
+
+    currents: WheelCurrents
+    voltage_front: float
+    voltage_rear: float
+    seq: int = 0
+    timestamp: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class FirmwareVersion:
+    """The 0x87 reply: the firmware version number."""
+
+    version: int
+
+
+@dataclass(frozen=True, slots=True)
+class HardwareVersion:
+    """The 0x88 reply: the hardware version string."""
+
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class ChassisInfo:
+    """The 0x89 reply: the chassis geometry, lengths in metres.
+
+    Attributes:
+        track_width: Distance between left and right wheels (m).
+        wheelbase: Distance between front and rear axles (m).
+        wheel_diameter: Wheel diameter (m).
+        gear_ratio: Motor-to-wheel reduction ratio.
+        encoder_resolution: Encoder lines per motor revolution.
+    """
+
+    track_width: float
+    wheelbase: float
+    wheel_diameter: float
+    gear_ratio: int
+    encoder_resolution: int
+
+
+@dataclass(frozen=True, slots=True)
+class ShipDate:
+    """The 0x8A reply, as sent: year (full, e.g. 2024), month and day."""
+
+    year: int
+    month: int
+    day: int
+
+    def to_date(self) -> datetime.date:
+        """Return the date. Raises ``ValueError`` if the device sent an impossible one."""
+        return datetime.date(self.year, self.month, self.day)
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """A 12-byte host command whose data is one uint16 (every id but 0x02)."""
+
+    id: CommandId
+    value: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class DriveVelocity:
+    """0x02 mode 0: drive with a linear (mm/s) and an angular (rad/s, float32) velocity."""
+
+    linear_mm: int
+    angular: float
+
+
+@dataclass(frozen=True, slots=True)
+class DriveWheels:
+    """0x02 mode 1: drive with left and right side speeds (mm/s)."""
+
+    left_mm: int
+    right_mm: int
+
+
+#: Every message the chassis sends.
+ChassisMessage: TypeAlias = (
+    Telemetry
+    | DriverStatus
+    | PowerTelemetry
+    | FirmwareVersion
+    | HardwareVersion
+    | ChassisInfo
+    | ShipDate
+)
+#: Every frame the host sends.
+HostCommand: TypeAlias = Command | DriveVelocity | DriveWheels
+
+_M = TypeVar("_M")
+
+
+def velocity_command(linear: float, angular: float) -> DriveVelocity:
+    """Build a linear-mode drive command from SI units, checking every value.
+
+    Args:
+        linear: Linear velocity in m/s (sent as int16 mm/s).
+        angular: Angular velocity in rad/s (sent as float32).
+
+    Raises:
+        ValueError: A value is NaN, infinite, or does not fit its wire field.
+    """
+    linear_mm = scale_to_int(linear, 1000, INT16, "linear", "m/s")
+    if isinstance(angular, bool) or not isinstance(angular, int | float):
+        raise ValueError(f"angular must be a number, got {angular!r}")
+    if not math.isfinite(angular) or abs(angular) > _FLOAT32_MAX:
+        raise ValueError(f"angular must be a finite float32 value in rad/s, got {angular!r}")
+    return DriveVelocity(linear_mm, float(angular))
+
+
+def wheel_speeds_command(left: float, right: float) -> DriveWheels:
+    """Build a wheel-mode drive command from left and right speeds in m/s.
+
+    Raises:
+        ValueError: A value is NaN, infinite, or overflows int16 mm/s.
+    """
+    return DriveWheels(
+        scale_to_int(left, 1000, INT16, "left", "m/s"),
+        scale_to_int(right, 1000, INT16, "right", "m/s"),
+    )
+
+
+def encode_frame(frame_id: int, payload: bytes, seq: int = 0) -> bytes:
+    """Wrap ``payload`` in a protocol A frame (head, seq, id, len, check, tail).
+
+    Raises:
+        ValueError: ``frame_id`` or ``seq`` out of range, or the payload is too long.
+    """
+    if not 0 <= frame_id <= 0xFF:
+        raise ValueError(f"frame id must be 0..255, got {frame_id}")
+    if not 0 <= seq <= 0xFFFF:
+        raise ValueError(f"seq must be 0..65535, got {seq}")
+    length = len(payload) + _OVERHEAD
+    if length > 0xFF:
+        raise ValueError(f"payload of {len(payload)} bytes does not fit a frame (max 245)")
+    body = _HEADER.pack(0xDEED, seq, frame_id, length) + payload
+    return body + _CHECK.pack(sum(body) & 0xFFFF) + TAIL
+
+
+# --- payload packers ---------------------------------------------------------------------
+
+_U16 = struct.Struct("<H")
+_TELEMETRY = struct.Struct("<HHHhhhhhh")
+_DRIVER = struct.Struct("<4H4H4h4H2H2H")
+_POWER = struct.Struct("<4h2H")
+_INFO = struct.Struct("<5H")
+_DATE = struct.Struct("<3B")
+_DRIVE_V = struct.Struct("<Hhf")
+_DRIVE_W = struct.Struct("<HhhH")
+
+
+def _tenths(x: float) -> int:
+    return round(x * 10)
+
+
+def _milli(x: float) -> int:
+    return round(x * 1000)
+
+
+def _pack(msg: ChassisMessage | HostCommand) -> tuple[int, bytes]:
+    """Return ``(frame id, payload)`` for any message of this protocol."""
+    if isinstance(msg, Command):
+        return msg.id, _U16.pack(msg.value)
+    if isinstance(msg, DriveVelocity):
+        return CommandId.DRIVE, _DRIVE_V.pack(0, msg.linear_mm, msg.angular)
+    if isinstance(msg, DriveWheels):
+        return CommandId.DRIVE, _DRIVE_W.pack(1, msg.left_mm, msg.right_mm, 0)
+    if isinstance(msg, Telemetry):
+        return ReplyId.TELEMETRY, _TELEMETRY.pack(
+            _tenths(msg.voltage),
+            msg.status,
+            msg.docking,
+            _milli(msg.linear),
+            _milli(msg.angular),
+            *(_milli(w) for w in msg.wheels),
+        )
+    if isinstance(msg, DriverStatus):
+        w = msg.wheels
+        return ReplyId.DRIVER_STATUS, _DRIVER.pack(
+            *(d.errors for d in w),
+            *(d.motor for d in w),
+            *(_tenths(d.current) for d in w),
+            *(_tenths(d.peak_current) for d in w),
+            _tenths(msg.temperature_front),
+            _tenths(msg.temperature_rear),
+            _tenths(msg.voltage_front),
+            _tenths(msg.voltage_rear),
+        )
+    if isinstance(msg, PowerTelemetry):
+        return ReplyId.POWER, _POWER.pack(
+            *(_tenths(c) for c in msg.currents),
+            _tenths(msg.voltage_front),
+            _tenths(msg.voltage_rear),
+        )
+    if isinstance(msg, FirmwareVersion):
+        return ReplyId.FIRMWARE_VERSION, _U16.pack(msg.version)
+    if isinstance(msg, HardwareVersion):
+        return ReplyId.HARDWARE_VERSION, msg.text.encode("ascii")
+    if isinstance(msg, ChassisInfo):
+        return ReplyId.CHASSIS_INFO, _INFO.pack(
+            _milli(msg.track_width),
+            _milli(msg.wheelbase),
+            _milli(msg.wheel_diameter),
+            msg.gear_ratio,
+            msg.encoder_resolution,
+        )
+    if isinstance(msg, ShipDate):
+        return ReplyId.SHIP_DATE, _DATE.pack(msg.year - 2000, msg.month, msg.day)
+    raise TypeError(f"not a protocol A message: {msg!r}")
+
+
+class ChassisEncoder:
+    """Turns messages into protocol A frames, numbering them with a wrapping uint16.
+
+    One encoder per link: the sequence number increments once per frame encoded,
+    whatever its id, and wraps from 65535 to 0. The host uses it for commands; the
+    simulator uses it for the chassis's frames.
+
+    Example:
+        >>> enc = ChassisEncoder()
+        >>> enc.encode(Command(CommandId.FIRMWARE_VERSION)).hex(" ")
+        'ed de 00 00 07 0c 00 00 de 01 bd bc'
+    """
+
+    __slots__ = ("seq",)
+
+    def __init__(self, seq: int = 0) -> None:
+        #: The sequence number the next frame will carry.
+        self.seq = seq & 0xFFFF
+
+    def encode(self, msg: ChassisMessage | HostCommand) -> bytes:
+        """Encode one message as a frame with the next sequence number.
+
+        Raises:
+            ValueError: A field does not fit its wire type (checked before the
+                sequence number advances).
+        """
+        try:
+            frame_id, payload = _pack(msg)
+        except struct.error as exc:
+            raise ValueError(f"{msg!r} does not fit the wire format: {exc}") from None
+        except (OverflowError, UnicodeEncodeError) as exc:
+            raise ValueError(f"{msg!r} does not fit the wire format: {exc}") from None
+        frame = encode_frame(frame_id, payload, self.seq)
+        self.seq = (self.seq + 1) & 0xFFFF
+        return frame
+
+    # Convenience builders for every host command, named as in the API.
+    def set_telemetry(self, enabled: bool) -> bytes:
+        """0x01: switch the 50 Hz telemetry on or off."""
+        return self.encode(Command(CommandId.TELEMETRY, int(enabled)))
+
+    def drive_velocity(self, linear: float, angular: float) -> bytes:
+        """0x02 mode 0 from SI units (m/s, rad/s)."""
+        return self.encode(velocity_command(linear, angular))
+
+    def drive_wheels(self, left: float, right: float) -> bytes:
+        """0x02 mode 1 from SI units (m/s)."""
+        return self.encode(wheel_speeds_command(left, right))
+
+    def emergency_stop(self, active: bool) -> bytes:
+        """0x03: engage (True) or release (False) the software emergency stop."""
+        return self.encode(Command(CommandId.EMERGENCY_STOP, int(active)))
+
+    def clear_faults(self, what: FaultClear) -> bytes:
+        """0x05: clear the faults named by ``what``."""
+        return self.encode(Command(CommandId.CLEAR_FAULTS, int(what)))
+
+    def docking(self, enabled: bool) -> bytes:
+        """0x06: start (True) or stop (False) automatic docking."""
+        return self.encode(Command(CommandId.DOCKING, int(enabled)))
+
+    def read(self, what: CommandId) -> bytes:
+        """0x07, 0x08, 0x09, 0x0A or 0xB0: a read request."""
+        if what not in _READ_REQUESTS:
+            raise ValueError(f"{what!r} is not a read request")
+        return self.encode(Command(what, _READ_REQUESTS[what]))
+
+    def set_power_telemetry(self, enabled: bool) -> bytes:
+        """0xB1: switch the 20 Hz current/voltage upload on or off."""
+        return self.encode(Command(CommandId.POWER_TELEMETRY, int(enabled)))
+
+
+#: Read requests, the data word each carries, and the id of the reply.
+_READ_REQUESTS: dict[CommandId, int] = {
+    CommandId.FIRMWARE_VERSION: 0,
+    CommandId.HARDWARE_VERSION: 0,
+    CommandId.CHASSIS_INFO: 0,
+    CommandId.SHIP_DATE: 0,
+    CommandId.DRIVER_STATUS: 1,
+}
+#: The reply id each read request is answered with.
+REPLY_TO: dict[CommandId, ReplyId] = {
+    CommandId.FIRMWARE_VERSION: ReplyId.FIRMWARE_VERSION,
+    CommandId.HARDWARE_VERSION: ReplyId.HARDWARE_VERSION,
+    CommandId.CHASSIS_INFO: ReplyId.CHASSIS_INFO,
+    CommandId.SHIP_DATE: ReplyId.SHIP_DATE,
+    CommandId.DRIVER_STATUS: ReplyId.DRIVER_STATUS,
+}
+
+
+# --- decoding ----------------------------------------------------------------------------
+
+# A parser gets (buffer, offset of the data, data length, seq, timestamp) and returns a
+# message, or None if the content is invalid although the frame checked out.
+_Parser = Callable[[bytearray, int, int, int, float], Any]
+
+
+def _parse_telemetry(b: bytearray, o: int, n: int, seq: int, ts: float) -> Telemetry:
+    v, st, dk, vx, wz, fl, fr, rl, rr = _TELEMETRY.unpack_from(b, o)
+    return Telemetry(
+        v / 10,
+        ChassisStatus(st),
+        DockingState(dk),
+        vx / 1000,
+        wz / 1000,
+        WheelSpeeds(fl / 1000, fr / 1000, rl / 1000, rr / 1000),
+        seq,
+        ts,
+    )
+
+
+def _parse_driver(b: bytearray, o: int, n: int, seq: int, ts: float) -> DriverStatus:
+    f = _DRIVER.unpack_from(b, o)
+    fl, fr, rl, rr = (
+        WheelDriver(DriverError(f[i]), MotorStatus(f[4 + i]), f[8 + i] / 10, f[12 + i] / 10)
+        for i in range(4)
+    )
+    return DriverStatus(fl, fr, rl, rr, f[16] / 10, f[17] / 10, f[18] / 10, f[19] / 10)
+
+
+def _parse_power(b: bytearray, o: int, n: int, seq: int, ts: float) -> PowerTelemetry:
+    a, bb, c, d, vf, vr = _POWER.unpack_from(b, o)
+    return PowerTelemetry(WheelCurrents(a / 10, bb / 10, c / 10, d / 10), vf / 10, vr / 10, seq, ts)
+
+
+def _parse_firmware(b: bytearray, o: int, n: int, seq: int, ts: float) -> FirmwareVersion:
+    return FirmwareVersion(_U16.unpack_from(b, o)[0])
+
+
+def _parse_hardware(b: bytearray, o: int, n: int, seq: int, ts: float) -> HardwareVersion | None:
+    raw = bytes(b[o : o + n])
+    try:
+        return HardwareVersion(raw.decode("ascii").rstrip("\x00"))
+    except UnicodeDecodeError:
+        return None
+
+
+def _parse_info(b: bytearray, o: int, n: int, seq: int, ts: float) -> ChassisInfo:
+    tw, wb, wd, gr, enc = _INFO.unpack_from(b, o)
+    return ChassisInfo(tw / 1000, wb / 1000, wd / 1000, gr, enc)
+
+
+def _parse_date(b: bytearray, o: int, n: int, seq: int, ts: float) -> ShipDate:
+    y, m, d = _DATE.unpack_from(b, o)
+    return ShipDate(2000 + y, m, d)
+
+
+def _parse_command(b: bytearray, o: int, n: int, seq: int, ts: float) -> Command:
+    return Command(CommandId(b[o - 2]), _U16.unpack_from(b, o)[0])
+
+
+def _parse_drive(b: bytearray, o: int, n: int, seq: int, ts: float) -> HostCommand | None:
+    mode = _U16.unpack_from(b, o)[0]
+    if mode == 0:
+        _, vx, wz = _DRIVE_V.unpack_from(b, o)
+        return DriveVelocity(vx, wz)
+    if mode == 1:
+        _, left, right, _reserved = _DRIVE_W.unpack_from(b, o)
+        return DriveWheels(left, right)
+    return None
+
+
+#: frame id -> (total frame length, or 0 if variable; parser)
+_FrameTable = dict[int, tuple[int, _Parser]]
+
+_DEVICE_FRAMES: _FrameTable = {
+    ReplyId.TELEMETRY: (28, _parse_telemetry),
+    ReplyId.DRIVER_STATUS: (50, _parse_driver),
+    ReplyId.POWER: (22, _parse_power),
+    ReplyId.FIRMWARE_VERSION: (12, _parse_firmware),
+    ReplyId.HARDWARE_VERSION: (0, _parse_hardware),
+    ReplyId.CHASSIS_INFO: (20, _parse_info),
+    ReplyId.SHIP_DATE: (13, _parse_date),
+}
+
+_HOST_FRAMES: _FrameTable = {
+    int(cid): ((18, _parse_drive) if cid == CommandId.DRIVE else (12, _parse_command))
+    for cid in CommandId
+}
+
+
+class _ProtocolADecoder(FrameDecoder[_M]):
+    """Framing for protocol A, parametrised by the table of frames it accepts.
+
+    For a frame id with a fixed size, the size comes from the table, not from the length
+    byte: the vendor's own 0x89 example carries a wrong length byte with a valid
+    checksum, and firmware built from the same source may do the same. Trusting the table
+    also means a false head in noise never makes us wait for 255 bytes. The mismatch is
+    counted in ``stats.length_mismatches``. Only variable-size frames (0x88) use the
+    length byte, bounded to 10..255.
+    """
+
+    _head = HEAD
+    _table: ClassVar[_FrameTable] = {}
+
+    def _try_frame(self, buf: bytearray, start: int, end: int, out: list[_M], ts: float) -> int:
+        if end - start < 6:
+            return NEED_DATA
+        entry = self._table.get(buf[start + 4])
+        if entry is None:
+            return INVALID
+        size, parser = entry
+        claimed = buf[start + 5]
+        if size == 0:
+            if claimed < _OVERHEAD:
+                return INVALID
+            size = claimed
+        stop = start + size
+        if stop > end:
+            return NEED_DATA
+        if buf[stop - 2] != 0xBD or buf[stop - 1] != 0xBC:
+            return INVALID
+        if (sum(buf[start : stop - 4]) & 0xFFFF) != buf[stop - 4] | buf[stop - 3] << 8:
+            self.stats.checksum_errors += 1
+            return INVALID
+        msg = parser(buf, start + 6, size - _OVERHEAD, buf[start + 2] | buf[start + 3] << 8, ts)
+        if msg is None:
+            self.stats.malformed_frames += 1
+            return INVALID
+        if claimed != size:
+            self.stats.length_mismatches += 1
+        self.stats.frames += 1
+        out.append(msg)
+        return size
+
+
+class ChassisDecoder(_ProtocolADecoder[ChassisMessage]):
+    """Sans-IO decoder of everything the chassis sends (0x81, 0xB0, 0xB1, 0x87-0x8A).
+
+    Example:
+        >>> dec = ChassisDecoder()
+        >>> dec.feed(bytes.fromhex("ED DE 00 00 8A 0D 18 01 02 7D 02 BD BC"))
+        [ShipDate(year=2024, month=1, day=2)]
+    """
+
+    _table = _DEVICE_FRAMES
+
+
+class ChassisCommandDecoder(_ProtocolADecoder[HostCommand]):
+    """Sans-IO decoder of what the host sends (used by the simulator and for captures)."""
+
+    _table = _HOST_FRAMES
