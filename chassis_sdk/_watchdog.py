@@ -19,13 +19,13 @@ Frames are built by callables so each resend gets a fresh sequence number.
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from ._alarm import Alarm
 from .errors import NotConnectedError
 
 __all__ = ["MotionCommand", "VelocityWatchdog"]
@@ -71,7 +71,7 @@ class VelocityWatchdog:
         self._clock = clock
         self._active: MotionCommand | None = None
         self._next = 0.0
-        self._waiter: asyncio.Future[None] | None = None
+        self._alarm = Alarm()
         #: Frames re-sent by the background task (not counting the first write).
         self.resends = 0
         #: Commands that ran out (deadman or duration) and were zeroed.
@@ -103,38 +103,18 @@ class VelocityWatchdog:
             deadline = math.inf
         self._active = MotionCommand(frame, zero, deadline, description)
         self._next = now + self.interval
-        self._wakeup()
+        self._alarm.wake()
 
     def stop(self, zero: FrameFactory) -> None:
         """Drop the active command and write a zero frame now."""
         self._active = None
-        self._wakeup()
+        self._alarm.wake()
         self._write(zero())
 
     def clear(self) -> None:
         """Drop the active command without writing anything (the link is gone)."""
         self._active = None
-        self._wakeup()
-
-    def _wakeup(self, *_: object) -> None:
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
-
-    async def _sleep(self, delay: float | None) -> None:
-        """Sleep ``delay`` seconds (forever if ``None``) or until :meth:`_wakeup`.
-
-        One future and one timer handle: lighter and more punctual than ``wait_for``.
-        """
-        loop = asyncio.get_running_loop()
-        self._waiter = waiter = loop.create_future()
-        handle = None if delay is None else loop.call_later(delay, self._wakeup)
-        try:
-            await waiter
-        finally:
-            self._waiter = None
-            if handle is not None:
-                handle.cancel()
+        self._alarm.wake()
 
     async def run(self) -> None:
         """Background loop; runs until cancelled."""
@@ -142,12 +122,12 @@ class VelocityWatchdog:
         while True:
             active = self._active
             if active is None:
-                await self._sleep(None)
+                await self._alarm.sleep(None)
                 continue
             now = clock()
             due = min(self._next, active.deadline)
             if now < due:
-                await self._sleep(due - now)
+                await self._alarm.sleep(due - now)
                 continue
             if now >= active.deadline:
                 self._active = None

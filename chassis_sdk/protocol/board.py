@@ -463,7 +463,7 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
             return INVALID
         expected, parser = entry
         length = buf[start + 3]
-        if length != expected and (expected or length == 0):
+        if length != expected if expected else length == 0:
             return INVALID
         stop = start + 4 + length
         if stop > end:

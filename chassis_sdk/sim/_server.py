@@ -18,6 +18,8 @@ from collections import deque
 from types import TracebackType
 from typing import Protocol, Self
 
+from .._alarm import Alarm
+
 __all__ = ["Firmware", "SimulatorServer", "next_slot"]
 
 _log = logging.getLogger("chassis_sdk.sim")
@@ -70,7 +72,7 @@ class SimulatorServer:
         self._backlog: deque[bytes] = deque()
         self._backlog_size = 0
         self._writer_registered = False
-        self._wake: asyncio.Event | None = None
+        self._alarm = Alarm()
         #: Bytes written towards the host.
         self.bytes_sent = 0
         #: Bytes dropped because nobody was reading.
@@ -91,7 +93,6 @@ class SimulatorServer:
     async def start(self) -> None:
         """Open the pty or start listening, and start the firmware's clock."""
         loop = asyncio.get_running_loop()
-        self._wake = asyncio.Event()
         self.firmware.on_connect(time.monotonic())
         if self._tcp_port is None:
             master, slave = os.openpty()
@@ -160,7 +161,6 @@ class SimulatorServer:
 
     async def _tick(self) -> None:
         fw = self.firmware
-        assert self._wake is not None
         while True:
             now = time.monotonic()
             out = fw.poll(now)
@@ -168,16 +168,13 @@ class SimulatorServer:
                 self.send(out)
             delay = fw.next_deadline() - time.monotonic()
             if delay > 0:
-                self._wake.clear()
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._wake.wait(), min(delay, 0.1))
+                await self._alarm.sleep(min(delay, 0.1))
 
     def _received(self, data: bytes) -> None:
         out = self.firmware.receive(data, time.monotonic())
         if out:
             self.send(out)
-        if self._wake is not None:
-            self._wake.set()  # a command may have changed what is due next
+        self._alarm.wake()  # a command may have changed what is due next
 
     # --- output ---------------------------------------------------------------------------------
 

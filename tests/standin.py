@@ -1,0 +1,337 @@
+"""Independent firmware stand-ins for the integration tests.
+
+They share no code with ``chassis_sdk``: frames are packed and parsed here by hand,
+straight from PROTOCOL_NOTES.md, so an error in the SDK's codec cannot cancel out
+against the same error in the test double. Each stand-in serves a real pseudo-terminal
+(raw mode, set before anything else) that the SDK opens through its real transport,
+puts noise on the line between frames, and records every frame the host writes with
+its arrival time so tests can wait on them as events.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import random
+import struct
+import time
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+# A noise mix: random bytes, and false heads of both protocols that must be skipped.
+_NOISE = [b"\x00", b"\xff\x13\x37", b"\xed", b"\xed\xde\x05", b"\xfe", b"\xfe\xce\x11", b"\xab"]
+
+
+@dataclass
+class Received:
+    """One frame from the host, parsed by the stand-in."""
+
+    time: float
+    kind: int
+    payload: bytes
+    seq: int | None = None
+    raw: bytes = b""
+
+
+@dataclass
+class PtyPeer:
+    """The pty plumbing and the event log shared by both stand-ins."""
+
+    noise: bool = True
+    seed: int = 1
+    frames: list[Received] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._rng = random.Random(self.seed)
+        self._buf = bytearray()
+        self._cond: asyncio.Condition | None = None
+        self._master = -1
+        self._slave = -1
+        self.port = ""
+        self._tasks: list[asyncio.Task[None]] = []
+        self.noise_bytes = 0
+
+    async def __aenter__(self) -> Any:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave
+        self.port = os.ttyname(slave)
+        self._cond = asyncio.Condition()
+        asyncio.get_running_loop().add_reader(master, self._readable)
+        self._tasks.append(asyncio.create_task(self.run()))
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        for t in self._tasks:
+            t.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self.unplug()
+
+    def unplug(self) -> None:
+        """Close the pty: the host sees the device disappear."""
+        if self._master >= 0:
+            asyncio.get_running_loop().remove_reader(self._master)
+            os.close(self._master)
+            os.close(self._slave)
+            self._master = self._slave = -1
+
+    async def run(self) -> None:
+        """Periodic output; overridden."""
+
+    def send(self, frame: bytes) -> None:
+        """Write a frame, with some noise before it when noise is on."""
+        if self._master < 0:
+            return
+        data = frame
+        if self.noise and self._rng.random() < 0.5:
+            junk = self._rng.choice(_NOISE)
+            self.noise_bytes += len(junk)
+            data = junk + frame
+        with contextlib.suppress(BlockingIOError):
+            os.write(self._master, data)
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except OSError:
+            return
+        self._buf += data
+        now = time.monotonic()
+        for rec in self.parse(self._buf, now):
+            self.frames.append(rec)
+            self.on_frame(rec)
+        if self._cond is not None:
+            asyncio.get_running_loop().create_task(self._notify())
+
+    async def _notify(self) -> None:
+        assert self._cond is not None
+        async with self._cond:
+            self._cond.notify_all()
+
+    def parse(self, buf: bytearray, now: float) -> list[Received]:
+        raise NotImplementedError
+
+    def on_frame(self, rec: Received) -> None:
+        """React to a host frame; overridden."""
+
+    async def wait_for(
+        self, predicate: Callable[[list[Received]], bool], timeout: float = 5.0
+    ) -> None:
+        """Wait until ``predicate(frames)`` holds (an event, not a sleep)."""
+        assert self._cond is not None
+        async with asyncio.timeout(timeout), self._cond:
+            await self._cond.wait_for(lambda: predicate(self.frames))
+
+    def of_kind(self, kind: int) -> list[Received]:
+        return [f for f in self.frames if f.kind == kind]
+
+
+# --- protocol A ---------------------------------------------------------------------------------
+
+
+def frame_a(fid: int, payload: bytes, seq: int, length: int | None = None) -> bytes:
+    total = len(payload) + 10
+    body = b"\xed\xde" + struct.pack("<HBB", seq, fid, total if length is None else length)
+    body += payload
+    return body + struct.pack("<H", sum(body) & 0xFFFF) + b"\xbd\xbc"
+
+
+#: The vendor document's 0x89 example, verbatim, with its wrong length byte.
+DOC_CHASSIS_INFO = bytes.fromhex("ED DE 00 00 89 12 D5 02 F4 01 AA 00 1E 00 E8 03 E5 05 BD BC")
+#: The vendor document's 0x8A example, verbatim.
+DOC_SHIP_DATE = bytes.fromhex("ED DE 00 00 8A 0D 18 01 02 7D 02 BD BC")
+
+
+@dataclass
+class ChassisStandIn(PtyPeer):
+    """Protocol A firmware stand-in: telemetry at 50 Hz, replies, e-stop bit."""
+
+    telemetry_period: float = 0.02
+    firmware_version: int = 0x0103
+    hardware: bytes = b"ZKWL-brush-motor-chassis"
+    silent_ids: set[int] = field(default_factory=set)
+    reply_delay: float = 0.0
+    status: int = 0
+    seq: int = 0
+
+    def parse(self, buf: bytearray, now: float) -> list[Received]:
+        out = []
+        while True:
+            i = buf.find(b"\xed\xde")
+            if i < 0:
+                del buf[: max(0, len(buf) - 1)]
+                return out
+            del buf[:i]
+            if len(buf) < 6:
+                return out
+            n = buf[5]
+            if n < 10 or n > 64:
+                del buf[:1]
+                continue
+            if len(buf) < n:
+                return out
+            raw = bytes(buf[:n])
+            ok = (
+                raw[-2:] == b"\xbd\xbc"
+                and struct.unpack_from("<H", raw, n - 4)[0] == sum(raw[: n - 4]) & 0xFFFF
+            )
+            if not ok:
+                del buf[:1]
+                continue
+            del buf[:n]
+            seq = struct.unpack_from("<H", raw, 2)[0]
+            out.append(Received(now, raw[4], raw[6 : n - 4], seq, raw))
+
+    def next_seq(self) -> int:
+        s = self.seq
+        self.seq = (s + 1) & 0xFFFF
+        return s
+
+    def on_frame(self, rec: Received) -> None:
+        kind = rec.kind
+        if kind == 0x03:
+            estop = struct.unpack("<H", rec.payload)[0]
+            self.status = (self.status | 4) if estop else (self.status & ~4)
+            return
+        if kind in self.silent_ids:
+            return
+        reply: bytes | None = None
+        if kind == 0x07:
+            reply = frame_a(0x87, struct.pack("<H", self.firmware_version), self.next_seq())
+        elif kind == 0x08:
+            reply = frame_a(0x88, self.hardware, self.next_seq())
+        elif kind == 0x09:
+            reply = DOC_CHASSIS_INFO
+        elif kind == 0x0A:
+            reply = DOC_SHIP_DATE
+        elif kind == 0xB0:
+            payload = struct.pack(
+                "<4H4H4h4H2H2H",
+                0x0008, 0, 0, 0x4000,  # FL over-current; RR second over-temperature bit
+                0x0003, 0x0004, 0x0004, 0x2000,
+                15, -15, 0, 0,
+                30, 30, 0, 0,
+                355, 341, 240, 239,
+            )  # fmt: skip
+            reply = frame_a(0xB0, payload, self.next_seq())
+        if reply is not None:
+            if self.reply_delay:
+                asyncio.get_running_loop().call_later(self.reply_delay, self.send, reply)
+            else:
+                self.send(reply)
+
+    def telemetry_frame(self) -> bytes:
+        # 24.6 V, status, docked, 0.3 m/s, -0.25 rad/s, wheels 0.1 -0.2 0.3 -0.4 m/s
+        payload = struct.pack("<HHHhhhhhh", 246, self.status, 4, 300, -250, 100, -200, 300, -400)
+        return frame_a(0x81, payload, self.next_seq())
+
+    async def run(self) -> None:
+        while True:
+            self.send(self.telemetry_frame())
+            await asyncio.sleep(self.telemetry_period)
+
+
+def drive_frames(frames: list[Received]) -> list[Received]:
+    return [f for f in frames if f.kind == 0x02]
+
+
+def is_zero_drive(rec: Received) -> bool:
+    mode = struct.unpack_from("<H", rec.payload)[0]
+    if mode == 0:
+        _, vx, wz = struct.unpack("<Hhf", rec.payload)
+        return vx == 0 and wz == 0.0
+    _, left, right, _ = struct.unpack("<HhhH", rec.payload)
+    return left == 0 and right == 0
+
+
+# --- protocol B ---------------------------------------------------------------------------------
+
+
+def frame_b(head: bytes, kind: int, data: bytes) -> bytes:
+    n = len(data) + 1
+    return head + bytes((kind, n)) + data + bytes(((kind + n + sum(data)) & 0xFF,))
+
+
+_B_LENGTHS = {0x01: 3, 0x02: 3, 0x21: 4, 0x22: 5, 0x31: 4}
+
+
+@dataclass
+class BoardStandIn(PtyPeer):
+    """Protocol B firmware stand-in: IMU, velocity, battery, logs and LED/buzzer replies.
+
+    With ``hold_replies = N``, switch requests are held until N have arrived and then
+    answered in reverse order.
+    """
+
+    imu_period: float = 0.01
+    hold_replies: int = 0
+    silent: bool = False
+    led: bool = False
+    buzzer: bool = False
+    _held: list[Received] = field(default_factory=list)
+
+    def parse(self, buf: bytearray, now: float) -> list[Received]:
+        out = []
+        while True:
+            i = buf.find(b"\xab\xbc")
+            if i < 0:
+                del buf[: max(0, len(buf) - 1)]
+                return out
+            del buf[:i]
+            if len(buf) < 4:
+                return out
+            kind, n = buf[2], buf[3]
+            if _B_LENGTHS.get(kind) != n:
+                del buf[:1]
+                continue
+            if len(buf) < 4 + n:
+                return out
+            raw = bytes(buf[: 4 + n])
+            if (kind + n + sum(raw[4:-1])) & 0xFF != raw[-1]:
+                del buf[:1]
+                continue
+            del buf[: 4 + n]
+            out.append(Received(now, kind, raw[4:-1], None, raw))
+
+    def on_frame(self, rec: Received) -> None:
+        if rec.kind in (0x01, 0x02) and not self.silent:
+            if self.hold_replies:
+                self._held.append(rec)
+                if len(self._held) >= self.hold_replies:
+                    held, self._held = self._held, []
+                    for r in reversed(held):
+                        self._answer(r)
+            else:
+                self._answer(rec)
+        elif rec.kind == 0x31:
+            servo, angle = struct.unpack("<Bh", rec.payload)
+            self.send(frame_b(b"\xfe\xce", 0xF1, f"servo {servo} at {angle / 10:.1f}".encode()))
+
+    def _answer(self, rec: Received) -> None:
+        command, rid = rec.payload
+        if rec.kind == 0x01:
+            if command < 2:
+                self.led = bool(command)
+            state = self.led
+        else:
+            if command < 2:
+                self.buzzer = bool(command)
+            state = self.buzzer
+        self.send(frame_b(b"\xfe\xce", rec.kind, bytes((rid, int(state)))))
+
+    async def run(self) -> None:
+        n = 0
+        while True:
+            # accel (164, -82, 164*1) raw -> (1.0, -0.5, 1.0) g; gyro 164 raw -> 10 deg/s
+            imu = struct.pack("<9h", 164, -82, 164, 0, -164, 164, 300, -300, -420)
+            self.send(frame_b(b"\xfe\xce", 0x11, imu))
+            if n % 5 == 0:
+                self.send(frame_b(b"\xfe\xce", 0x12, struct.pack("<hh", 250, -500)))
+            if n % 20 == 0:
+                self.send(frame_b(b"\xfe\xce", 0x13, struct.pack("<h", 1234)))
+            n += 1
+            await asyncio.sleep(self.imu_period)

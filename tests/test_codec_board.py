@@ -1,0 +1,344 @@
+"""Protocol B codec: vendor vectors, round trips, prefixes, malformed input, properties,
+and the recovery rate of good frames in a stream of noise."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from chassis_sdk.protocol import (
+    BatteryReading,
+    BoardCommandDecoder,
+    BoardDecoder,
+    BoardEncoder,
+    BuzzerCommand,
+    BuzzerReply,
+    ImuSample,
+    LedCommand,
+    LedReply,
+    LogMessage,
+    Motor,
+    MotorPwmCommand,
+    Servo,
+    ServoCommand,
+    SwitchAction,
+    Vector3,
+    VelocityCommand,
+    VelocityFeedback,
+)
+from chassis_sdk.protocol.board import (
+    DEVICE_HEAD,
+    encode_frame,
+    motor_pwm_command,
+    servo_command,
+    velocity_command,
+)
+
+
+def h(text: str) -> bytes:
+    return bytes.fromhex(text.replace("0x", "").replace(",", " "))
+
+
+ENC = BoardEncoder()
+
+# --- vendor vectors -----------------------------------------------------------------------------
+
+HOST_VECTORS = [
+    pytest.param(LedCommand(SwitchAction.OFF, 1), "AB BC 01 03 00 01 05", id="led-off"),
+    pytest.param(LedCommand(SwitchAction.ON, 1), "AB BC 01 03 01 01 06", id="led-on"),
+    pytest.param(LedCommand(SwitchAction.READ, 1), "AB BC 01 03 02 01 07", id="led-read"),
+    pytest.param(BuzzerCommand(SwitchAction.OFF, 1), "AB BC 02 03 00 01 06", id="buzzer-off"),
+    pytest.param(BuzzerCommand(SwitchAction.ON, 1), "AB BC 02 03 01 01 07", id="buzzer-on"),
+    pytest.param(BuzzerCommand(SwitchAction.READ, 1), "AB BC 02 03 02 01 08", id="buzzer-read"),
+    pytest.param(MotorPwmCommand(Motor.REAR_LEFT, 4000), "AB BC 21 04 01 A0 0F D5", id="pwm"),
+    pytest.param(VelocityCommand(200, 0), "AB BC 22 05 C8 00 00 00 EF", id="velocity-0.2"),
+    pytest.param(VelocityCommand(500, 0), "ab bc 22 05 f4 01 00 00 1c", id="velocity-0.5"),
+    pytest.param(VelocityCommand(500, 500), "ab bc 22 05 f4 01 f4 01 11", id="velocity-0.5-0.5"),
+    pytest.param(VelocityCommand(800, 0), "ab bc 22 05 20 03 00 00 4a", id="velocity-0.8"),
+    # 0x31 has no example (placeholders); len = 0x04 by the rule, 30 degrees = 300.
+    pytest.param(ServoCommand(Servo.FIRST, 300), "AB BC 31 04 01 2C 01 63", id="servo-30deg"),
+]
+
+DEVICE_VECTORS = [
+    pytest.param("FE CE 01 03 01 01 06", LedReply(1, True), id="led-reply"),
+    pytest.param("FE CE 02 03 01 01 07", BuzzerReply(1, True), id="buzzer-reply"),
+]
+
+
+@pytest.mark.parametrize(("command", "wire"), HOST_VECTORS)
+def test_host_vectors_encode_exactly(command: object, wire: str) -> None:
+    assert ENC.encode(command) == h(wire)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("command", "wire"), HOST_VECTORS)
+def test_host_vectors_decode(command: object, wire: str) -> None:
+    assert BoardCommandDecoder().feed(h(wire)) == [command]
+
+
+@pytest.mark.parametrize(("wire", "msg"), DEVICE_VECTORS)
+def test_device_vectors_decode(wire: str, msg: object) -> None:
+    assert BoardDecoder().feed(h(wire)) == [msg]
+
+
+def test_doc_velocity_header_row_with_wrong_checksum_is_rejected() -> None:
+    dec = BoardCommandDecoder()
+    assert dec.feed(h("AB BC 22 05 01 22 A0 0F D5")) == []
+    assert dec.stats.checksum_errors == 1
+    assert dec.feed(h("AB BC 22 05 01 22 A0 0F F9")) == [VelocityCommand(0x2201, 0x0FA0)]
+
+
+def test_si_builders_scale_and_check() -> None:
+    assert velocity_command(0.5, 0.5) == VelocityCommand(500, 500)
+    assert servo_command(2, 22.5) == ServoCommand(Servo.SECOND, 225)
+    assert motor_pwm_command(Motor.FRONT_RIGHT, -4000) == MotorPwmCommand(Motor.FRONT_RIGHT, -4000)
+
+
+@pytest.mark.parametrize(
+    ("build", "match"),
+    [
+        pytest.param(lambda: velocity_command(math.nan, 0), "linear", id="nan-linear"),
+        pytest.param(lambda: velocity_command(0, math.inf), "angular", id="inf-angular"),
+        pytest.param(lambda: velocity_command(32.768, 0), "out of range", id="overflow-linear"),
+        pytest.param(lambda: velocity_command(0, -32.769), "out of range", id="overflow-angular"),
+        pytest.param(lambda: motor_pwm_command(0, 10), "unknown motor", id="motor-0"),
+        pytest.param(lambda: motor_pwm_command(5, 10), "unknown motor", id="motor-5"),
+        pytest.param(lambda: motor_pwm_command(1, 40000), "out of range", id="pwm-overflow"),
+        pytest.param(lambda: motor_pwm_command(1, 1.5), "integer", id="pwm-float"),
+        pytest.param(lambda: servo_command(3, 10), "unknown servo", id="servo-3"),
+        pytest.param(lambda: servo_command(1, 3276.8), "out of range", id="servo-overflow"),
+        pytest.param(lambda: servo_command(1, math.nan), "finite", id="servo-nan"),
+    ],
+)
+def test_builders_reject_bad_arguments(build: object, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        build()  # type: ignore[operator]
+
+
+# --- round trips --------------------------------------------------------------------------------
+
+DEVICE_MESSAGES: list[object] = [
+    ImuSample(
+        Vector3(-1 / 164, 0.0, 164 / 164), Vector3(16 / 16.4, -33 / 16.4, 0.0), Vector3(300.0, -300.0, -420.0)
+    ),
+    ImuSample(
+        Vector3(-32768 / 164, 32767 / 164, 0.0), Vector3(-32768 / 16.4, 32767 / 16.4, 0.0), Vector3(-32768.0, 32767.0, 0.0)
+    ),
+    VelocityFeedback(0.3, -0.25),
+    VelocityFeedback(-32.768, 32.767),
+    BatteryReading(12.34),
+    LogMessage("servo 1 -> 30.0 deg"),
+    LogMessage(""),
+    LogMessage("ünïcode\ttext"),
+    LedReply(0, False),
+    LedReply(255, True),
+    BuzzerReply(17, True),
+]  # fmt: skip
+HOST_COMMANDS: list[object] = [
+    LedCommand(SwitchAction.READ, 255),
+    BuzzerCommand(SwitchAction.ON, 0),
+    MotorPwmCommand(Motor.FRONT_LEFT, -32768),
+    VelocityCommand(-32768, 32767),
+    ServoCommand(Servo.SECOND, -900),
+]
+
+
+def _approx_equal(a: object, b: object) -> bool:
+    if isinstance(a, ImuSample) and isinstance(b, ImuSample):
+        return all(
+            x == pytest.approx(y, abs=1e-9)
+            for va, vb in zip((a.accel, a.gyro, a.mag), (b.accel, b.gyro, b.mag), strict=True)
+            for x, y in zip(va, vb, strict=True)
+        )
+    return a == b
+
+
+@pytest.mark.parametrize("msg", DEVICE_MESSAGES, ids=lambda m: type(m).__name__)
+def test_device_message_round_trip(msg: object) -> None:
+    (back,) = BoardDecoder().feed(ENC.encode(msg))  # type: ignore[arg-type]
+    assert _approx_equal(back, msg)
+
+
+@pytest.mark.parametrize("msg", HOST_COMMANDS, ids=lambda m: type(m).__name__)
+def test_host_command_round_trip(msg: object) -> None:
+    assert BoardCommandDecoder().feed(ENC.encode(msg)) == [msg]  # type: ignore[arg-type]
+
+
+ALL_FRAMES = [ENC.encode(m) for m in DEVICE_MESSAGES]  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("frame", ALL_FRAMES, ids=lambda f: f"0x{f[2]:02X}-{len(f)}")
+def test_every_proper_prefix_needs_more_data(frame: bytes) -> None:
+    for cut in range(len(frame)):
+        dec = BoardDecoder()
+        assert dec.feed(frame[:cut]) == []
+        assert dec.stats.bytes_dropped == 0
+        assert len(dec.feed(frame[cut:])) == 1
+
+
+def test_byte_at_a_time_feeding() -> None:
+    stream = b"".join(ALL_FRAMES)
+    dec = BoardDecoder()
+    out: list[object] = []
+    for i in range(len(stream)):
+        out += dec.feed(stream[i : i + 1], timestamp=0.0)
+    assert len(out) == len(DEVICE_MESSAGES)
+    assert all(_approx_equal(a, b) for a, b in zip(out, DEVICE_MESSAGES, strict=True))
+
+
+def test_timestamps_are_stored() -> None:
+    (imu,) = BoardDecoder().feed(ALL_FRAMES[0], timestamp=3.25)
+    assert isinstance(imu, ImuSample)
+    assert imu.timestamp == 3.25
+
+
+# --- malformed input ---------------------------------------------------------------------------
+
+GOOD = ENC.encode(BatteryReading(11.1))
+GOOD_MSG = BatteryReading(11.1)
+
+
+def _with(frame: bytes, index: int, value: int) -> bytes:
+    b = bytearray(frame)
+    b[index] = value
+    return bytes(b)
+
+
+MALFORMED = [
+    pytest.param(b"\x01\x02\x03", 0, 0, id="garbage"),
+    pytest.param(_with(GOOD, 6, GOOD[6] ^ 0x55), 1, 0, id="bad-checksum"),
+    pytest.param(_with(GOOD, 2, 0x77), 0, 0, id="unknown-type"),
+    pytest.param(_with(GOOD, 3, 0x09), 0, 0, id="wrong-length-for-type"),
+    pytest.param(b"\xfe\xce\xf1\x00", 0, 0, id="log-length-zero"),
+    pytest.param(encode_frame(DEVICE_HEAD, 0xF1, b"a\x01b"), 0, 1, id="log-control-bytes"),
+    pytest.param(encode_frame(DEVICE_HEAD, 0xF1, b"\xff\xfe"), 0, 1, id="log-not-utf8"),
+    pytest.param(encode_frame(DEVICE_HEAD, 0x01, b"\x05\x07"), 0, 1, id="led-state-not-bool"),
+    pytest.param(b"\xfe\xfe", 0, 0, id="doubled-head-byte"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("junk", "checksum_errors", "malformed"), MALFORMED)
+def test_malformed_input_is_skipped_and_next_frame_survives(
+    junk: bytes, checksum_errors: int, malformed: int
+) -> None:
+    dec = BoardDecoder()
+    assert dec.feed(junk + GOOD) == [GOOD_MSG]
+    assert dec.stats.checksum_errors == checksum_errors
+    assert dec.stats.malformed_frames == malformed
+    assert dec.stats.bytes_dropped == len(junk)
+
+
+def test_false_log_head_claiming_many_bytes_does_not_swallow_frames() -> None:
+    bogus = b"\xfe\xce\xf1\xff"  # claims 254 bytes of log text
+    stream = bogus + GOOD * 70
+    out = BoardDecoder().feed(stream)
+    assert out == [GOOD_MSG] * 70
+
+
+# --- noise recovery ------------------------------------------------------------------------
+
+
+def _unique_message(i: int, rng: random.Random) -> object:
+    """A message that carries ``i``, so each good frame can be found in the output."""
+    kind = i % 4
+    if kind == 0:
+        return ImuSample(
+            Vector3(rng.randint(-500, 500) / 164, 0.0, 1.0),
+            Vector3(0.0, 0.0, rng.randint(-99, 99) / 16.4),
+            Vector3(float(i % 32768), -3.0, -420.0),
+        )
+    if kind == 1:
+        return VelocityFeedback((i % 32768) / 1000, rng.randint(-999, 999) / 1000)
+    if kind == 2:
+        return BatteryReading((i % 32768) / 100)
+    return LogMessage(f"event {i}")
+
+
+def _noisy_stream(rng: random.Random, n_frames: int) -> tuple[bytes, list[object]]:
+    """Good frames with noise between them: random bytes, bare heads, and truncated or
+    corrupted frames (the realistic kinds of noise on a serial line)."""
+    pool = DEVICE_MESSAGES
+    stream = bytearray()
+    sent: list[object] = []
+    for i in range(n_frames):
+        kind = rng.random()
+        if kind < 0.4:
+            stream += rng.randbytes(rng.randint(0, 24))
+        elif kind < 0.6:
+            stream += b"\xfe\xce" + rng.randbytes(rng.randint(0, 3))
+        elif kind < 0.8:
+            cut = ENC.encode(rng.choice(pool))  # type: ignore[arg-type]
+            stream += cut[: rng.randint(1, len(cut) - 1)]
+        else:
+            bad = bytearray(ENC.encode(rng.choice(pool)))  # type: ignore[arg-type]
+            bad[rng.randrange(2, len(bad))] ^= 1 << rng.randrange(8)
+            stream += bad
+        msg = _unique_message(i, rng)
+        sent.append(msg)
+        stream += ENC.encode(msg)  # type: ignore[arg-type]
+    return bytes(stream), sent
+
+
+def recovery_rate(seed: int, n_frames: int = 5000) -> float:
+    """Share of good frames decoded from a noisy stream fed in random chunks."""
+    rng = random.Random(seed)
+    stream, sent = _noisy_stream(rng, n_frames)
+    dec = BoardDecoder()
+    out: list[object] = []
+    pos = 0
+    while pos < len(stream):
+        step = rng.randint(1, 64)
+        out += dec.feed(stream[pos : pos + step])
+        pos += step
+    received = {repr(m) for m in out}
+    return sum(repr(m) in received for m in sent) / len(sent)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_recovers_at_least_99_5_percent_of_good_frames_from_noise(seed: int) -> None:
+    rate = recovery_rate(seed)
+    assert rate >= 0.995, f"recovered {rate:.4%}"
+
+
+# --- properties ---------------------------------------------------------------------------------
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.binary(max_size=600), st.lists(st.integers(1, 50), max_size=30))
+def test_decoder_never_raises_and_bounds_its_buffer(data: bytes, cuts: list[int]) -> None:
+    dec = BoardDecoder()
+    pos = 0
+    for cut in cuts:
+        dec.feed(data[pos : pos + cut])
+        pos += cut
+    dec.feed(data[pos:])
+    assert dec.buffered <= 259
+    assert dec.stats.bytes_received == len(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    idx=st.lists(st.integers(0, len(DEVICE_MESSAGES) - 1), min_size=1, max_size=10),
+    cuts=st.lists(st.integers(1, 40), max_size=30),
+)
+def test_random_chunking_yields_every_frame(idx: list[int], cuts: list[int]) -> None:
+    msgs = [DEVICE_MESSAGES[i] for i in idx]
+    stream = b"".join(ENC.encode(m) for m in msgs)  # type: ignore[arg-type]
+    dec = BoardDecoder()
+    out: list[object] = []
+    pos = 0
+    for cut in cuts:
+        out += dec.feed(stream[pos : pos + cut])
+        pos += cut
+    out += dec.feed(stream[pos:])
+    assert len(out) == len(msgs)
+    assert all(_approx_equal(a, b) for a, b in zip(out, msgs, strict=True))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=400))
+def test_command_decoder_never_raises(data: bytes) -> None:
+    BoardCommandDecoder().feed(data)
