@@ -272,7 +272,7 @@ class BoardStandIn(PtyPeer):
     silent: bool = False
     led: bool = False
     buzzer: bool = False
-    _held: list[Received] = field(default_factory=list)
+    _held: list[bytes] = field(default_factory=list)
 
     def parse(self, buf: bytearray, now: float) -> list[Received]:
         out = []
@@ -299,19 +299,21 @@ class BoardStandIn(PtyPeer):
 
     def on_frame(self, rec: Received) -> None:
         if rec.kind in (0x01, 0x02) and not self.silent:
+            # The state is applied and captured on arrival, whenever the reply goes out.
+            reply = self._apply(rec)
             if self.hold_replies:
-                self._held.append(rec)
+                self._held.append(reply)
                 if len(self._held) >= self.hold_replies:
                     held, self._held = self._held, []
-                    for r in reversed(held):
-                        self._answer(r)
+                    for frame in reversed(held):
+                        self.send(frame)
             else:
-                self._answer(rec)
+                self.send(reply)
         elif rec.kind == 0x31:
             servo, angle = struct.unpack("<Bh", rec.payload)
             self.send(frame_b(b"\xfe\xce", 0xF1, f"servo {servo} at {angle / 10:.1f}".encode()))
 
-    def _answer(self, rec: Received) -> None:
+    def _apply(self, rec: Received) -> bytes:
         command, rid = rec.payload
         if rec.kind == 0x01:
             if command < 2:
@@ -321,7 +323,7 @@ class BoardStandIn(PtyPeer):
             if command < 2:
                 self.buzzer = bool(command)
             state = self.buzzer
-        self.send(frame_b(b"\xfe\xce", rec.kind, bytes((rid, int(state)))))
+        return frame_b(b"\xfe\xce", rec.kind, bytes((rid, int(state))))
 
     async def run(self) -> None:
         n = 0
