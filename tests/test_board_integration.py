@@ -73,9 +73,10 @@ async def test_request_ids_skip_ids_still_in_flight() -> None:
 
 
 async def test_request_timeout_for_silent_board() -> None:
-    async with BoardStandIn(silent=True) as dev, Board(
-        dev.port, request_timeout=0.1, retries=1
-    ) as board:
+    async with (
+        BoardStandIn(silent=True) as dev,
+        Board(dev.port, request_timeout=0.1, retries=1) as board,
+    ):
         t0 = time.monotonic()
         with pytest.raises(RequestTimeoutError):
             await board.get_led()
@@ -124,9 +125,10 @@ async def test_bad_arguments_raise_before_anything_is_written(
 
 
 async def test_watchdog_and_deadman() -> None:
-    async with BoardStandIn(noise=False) as dev, Board(
-        dev.port, resend_interval=0.02, command_timeout=0.2
-    ) as board:
+    async with (
+        BoardStandIn(noise=False) as dev,
+        Board(dev.port, resend_interval=0.02, command_timeout=0.2) as board,
+    ):
         t0 = time.monotonic()
         await board.set_velocity(0.3, -0.2)
         await dev.wait_for(lambda fs: any(is_zero(f) for f in velocity_frames(fs)))

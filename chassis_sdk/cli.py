@@ -1,0 +1,322 @@
+"""The ``chassis-sdk`` command line, built on the public API only.
+
+Every command prints one clear line and exits non-zero on the everyday failures (no
+such port, permission denied, nothing answering) instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import sys
+import time
+from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
+from typing import Any
+
+from . import Board, Chassis, ChassisError, RequestTimeoutError, Telemetry, __version__
+from .sim import BoardSimulator, ChassisSimulator
+
+__all__ = ["main"]
+
+_DEMO_PATTERN: list[tuple[str, float, float, float]] = [
+    ("forward", 0.4, 0.0, 1.5),
+    ("turn left", 0.2, 0.8, 1.5),
+    ("backward", -0.3, 0.0, 1.0),
+    ("spin right", 0.0, -1.0, 1.0),
+]
+
+
+def _out(text: str = "") -> None:
+    print(text, flush=True)
+
+
+def _status_names(t: Telemetry) -> str:
+    """The set status bits by name (single bits only, not the group aliases)."""
+    return "|".join(
+        str(m.name) for m in type(t.status) if m.value.bit_count() == 1 and m in t.status
+    )
+
+
+def _format_telemetry(t: Telemetry) -> str:
+    status = _status_names(t) or "ok"
+    w = t.wheels
+    return (
+        f"  v={t.linear:+.3f} m/s  w={t.angular:+.3f} rad/s  "
+        f"wheels=[{w.front_left:+.2f} {w.front_right:+.2f} {w.rear_left:+.2f} "
+        f"{w.rear_right:+.2f}]  {t.voltage:.1f} V  docking={t.docking.name}  status={status}"
+    )
+
+
+async def _print_chassis_info(robot: Chassis) -> None:
+    firmware = await robot.get_firmware_version()
+    hardware = await robot.get_hardware_version()
+    info = await robot.get_chassis_info()
+    shipped = await robot.get_ship_date()
+    _out(f"firmware     {firmware}")
+    _out(f"hardware     {hardware}")
+    _out(
+        f"geometry     track {info.track_width:.3f} m, wheelbase {info.wheelbase:.3f} m, "
+        f"wheel {info.wheel_diameter:.3f} m, gear {info.gear_ratio}:1, "
+        f"encoder {info.encoder_resolution} lines"
+    )
+    _out(f"ship date    {shipped.isoformat()}")
+
+
+async def _drive_for(
+    robot: Chassis | Board, linear: float, angular: float, seconds: float, show: Callable[[], None]
+) -> None:
+    """Keep a velocity command alive for ``seconds`` (as a control loop would), showing
+    live data at 5 Hz."""
+    end = time.monotonic() + seconds
+    next_show = 0.0
+    while (now := time.monotonic()) < end:
+        await robot.set_velocity(linear, angular)
+        if now >= next_show:
+            show()
+            next_show = now + 0.2
+        await asyncio.sleep(0.1)
+
+
+async def _demo_chassis() -> None:
+    _out("Starting the chassis simulator on a pseudo-terminal ...")
+    async with ChassisSimulator() as sim:
+        _out(f"simulator    {sim.port}")
+        async with Chassis(sim.port) as robot:
+            _out(f"connected    via {robot.transport_backend}")
+            await _print_chassis_info(robot)
+            await anext(robot.telemetry())
+
+            def show() -> None:
+                t = robot.latest_telemetry
+                if t is not None:
+                    _out(_format_telemetry(t))
+
+            for name, v, w, seconds in _DEMO_PATTERN:
+                _out(f"drive: {name} (v={v} m/s, w={w} rad/s) for {seconds} s")
+                await _drive_for(robot, v, w, seconds, show)
+            _out("stop")
+            await robot.stop()
+            async for t in robot.telemetry():
+                if t.linear == 0 and t.angular == 0:
+                    _out(_format_telemetry(t))
+                    break
+            _out("software e-stop on, then off")
+            await robot.emergency_stop()
+            async for t in robot.telemetry():
+                if t.emergency_stopped:
+                    _out(_format_telemetry(t))
+                    break
+            await robot.release_emergency_stop()
+            stats = robot.stats
+            _out(
+                f"link         {stats.frames} frames in, {stats.frames_sent} out, "
+                f"{stats.resends} watchdog resends, {stats.bytes_dropped} bytes dropped"
+            )
+    _out("done: the robot stopped and the port is closed.")
+
+
+async def _demo_board() -> None:
+    _out("Starting the board simulator on a pseudo-terminal ...")
+    async with BoardSimulator() as sim:
+        _out(f"simulator    {sim.port}")
+        async with Board(sim.port) as board:
+            _out(f"connected    via {board.transport_backend}")
+            _out(f"led          {await board.set_led(True)} (reported by the board)")
+            _out(
+                f"buzzer       {await board.set_buzzer(True)} then {await board.set_buzzer(False)}"
+            )
+            await board.set_servo(1, 45.0)
+            battery = await anext(board.battery())
+            _out(f"battery      {battery.voltage:.2f} V")
+
+            def show() -> None:
+                imu, vel = board.latest_imu, board.latest_velocity
+                if imu is not None and vel is not None:
+                    _out(
+                        f"  v={vel.linear:+.3f} m/s  w={vel.angular:+.3f} rad/s  "
+                        f"accel=({imu.accel.x:+.2f}, {imu.accel.y:+.2f}, {imu.accel.z:+.2f}) g  "
+                        f"gyro z={imu.gyro.z:+6.1f} deg/s"
+                    )
+
+            for name, v, w, seconds in _DEMO_PATTERN[:2]:
+                _out(f"drive: {name} (v={v} m/s, w={w} rad/s) for {seconds} s")
+                await _drive_for(board, v, w, seconds, show)
+            await board.stop()
+            await board.set_led(False)
+    _out("done: the board stopped and the port is closed.")
+
+
+async def _sim(kind: str, tcp: int | None) -> None:
+    server = ChassisSimulator(tcp_port=tcp) if kind == "chassis" else BoardSimulator(tcp_port=tcp)
+    async with server:
+        _out(server.port)
+        _out(f"{kind} simulator running; connect to the line above. Ctrl-C stops it.")
+        await asyncio.Event().wait()
+
+
+async def _info(port: str, protocol: str, timeout: float) -> None:
+    if protocol == "chassis":
+        async with Chassis(port, request_timeout=timeout) as robot:
+            _out(f"port         {port}")
+            await _print_chassis_info(robot)
+            status = await robot.get_driver_status()
+            for name, d in zip(
+                ("front_left", "front_right", "rear_left", "rear_right"), status.wheels, strict=True
+            ):
+                errors = d.errors.name if d.errors else "ok"
+                _out(f"driver {name:<12} {errors}, {d.current:+.1f} A")
+    else:
+        async with Board(port, request_timeout=timeout) as board:
+            _out(f"port         {port}")
+            _out(f"led          {'on' if await board.get_led() else 'off'}")
+            _out(f"buzzer       {'on' if await board.get_buzzer() else 'off'}")
+            imu = await _first(board.imu(), timeout, "IMU samples (0x11)")
+            _out(f"imu          accel z {imu.accel.z:+.2f} g (about +1 at rest)")
+            battery = await _first(board.battery(), 2.0, "battery readings (0x13, 1 Hz)")
+            _out(f"battery      {battery.voltage:.2f} V")
+            _out("self-check   ok")
+
+
+async def _first(stream: AsyncIterator[Any], timeout: float, what: str) -> Any:
+    try:
+        async with asyncio.timeout(timeout):
+            return await anext(stream)
+    except TimeoutError:
+        raise RequestTimeoutError(f"no {what} within {timeout:g} s") from None
+
+
+async def _drive(port: str, protocol: str, linear: float, angular: float, seconds: float) -> None:
+    device: Chassis | Board = Chassis(port) if protocol == "chassis" else Board(port)
+    async with device:
+        _out(f"driving v={linear} m/s, w={angular} rad/s for {seconds} s")
+        await device.set_velocity(linear, angular, duration=seconds)
+        await asyncio.sleep(seconds)
+        await device.stop()
+    _out("stopped")
+
+
+async def _monitor(port: str, seconds: float | None) -> None:
+    async with Chassis(port) as robot:
+        end = None if seconds is None else time.monotonic() + seconds
+        try:
+            from rich.live import Live
+            from rich.table import Table
+        except ImportError:  # plain lines without rich
+            async for t in robot.telemetry():
+                _out(_format_telemetry(t))
+                if end is not None and time.monotonic() >= end:
+                    return
+            return
+
+        def render(t: Telemetry) -> Table:
+            table = Table(title=f"chassis on {port}", show_header=False)
+            table.add_row("voltage", f"{t.voltage:.1f} V")
+            table.add_row("velocity", f"{t.linear:+.3f} m/s   {t.angular:+.3f} rad/s")
+            w = t.wheels
+            table.add_row(
+                "wheels",
+                f"FL {w.front_left:+.2f}  FR {w.front_right:+.2f}  "
+                f"RL {w.rear_left:+.2f}  RR {w.rear_right:+.2f} m/s",
+            )
+            bits = [
+                m.name
+                for m in type(t.status)
+                if m in t.status and m.name and m.value.bit_count() == 1
+            ]
+            table.add_row("status", ", ".join(str(b) for b in bits) or "ok")
+            table.add_row("docking", t.docking.name)
+            s = robot.stats
+            table.add_row(
+                "link",
+                f"{s.frames} frames, {s.bytes_dropped} bytes dropped, "
+                f"{s.checksum_errors} checksum errors, {s.sequence_gaps} gaps",
+            )
+            return table
+
+        with Live(auto_refresh=False) as live:
+            last = 0.0
+            async for t in robot.telemetry():
+                if t.timestamp - last >= 0.1:
+                    live.update(render(t), refresh=True)
+                    last = t.timestamp
+                if end is not None and time.monotonic() >= end:
+                    return
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="chassis-sdk",
+        description="Talk to robot chassis and controller boards, or simulate them.",
+    )
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    p.add_argument("-v", "--verbose", action="store_true", help="DEBUG logs with frame hex dumps")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    d = sub.add_parser("demo", help="drive the built-in simulator through the real serial stack")
+    d.add_argument("--board", action="store_true", help="demo the controller board instead")
+
+    s = sub.add_parser("sim", help="run a simulator until Ctrl-C; prints the port to use")
+    s.add_argument("kind", choices=["chassis", "board"])
+    s.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP instead of a pty")
+
+    i = sub.add_parser("info", help="print versions and geometry (chassis) or a self-check (board)")
+    i.add_argument("port", help="device path, pty path or socket://host:port")
+    i.add_argument("--protocol", choices=["chassis", "board"], default="chassis")
+    i.add_argument("--timeout", type=float, default=1.0, help="seconds per request")
+
+    m = sub.add_parser("monitor", help="live view of the chassis telemetry")
+    m.add_argument("port")
+    m.add_argument("--seconds", type=float, help="stop after this long")
+
+    dr = sub.add_parser("drive", help="drive for a while, then stop")
+    dr.add_argument("port")
+    dr.add_argument("--protocol", choices=["chassis", "board"], default="chassis")
+    dr.add_argument("--linear", type=float, default=0.0, help="m/s")
+    dr.add_argument("--angular", type=float, default=0.0, help="rad/s")
+    dr.add_argument("--duration", type=float, default=1.0, help="seconds")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``chassis-sdk`` console script."""
+    args = _parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    job: Coroutine[Any, Any, None]
+    if args.command == "demo":
+        job = _demo_board() if args.board else _demo_chassis()
+    elif args.command == "sim":
+        job = _sim(args.kind, args.tcp)
+    elif args.command == "info":
+        job = _info(args.port, args.protocol, args.timeout)
+    elif args.command == "monitor":
+        job = _monitor(args.port, args.seconds)
+    else:
+        job = _drive(args.port, args.protocol, args.linear, args.angular, args.duration)
+    try:
+        asyncio.run(job)
+    except KeyboardInterrupt:
+        return 130
+    except RequestTimeoutError as exc:
+        print(
+            f"chassis-sdk: {exc} (is the device powered, and is it a {_kind(args)}?)",
+            file=sys.stderr,
+        )
+        return 2
+    except (ChassisError, ValueError) as exc:
+        print(f"chassis-sdk: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _kind(args: argparse.Namespace) -> str:
+    return "controller board" if getattr(args, "protocol", "chassis") == "board" else "chassis"
+
+
+if __name__ == "__main__":  # pragma: no cover
+    with contextlib.suppress(KeyboardInterrupt):
+        sys.exit(main())
