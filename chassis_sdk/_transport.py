@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import importlib
 import logging
 import time
 from collections.abc import Callable
@@ -20,14 +21,20 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 
 from .errors import PortOpenError
 
-try:  # pragma: no cover - depends on the installed extra
-    import serial_asyncio_fast as _serial_asyncio
+def _load_backend() -> tuple[Any, str]:
+    """Prefer the maintained fork when installed; both have the same API."""
+    for module, name in (
+        ("serial_asyncio_fast", "pyserial-asyncio-fast"),
+        ("serial_asyncio", "pyserial-asyncio"),
+    ):
+        try:
+            return importlib.import_module(module), name
+        except ImportError:  # pragma: no cover - depends on the installed extra
+            continue
+    raise ImportError("chassis_sdk needs pyserial-asyncio: pip install pyserial-asyncio")
 
-    BACKEND = "pyserial-asyncio-fast"
-except ImportError:  # pragma: no cover
-    import serial_asyncio as _serial_asyncio  # type: ignore[no-redef]
 
-    BACKEND = "pyserial-asyncio"
+_serial_asyncio, BACKEND = _load_backend()
 
 __all__ = ["BACKEND", "Link", "open_link"]
 
