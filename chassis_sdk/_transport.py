@@ -21,6 +21,7 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 
 from .errors import PortOpenError
 
+
 def _load_backend() -> tuple[Any, str]:
     """Prefer the maintained fork when installed; both have the same API."""
     for module, name in (
