@@ -180,8 +180,13 @@ class Device(Generic[M, K]):
         self._unmatched = 0
         self._sequence_gaps = 0
         self._reconnects = 0
+        self._init_protocol()
 
     # --- hooks for the subclasses ---------------------------------------------------------
+
+    def _init_protocol(self) -> None:
+        """Set up the encoder, streams and message routing (end of ``__init__``)."""
+        raise NotImplementedError
 
     def _make_decoder(self) -> Any:
         raise NotImplementedError

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable
 from typing import Any
 
@@ -55,30 +54,7 @@ class Board(Device[BoardMessage, _Key]):
         ...             print(sample.accel.z)
     """
 
-    def __init__(
-        self,
-        port: str,
-        *,
-        baudrate: int = 115200,
-        request_timeout: float = 1.0,
-        retries: int = 2,
-        resend_interval: float = 0.05,
-        command_timeout: float | None = 0.5,
-        reconnect: bool = False,
-        queue_size: int = 64,
-        logger: logging.Logger | None = None,
-    ) -> None:
-        super().__init__(
-            port,
-            baudrate=baudrate,
-            request_timeout=request_timeout,
-            retries=retries,
-            resend_interval=resend_interval,
-            command_timeout=command_timeout,
-            reconnect=reconnect,
-            queue_size=queue_size,
-            logger=logger,
-        )
+    def _init_protocol(self) -> None:
         self._encoder = BoardEncoder()
         self._next_id = 0
         self._id_slots: anyio.Semaphore | None = None
