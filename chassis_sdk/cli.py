@@ -9,13 +9,28 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
+import datetime
+import enum
+import json
 import logging
 import sys
 import time
 from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
 from typing import Any
 
-from . import Board, Chassis, ChassisError, RequestTimeoutError, Telemetry, __version__
+from . import (
+    BatteryReading,
+    Board,
+    Chassis,
+    ChassisError,
+    ImuSample,
+    RequestTimeoutError,
+    Telemetry,
+    VelocityFeedback,
+    __version__,
+    capture,
+)
 from .sim import BoardSimulator, ChassisSimulator
 
 __all__ = ["main"]
@@ -160,7 +175,10 @@ async def _info(port: str, protocol: str, timeout: float) -> None:
     if protocol == "chassis":
         async with Chassis(port, request_timeout=timeout) as robot:
             _out(f"port         {port}")
-            await _print_chassis_info(robot)
+            try:
+                await _print_chassis_info(robot)
+            except RequestTimeoutError as exc:
+                _explain_silence(robot, exc, "chassis")
             status = await robot.get_driver_status()
             for name, d in zip(
                 ("front_left", "front_right", "rear_left", "rear_right"), status.wheels, strict=True
@@ -170,13 +188,32 @@ async def _info(port: str, protocol: str, timeout: float) -> None:
     else:
         async with Board(port, request_timeout=timeout) as board:
             _out(f"port         {port}")
-            _out(f"led          {'on' if await board.get_led() else 'off'}")
+            try:
+                led = await board.get_led()
+            except RequestTimeoutError as exc:
+                _explain_silence(board, exc, "board")
+            _out(f"led          {'on' if led else 'off'}")
             _out(f"buzzer       {'on' if await board.get_buzzer() else 'off'}")
             imu = await _first(board.imu(), timeout, "IMU samples (0x11)")
             _out(f"imu          accel z {imu.accel.z:+.2f} g (about +1 at rest)")
             battery = await _first(board.battery(), 2.0, "battery readings (0x13, 1 Hz)")
             _out(f"battery      {battery.voltage:.2f} V")
             _out("self-check   ok")
+
+
+class WrongProtocolError(ChassisError):
+    """Bytes arrive, but none of them forms a frame of the expected protocol."""
+
+
+def _explain_silence(device: Chassis | Board, exc: RequestTimeoutError, expected: str) -> None:
+    stats = device.stats
+    if stats.bytes_received and not stats.frames:
+        other = "board" if expected == "chassis" else "chassis"
+        raise WrongProtocolError(
+            f"{stats.bytes_received} bytes arrived on {device.port} but none is a {expected} "
+            f"frame: is it a {other}? Try --protocol {other}, or `chassis-sdk detect`"
+        ) from exc
+    raise exc
 
 
 async def _first(stream: AsyncIterator[Any], timeout: float, what: str) -> Any:
@@ -245,6 +282,100 @@ async def _monitor(port: str, seconds: float | None) -> None:
                     return
 
 
+async def _record(port: str, path: str, seconds: float) -> None:
+    def progress(n_bytes: int, elapsed: float) -> None:
+        print(f"\rrecording {path}: {n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s", end="")
+        sys.stdout.flush()
+
+    cap = await capture.record(port, path, seconds=seconds, progress=progress)
+    _out(
+        f"\rrecorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s to {path}"
+    )
+
+
+def _replay(path: str, protocol: str | None, as_json: bool) -> None:
+    proto = protocol or _detect_file(path)
+    for t, msg in capture.decode_capture(path, proto):  # type: ignore[arg-type]
+        if as_json:
+            _out(json.dumps({"t": t, "type": type(msg).__name__, **_jsonable(msg)}))
+        else:
+            _out(f"{t:10.6f}  {msg}")
+
+
+def _detect_file(path: str) -> str:
+    data = b"".join(chunk for _, chunk in capture.read_capture(path))
+    found = capture.detect_in(data)
+    if found is None:
+        raise ChassisError(f"no frames of either protocol in {path}")
+    return found
+
+
+def _jsonable(msg: object) -> dict[str, Any]:
+    def convert(value: object) -> Any:
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return {f.name: convert(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        if isinstance(value, enum.Enum):
+            return value.name if value.name else int(value.value)
+        if isinstance(value, tuple) and hasattr(value, "_asdict"):
+            return {k: convert(v) for k, v in value._asdict().items()}
+        if isinstance(value, datetime.date):
+            return value.isoformat()
+        return value
+
+    result = convert(msg)
+    return result if isinstance(result, dict) else {"value": result}
+
+
+def _plot(path: str, output: str, protocol: str | None) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ChassisError("plot needs matplotlib: pip install 'chassis-sdk[plot]'") from None
+    proto = protocol or _detect_file(path)
+    rows = list(capture.decode_capture(path, proto))  # type: ignore[arg-type]
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
+    if proto == "chassis":
+        tel = [(t, m) for t, m in rows if isinstance(m, Telemetry)]
+        ts = [t for t, _ in tel]
+        axes[0].plot(ts, [m.linear for _, m in tel], label="linear (m/s)")
+        axes[0].plot(ts, [m.angular for _, m in tel], label="angular (rad/s)")
+        for name in ("front_left", "front_right", "rear_left", "rear_right"):
+            axes[1].plot(ts, [getattr(m.wheels, name) for _, m in tel], label=name)
+        axes[1].set_ylabel("wheel speed (m/s)")
+        axes[2].plot(ts, [m.voltage for _, m in tel], label="battery (V)")
+    else:
+        vel = [(t, m) for t, m in rows if isinstance(m, VelocityFeedback)]
+        imu = [(t, m) for t, m in rows if isinstance(m, ImuSample)]
+        bat = [(t, m) for t, m in rows if isinstance(m, BatteryReading)]
+        axes[0].plot([t for t, _ in vel], [m.linear for _, m in vel], label="linear (m/s)")
+        axes[0].plot([t for t, _ in vel], [m.angular for _, m in vel], label="angular (rad/s)")
+        axes[1].plot([t for t, _ in imu], [m.gyro.z for _, m in imu], label="gyro z (deg/s)")
+        axes[2].plot([t for t, _ in bat], [m.voltage for _, m in bat], label="battery (V)")
+    axes[0].set_ylabel("velocity")
+    axes[2].set_ylabel("volts")
+    axes[2].set_xlabel("time since start of capture (s)")
+    for ax in axes:
+        ax.legend(loc="upper right")
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(f"{proto} capture {path}")
+    fig.tight_layout()
+    fig.savefig(output, dpi=100)
+    _out(f"wrote {output} ({len(rows)} messages)")
+
+
+async def _detect(port: str, seconds: float) -> None:
+    found = await capture.detect_protocol(port, seconds=seconds)
+    if found is None:
+        raise ChassisError(
+            f"nothing recognisable on {port} within {seconds:g} s "
+            "(expected 0x81 chassis telemetry or 0x11 board IMU frames)"
+        )
+    _out(found)
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="chassis-sdk",
@@ -276,6 +407,24 @@ def _parser() -> argparse.ArgumentParser:
     dr.add_argument("--linear", type=float, default=0.0, help="m/s")
     dr.add_argument("--angular", type=float, default=0.0, help="rad/s")
     dr.add_argument("--duration", type=float, default=1.0, help="seconds")
+    r = sub.add_parser("record", help="capture timestamped raw bytes from a port")
+    r.add_argument("port")
+    r.add_argument("file")
+    r.add_argument("--seconds", type=float, default=10.0)
+
+    rp = sub.add_parser("replay", help="decode a capture and print its messages")
+    rp.add_argument("file")
+    rp.add_argument("--protocol", choices=["chassis", "board"], help="default: detected")
+    rp.add_argument("--json", action="store_true", help="one JSON object per line")
+
+    pl = sub.add_parser("plot", help="plot velocities, wheel speeds and voltage from a capture")
+    pl.add_argument("file")
+    pl.add_argument("-o", "--output", default="capture.png")
+    pl.add_argument("--protocol", choices=["chassis", "board"], help="default: detected")
+
+    de = sub.add_parser("detect", help="listen briefly and say which protocol is on a port")
+    de.add_argument("port")
+    de.add_argument("--seconds", type=float, default=1.5)
     return p
 
 
@@ -287,7 +436,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     job: Coroutine[Any, Any, None]
-    if args.command == "demo":
+    if args.command in ("replay", "plot"):
+        try:
+            if args.command == "replay":
+                _replay(args.file, args.protocol, args.json)
+            else:
+                _plot(args.file, args.output, args.protocol)
+        except BrokenPipeError:  # `| head`
+            return 0
+        except (ChassisError, ValueError, OSError) as exc:
+            print(f"chassis-sdk: {exc}", file=sys.stderr)
+            return 1
+        return 0
+    if args.command == "record":
+        job = _record(args.port, args.file, args.seconds)
+    elif args.command == "detect":
+        job = _detect(args.port, args.seconds)
+    elif args.command == "demo":
         job = _demo_board() if args.board else _demo_chassis()
     elif args.command == "sim":
         job = _sim(args.kind, args.tcp)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import sys
 import tty
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from chassis_sdk.sim import ChassisSimulator
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
@@ -94,3 +95,52 @@ async def test_bad_argument_is_refused_before_connecting() -> None:
         )
     assert code == 1
     assert "linear must be finite" in err
+
+
+async def test_record_replay_and_detect(tmp_path: Path) -> None:
+    cap = tmp_path / "cap.jsonl"
+    async with ChassisSimulator() as sim:
+        code, out, err = await run("-m", "chassis_sdk.cli", "detect", sim.port)
+        assert (code, out.strip()) == (0, "chassis"), err
+        code, out, err = await run(
+            "-m", "chassis_sdk.cli", "record", sim.port, str(cap), "--seconds", "0.5"
+        )
+        assert code == 0, err
+        assert "recorded" in out
+    code, out, err = await run("-m", "chassis_sdk.cli", "replay", str(cap))
+    assert code == 0, err
+    assert out.count("Telemetry(") >= 15  # 50 Hz for 0.5 s
+    code, out, err = await run("-m", "chassis_sdk.cli", "replay", str(cap), "--json")
+    first = json.loads(out.splitlines()[0])
+    assert first["type"] == "Telemetry"
+    assert first["docking"] == "SEARCHING"
+    assert isinstance(first["wheels"]["front_left"], float)
+
+
+async def test_replay_of_a_file_that_is_not_a_capture(tmp_path: Path) -> None:
+    bogus = tmp_path / "x.txt"
+    bogus.write_text("hello\n")
+    code, _out, err = await run("-m", "chassis_sdk.cli", "replay", str(bogus))
+    assert code == 1
+    assert "not a chassis-sdk capture" in err
+
+
+async def test_plot_writes_a_png(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")  # the `plot` extra; CI installs it for this run
+    cap, png = tmp_path / "cap.jsonl", tmp_path / "out.png"
+    async with BoardSimulator() as sim:
+        code, _, err = await run(
+            "-m", "chassis_sdk.cli", "record", sim.port, str(cap), "--seconds", "0.5"
+        )
+        assert code == 0, err
+    code, _out, err = await run("-m", "chassis_sdk.cli", "plot", str(cap), "-o", str(png))
+    assert code == 0, err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+async def test_wrong_protocol_on_the_port_is_named() -> None:
+    async with BoardSimulator() as sim:
+        code, _out, err = await run("-m", "chassis_sdk.cli", "info", sim.port, "--timeout", "0.2")
+    assert code == 1
+    assert "none is a chassis frame: is it a board?" in err
+    assert "Traceback" not in err
