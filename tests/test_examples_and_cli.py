@@ -144,3 +144,46 @@ async def test_wrong_protocol_on_the_port_is_named() -> None:
     assert code == 1
     assert "none is a chassis frame: is it a board?" in err
     assert "Traceback" not in err
+
+
+async def test_sim_prints_its_port_and_info_reaches_it_from_another_process() -> None:
+    sim = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "chassis_sdk.cli", "sim", "chassis",
+        stdout=asyncio.subprocess.PIPE, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert sim.stdout is not None
+        async with asyncio.timeout(10):
+            port = (await sim.stdout.readline()).decode().strip()
+        assert port.startswith("/dev/")
+        code, out, err = await run("-m", "chassis_sdk.cli", "info", port)
+        assert code == 0, err
+        assert "hardware     ZKWL-brush-motor-chassis" in out
+        code, out, err = await run("-m", "chassis_sdk.cli", "monitor", port, "--seconds", "0.5")
+        assert code == 0, err
+        assert "REMOTE_OFFLINE" in out
+        code, out, err = await run(
+            "-m", "chassis_sdk.cli", "drive", port, "--linear", "0.2", "--duration", "0.3"
+        )
+        assert (code, out.splitlines()[-1]) == (0, "stopped"), err
+    finally:
+        sim.terminate()
+        await sim.wait()
+
+
+@pytest.mark.parametrize(
+    "command", ["", "demo", "sim", "info", "monitor", "drive", "record", "replay", "plot", "detect"]
+)
+async def test_help_on_every_command(command: str) -> None:
+    code, out, _ = await run("-m", "chassis_sdk.cli", *([command] if command else []), "--help")
+    assert code == 0
+    assert out.startswith("usage: chassis-sdk")
+
+
+def test_permission_denied_names_the_group_to_join() -> None:
+    from chassis_sdk._transport import _describe_open_error
+
+    exc = PermissionError(13, "Permission denied", "/dev/ttyUSB0")
+    text = _describe_open_error("/dev/ttyUSB0", exc)
+    assert "permission denied" in text
+    assert "dialout" in text
