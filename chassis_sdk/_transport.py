@@ -73,9 +73,6 @@ class Link(asyncio.Protocol, Generic[M]):
         self._log = logger
         self.transport: asyncio.WriteTransport | None = None
         self.closed = asyncio.get_running_loop().create_future()
-        self.bytes_received = 0
-        self.bytes_sent = 0
-        self.frames_sent = 0
         #: ``time.monotonic()`` of the last chunk that decoded into at least one message.
         self.last_frame_time: float | None = None
 
@@ -84,7 +81,6 @@ class Link(asyncio.Protocol, Generic[M]):
 
     def data_received(self, data: bytes) -> None:
         now = time.monotonic()
-        self.bytes_received += len(data)
         if self._log.isEnabledFor(logging.DEBUG):
             self._log.debug("rx %s", data.hex(" "))
         messages = self._decoder.feed(data, now)
@@ -108,8 +104,6 @@ class Link(asyncio.Protocol, Generic[M]):
         if self._log.isEnabledFor(logging.DEBUG):
             self._log.debug("tx %s", frame.hex(" "))
         transport.write(frame)
-        self.bytes_sent += len(frame)
-        self.frames_sent += 1
         return True
 
     async def drain(self, timeout: float) -> None:

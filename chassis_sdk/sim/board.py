@@ -81,7 +81,6 @@ class BoardFirmware:
         self._next_battery = 0.0
         self._battery = self.spec.battery_full
         self._pending_logs: list[str] = []
-        self._was_moving = False
 
     # --- sans-IO interface ----------------------------------------------------------------
 
@@ -177,7 +176,6 @@ class BoardFirmware:
         moving = abs(self.linear) > 1e-6 or abs(self.angular) > 1e-6
         if moving:
             self._battery -= 0.0002 * dt
-        self._was_moving = moving
 
     @property
     def battery_voltage(self) -> float:
