@@ -4,7 +4,8 @@ the velocity watchdog and stats. ``Chassis`` and ``Board`` add only their protoc
 Lifetime
 --------
 ``connect()`` opens the port, then starts a runner task that owns an anyio task group
-with the background tasks (the watchdog and the link supervisor). Running the group in
+with the background tasks (the watchdog, the link supervisor and the link-health
+monitor). Running the group in
 its own task, rather than in the caller's, keeps the caller's cancel scopes out of it,
 so ``connect()`` and ``close()`` may be called from different tasks, and a failure in
 the background never cancels application code in the middle of a request.
@@ -63,9 +64,15 @@ class ConnectionState(enum.Enum):
 
     DISCONNECTED = "disconnected"  #: constructed, or closed; no I/O
     CONNECTING = "connecting"  #: opening the port
-    CONNECTED = "connected"  #: the port is open
+    CONNECTED = "connected"  #: the port is open and frames arrive
+    #: the port is open but no valid frame has arrived for ``link_timeout``; requests
+    #: and commands are still sent (a frame ends this state at once)
+    STALE = "stale"
     RECONNECTING = "reconnecting"  #: the link dropped; reopening with backoff
     LOST = "lost"  #: the link dropped and ``reconnect`` is off; call ``close()``
+
+
+_OPEN = frozenset({ConnectionState.CONNECTED, ConnectionState.STALE})
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +145,7 @@ class Device(Generic[M, K]):
         command_timeout: float | None = 0.5,
         reconnect: bool = False,
         queue_size: int = 64,
+        link_timeout: float | None = 1.0,
         logger: logging.Logger | None = None,
     ) -> None:
         if not isinstance(port, str) or not port:
@@ -151,20 +159,25 @@ class Device(Generic[M, K]):
         _check_positive("command_timeout", command_timeout, allow_none=True)  # type: ignore[arg-type]
         if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
             raise ValueError(f"queue_size must be an integer >= 1, got {queue_size!r}")
+        _check_positive("link_timeout", link_timeout, allow_none=True)  # type: ignore[arg-type]
         self.port = port
         self.baudrate = baudrate
         self.request_timeout = float(request_timeout)
         self.retries = retries
         self.reconnect = bool(reconnect)
         self.queue_size = queue_size
+        self.link_timeout = None if link_timeout is None else float(link_timeout)
         self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
         self._decoder = self._make_decoder()
         self._requests: RequestTable[K, Any] = RequestTable()
         self._streams: list[Broadcast[Any]] = []
         self._state = ConnectionState.DISCONNECTED
         self._states: Broadcast[ConnectionState] = Broadcast(queue_size)
+        # Replaced on every change, so each waiter sees the change it waited on.
         self._state_changed = asyncio.Event()
         self._link: Link[M] | None = None
+        self._opened_at = 0.0
+        self._last_frame_time: float | None = None
         self._lost = asyncio.Event()
         self._lost_exc: Exception | None = None
         self._closing = asyncio.Event()
@@ -215,8 +228,8 @@ class Device(Generic[M, K]):
 
     @property
     def is_connected(self) -> bool:
-        """True while the port is open."""
-        return self._state is ConnectionState.CONNECTED
+        """True while the port is open (``CONNECTED`` or ``STALE``)."""
+        return self._state in _OPEN
 
     @property
     def transport_backend(self) -> str:
@@ -224,21 +237,27 @@ class Device(Generic[M, K]):
         return BACKEND
 
     def connection_states(self) -> Subscription[ConnectionState]:
-        """An async iterator of connection state changes, starting with the next one."""
+        """An async iterator of :class:`ConnectionState` changes, from the next one on.
+
+        It ends after ``DISCONNECTED`` when the device is closed. Example::
+
+            async for state in robot.connection_states():
+                print("link is", state.value)
+        """
         return self._states.subscribe()
 
     async def wait_connected(self, timeout: float | None = None) -> None:
-        """Wait until the device is connected (for example, after a reconnect).
+        """Wait until the port is open (``CONNECTED`` or ``STALE``), e.g. after a
+        reconnect. Returns at once if it already is.
 
         Raises:
             TimeoutError: ``timeout`` elapsed first.
             NotConnectedError: The device is closed or lost and will not reconnect.
         """
         with anyio.fail_after(timeout):
-            while self._state is not ConnectionState.CONNECTED:
+            while self._state not in _OPEN:
                 if self._state in (ConnectionState.DISCONNECTED, ConnectionState.LOST):
                     raise NotConnectedError(f"{self.port} is {self._state.value}")
-                self._state_changed.clear()
                 await self._state_changed.wait()
 
     def _set_state(self, state: ConnectionState) -> None:
@@ -247,7 +266,8 @@ class Device(Generic[M, K]):
         self._log.info("%s: %s -> %s", self.port, self._state.value, state.value)
         self._state = state
         self._states.publish(state)
-        self._state_changed.set()
+        changed, self._state_changed = self._state_changed, asyncio.Event()
+        changed.set()
 
     async def connect(self) -> None:
         """Open the port and start the background tasks.
@@ -278,9 +298,44 @@ class Device(Generic[M, K]):
         self._link = await open_link(
             self.port,
             self.baudrate,
-            lambda: Link(self._decoder, self._handle, self._on_lost, self._log),
+            lambda: Link(self._decoder, self._received, self._on_lost, self._log),
         )
+        self._opened_at = time.monotonic()
         self._log.info("%s: opened at %d baud via %s", self.port, self.baudrate, BACKEND)
+
+    def _received(self, messages: list[M], now: float) -> None:
+        """Called by the link, synchronously, for each chunk that held frames."""
+        self._last_frame_time = now
+        if self._state is ConnectionState.STALE:
+            self._log.warning("%s: frames arrive again; link restored", self.port)
+            self._set_state(ConnectionState.CONNECTED)
+        handle = self._handle
+        for msg in messages:
+            try:
+                handle(msg)
+            except Exception:  # a bug must not stop the frames after it, nor the link
+                self._log.exception("%s: error handling %r", self.port, msg)
+
+    async def _monitor_link(self, timeout: float) -> None:
+        """Mark the link ``STALE`` when no valid frame has come for ``timeout`` s."""
+        while True:
+            changed = self._state_changed
+            if self._state is not ConnectionState.CONNECTED:
+                await changed.wait()
+                continue
+            last = self._opened_at
+            if self._last_frame_time is not None and self._last_frame_time > last:
+                last = self._last_frame_time
+            wait = last + timeout - time.monotonic()
+            if wait > 0:
+                await anyio.sleep(wait)
+                continue
+            self._log.warning(
+                "%s: no valid frame for %.1f s; link stale (is the device on and sending?)",
+                self.port,
+                timeout,
+            )
+            self._set_state(ConnectionState.STALE)
 
     def _on_lost(self, exc: Exception | None) -> None:
         self._link = None
@@ -292,6 +347,10 @@ class Device(Generic[M, K]):
             async with anyio.create_task_group() as tg:
                 tg.start_soon(self._watchdog.run, name=f"watchdog:{self.port}")
                 tg.start_soon(self._supervise, name=f"supervisor:{self.port}")
+                if self.link_timeout is not None:
+                    tg.start_soon(
+                        self._monitor_link, self.link_timeout, name=f"link health:{self.port}"
+                    )
                 await self._closing.wait()
                 tg.cancel_scope.cancel()
         except Exception as exc:  # a bug in a background task: fail loudly, stop safely
@@ -366,6 +425,9 @@ class Device(Generic[M, K]):
         for stream in self._streams:
             stream.fail(None)
         self._set_state(ConnectionState.DISCONNECTED)
+        # End the state iterators after DISCONNECTED; new ones may subscribe again.
+        self._states.fail(None)
+        self._states.reopen()
 
     async def __aenter__(self) -> Self:
         await self.connect()
@@ -392,7 +454,7 @@ class Device(Generic[M, K]):
         self._count_sent(len(frame))
 
     def _ensure_connected(self) -> None:
-        if self._link is None or self._state is not ConnectionState.CONNECTED:
+        if self._link is None or self._state not in _OPEN:
             raise NotConnectedError(f"{self.port} is {self._state.value}, not connected")
 
     async def _send(self, frame: bytes) -> None:
@@ -509,11 +571,10 @@ class Device(Generic[M, K]):
 
     @property
     def last_frame_age(self) -> float | None:
-        """Seconds since the last valid frame arrived, or ``None`` if none has."""
-        link = self._link
-        if link is None or link.last_frame_time is None:
-            return None
-        return time.monotonic() - link.last_frame_time
+        """Seconds since the last valid frame of any kind arrived (across reconnects),
+        or ``None`` if none has."""
+        last = self._last_frame_time
+        return None if last is None else time.monotonic() - last
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.port!r} {self._state.value}>"

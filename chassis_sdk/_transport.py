@@ -55,7 +55,9 @@ class Link(asyncio.Protocol, Generic[M]):
 
     Args:
         decoder: The protocol's decoder (kept across reconnects for its stats).
-        on_message: Called for each decoded message, in wire order.
+        on_messages: Called once per received chunk that decoded into messages, with
+            the messages in wire order and the ``time.monotonic()`` of their arrival
+            (one call per chunk, not per message: the hot path stays flat).
         on_lost: Called once when the connection is lost, with the error if any.
         logger: Hex dumps go here at DEBUG.
     """
@@ -63,18 +65,16 @@ class Link(asyncio.Protocol, Generic[M]):
     def __init__(
         self,
         decoder: Decoder[M],
-        on_message: Callable[[M], None],
+        on_messages: Callable[[list[M], float], None],
         on_lost: Callable[[Exception | None], None],
         logger: logging.Logger,
     ) -> None:
         self._decoder = decoder
-        self._on_message = on_message
+        self._on_messages = on_messages
         self._on_lost = on_lost
         self._log = logger
         self.transport: asyncio.WriteTransport | None = None
         self.closed = asyncio.get_running_loop().create_future()
-        #: ``time.monotonic()`` of the last chunk that decoded into at least one message.
-        self.last_frame_time: float | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = cast(asyncio.WriteTransport, transport)
@@ -85,10 +85,7 @@ class Link(asyncio.Protocol, Generic[M]):
             self._log.debug("rx %s", data.hex(" "))
         messages = self._decoder.feed(data, now)
         if messages:
-            self.last_frame_time = now
-            on_message = self._on_message
-            for msg in messages:
-                on_message(msg)
+            self._on_messages(messages, now)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.transport = None

@@ -50,8 +50,12 @@ class Capture:
 async def _open_raw(
     port: str, baudrate: int, on_chunk: Callable[[tuple[float, bytes]], None]
 ) -> Link[Any]:
+    def on_chunks(chunks: list[tuple[float, bytes]], now: float) -> None:
+        for chunk in chunks:
+            on_chunk(chunk)
+
     return await open_link(
-        port, baudrate, lambda: Link(_RawDecoder(), on_chunk, lambda exc: None, _log)
+        port, baudrate, lambda: Link(_RawDecoder(), on_chunks, lambda exc: None, _log)
     )
 
 

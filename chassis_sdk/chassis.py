@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -63,6 +64,8 @@ class Chassis(Device[ChassisMessage, ReplyId]):
             this long after the last call. ``None`` disables it (hold until stop()).
         reconnect: Reopen the port with backoff when the link drops, instead of failing.
         queue_size: Buffer per stream subscriber; on overflow the oldest is dropped.
+        link_timeout: Seconds without a valid frame before the link is reported
+            ``STALE`` (a state change, logged once); ``None`` disables the check.
         logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
 
     Raises:
@@ -258,6 +261,13 @@ class Chassis(Device[ChassisMessage, ReplyId]):
     def latest_telemetry(self) -> Telemetry | None:
         """The most recent :class:`Telemetry`, or ``None`` before the first."""
         return self._latest
+
+    @property
+    def telemetry_age(self) -> float | None:
+        """Seconds since the latest :class:`Telemetry` arrived, or ``None`` before the
+        first. It keeps growing through an outage and a stale link."""
+        latest = self._latest
+        return None if latest is None else time.monotonic() - latest.timestamp
 
     @property
     def latest_power(self) -> PowerTelemetry | None:
