@@ -31,7 +31,7 @@ from . import (
     __version__,
     capture,
 )
-from .sim import BoardSimulator, ChassisSimulator
+from .sim import BoardSimulator, ChassisSimulator, LineFaults
 
 __all__ = ["main"]
 
@@ -163,8 +163,12 @@ async def _demo_board() -> None:
     _out("done: the board stopped and the port is closed.")
 
 
-async def _sim(kind: str, tcp: int | None) -> None:
-    server = ChassisSimulator(tcp_port=tcp) if kind == "chassis" else BoardSimulator(tcp_port=tcp)
+async def _sim(kind: str, tcp: int | None, faults: LineFaults) -> None:
+    server = (
+        ChassisSimulator(tcp_port=tcp, faults=faults)
+        if kind == "chassis"
+        else BoardSimulator(tcp_port=tcp, faults=faults)
+    )
     async with server:
         _out(server.port)
         _out(f"{kind} simulator running; connect to the line above. Ctrl-C stops it.")
@@ -391,6 +395,30 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("sim", help="run a simulator until Ctrl-C; prints the port to use")
     s.add_argument("kind", choices=["chassis", "board"])
     s.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP instead of a pty")
+    s.add_argument(
+        "--noise",
+        type=float,
+        default=0.0,
+        metavar="RATE",
+        help="insert a random byte before a sent byte with this chance",
+    )
+    s.add_argument(
+        "--bit-flips",
+        type=float,
+        default=0.0,
+        metavar="RATE",
+        help="flip one bit of a sent byte with this chance",
+    )
+    s.add_argument(
+        "--drop", type=float, default=0.0, metavar="RATE", help="lose a sent byte with this chance"
+    )
+    s.add_argument(
+        "--reply-delay",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="hold every reply back this long",
+    )
 
     i = sub.add_parser("info", help="print versions and geometry (chassis) or a self-check (board)")
     i.add_argument("port", help="device path, pty path or socket://host:port")
@@ -455,7 +483,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif args.command == "demo":
         job = _demo_board() if args.board else _demo_chassis()
     elif args.command == "sim":
-        job = _sim(args.kind, args.tcp)
+        try:
+            faults = LineFaults(
+                noise_rate=args.noise,
+                bit_flip_rate=args.bit_flips,
+                drop_rate=args.drop,
+                reply_delay=args.reply_delay,
+            )
+        except ValueError as exc:
+            print(f"chassis-sdk: {exc}", file=sys.stderr)
+            return 1
+        job = _sim(args.kind, args.tcp, faults)
     elif args.command == "info":
         job = _info(args.port, args.protocol, args.timeout)
     elif args.command == "monitor":

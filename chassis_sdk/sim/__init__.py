@@ -10,10 +10,12 @@ against when no hardware is attached::
         await robot.set_velocity(0.3, 0.0)
 
 ``sim.port`` is the pty's path (``/dev/pts/N``) or, with ``tcp_port=``, a
-``socket://127.0.0.1:PORT`` URL. ``sim.firmware`` is the model, for fault injection.
+``socket://127.0.0.1:PORT`` URL. ``sim.firmware`` is the model, for device faults
+(bumper, driver faults, e-stop, ``reset``); ``sim.faults`` (:class:`LineFaults`) damages
+the line; ``sim.unplug()`` / ``await sim.replug()`` pull and restore the cable.
 """
 
-from ._server import SimulatorServer
+from ._server import FaultCounts, LineFaults, SimulatorServer
 from .board import BoardFirmware, BoardSimulator, BoardSpec
 from .chassis import ChassisFirmware, ChassisSimulator, ChassisSpec
 
@@ -24,5 +26,7 @@ __all__ = [
     "ChassisFirmware",
     "ChassisSimulator",
     "ChassisSpec",
+    "FaultCounts",
+    "LineFaults",
     "SimulatorServer",
 ]

@@ -32,7 +32,7 @@ from ..protocol.board import (
     VelocityCommand,
     VelocityFeedback,
 )
-from ._server import SimulatorServer, next_slot
+from ._server import LineFaults, SimulatorServer, next_slot
 
 __all__ = ["BoardFirmware", "BoardSimulator", "BoardSpec"]
 
@@ -61,10 +61,17 @@ class BoardFirmware:
     def __init__(self, spec: BoardSpec | None = None) -> None:
         self.spec = spec or BoardSpec()
         self._rng = random.Random(self.spec.seed)
-        self._decoder = BoardCommandDecoder()
-        self._encoder = BoardEncoder()
         #: Every command received, newest last, with its arrival time.
         self.received: deque[tuple[float, BoardCommand]] = deque(maxlen=10_000)
+        #: Times :meth:`reset` was called.
+        self.resets = 0
+        self._boot_until = -math.inf
+        self._battery = self.spec.battery_full  # the battery outlives a reset
+        self._power_on()
+
+    def _power_on(self) -> None:
+        self._decoder = BoardCommandDecoder()
+        self._encoder = BoardEncoder()
         self.led = False
         self.buzzer = False
         self.pwm = {1: 0, 2: 0, 3: 0, 4: 0}
@@ -79,7 +86,6 @@ class BoardFirmware:
         self._next_imu = 0.0
         self._next_velocity = 0.0
         self._next_battery = 0.0
-        self._battery = self.spec.battery_full
         self._pending_logs: list[str] = []
 
     # --- sans-IO interface ----------------------------------------------------------------
@@ -90,8 +96,18 @@ class BoardFirmware:
         self._next_imu = self._next_velocity = self._next_battery = now
         self._pending_logs.append("board ready")
 
+    def reset(self, now: float, downtime: float = 0.5) -> None:
+        """Reboot: silent for ``downtime`` seconds (host bytes are lost), then the
+        power-up state (LED and buzzer off, motors stopped) and a "board ready" log."""
+        self.resets += 1
+        self._power_on()
+        self._boot_until = now + downtime
+        self.on_connect(self._boot_until)
+
     def receive(self, data: bytes, now: float) -> bytes:
         """Handle bytes from the host; return the immediate replies."""
+        if now < self._boot_until:
+            return b""  # rebooting: nobody is listening
         out = bytearray()
         for cmd in self._decoder.feed(data, now):
             self.received.append((now, cmd))
@@ -100,6 +116,8 @@ class BoardFirmware:
 
     def poll(self, now: float) -> bytes:
         """Advance the model to ``now``; return the periodic frames that fell due."""
+        if now < self._boot_until:
+            return b""
         self._step(now)
         enc = self._encoder.encode
         out = bytearray()
@@ -210,9 +228,17 @@ class BoardSimulator(SimulatorServer):
     Args:
         spec: Rates and dynamics.
         tcp_port: Serve on ``socket://127.0.0.1:PORT`` instead of a pty (0: any port).
+        faults: Line faults to start with (noise, bit flips, lost bytes, late or lost
+            replies); ``sim.faults`` can be changed while it runs.
     """
 
     firmware: BoardFirmware
 
-    def __init__(self, spec: BoardSpec | None = None, *, tcp_port: int | None = None) -> None:
-        super().__init__(BoardFirmware(spec), tcp_port=tcp_port)
+    def __init__(
+        self,
+        spec: BoardSpec | None = None,
+        *,
+        tcp_port: int | None = None,
+        faults: LineFaults | None = None,
+    ) -> None:
+        super().__init__(BoardFirmware(spec), tcp_port=tcp_port, faults=faults)

@@ -37,7 +37,7 @@ from ..protocol.chassis import (
     WheelDriver,
     WheelSpeeds,
 )
-from ._server import SimulatorServer, next_slot
+from ._server import LineFaults, SimulatorServer, next_slot
 
 __all__ = ["ChassisFirmware", "ChassisSimulator", "ChassisSpec"]
 
@@ -78,21 +78,29 @@ class ChassisFirmware:
     """The firmware model: ``receive(bytes, now)`` and ``poll(now)`` return bytes to send.
 
     Tests and the CLI reach into it to trigger faults: :meth:`press_bumper`,
-    :meth:`set_driver_fault`, :meth:`set_hardware_estop`.
+    :meth:`set_driver_fault`, :meth:`set_hardware_estop`, :meth:`reset`.
     """
 
     def __init__(self, spec: ChassisSpec | None = None) -> None:
         self.spec = spec or ChassisSpec()
+        #: Every command received, newest last, with its arrival time.
+        self.received: deque[tuple[float, HostCommand]] = deque(maxlen=10_000)
+        #: Times :meth:`reset` was called.
+        self.resets = 0
+        self.hardware_estop = False
+        self._boot_until = -math.inf
+        self._battery_open = self.spec.battery_full  # the battery outlives a reset
+        self._power_on()
+
+    def _power_on(self) -> None:
+        """The state after power-up (the hardware e-stop button is physical: it stays)."""
         self._decoder = ChassisCommandDecoder()
         self._telemetry_encoder = ChassisEncoder()
         self._power_encoder = ChassisEncoder()
         self._reply_encoder = ChassisEncoder()
-        #: Every command received, newest last, with its arrival time.
-        self.received: deque[tuple[float, HostCommand]] = deque(maxlen=10_000)
         self.telemetry_enabled = True
         self.power_enabled = False
         self.software_estop = False
-        self.hardware_estop = False
         self.front_bumper = False
         self.rear_bumper = False
         self.driver_errors = [DriverError(0)] * 4
@@ -107,7 +115,6 @@ class ChassisFirmware:
         self._last_step: float | None = None
         self._next_telemetry = 0.0
         self._next_power = 0.0
-        self._battery_open = self.spec.battery_full
 
     # --- fault injection ------------------------------------------------------------------
 
@@ -126,6 +133,23 @@ class ChassisFirmware:
         """Press or release the hardware emergency-stop button."""
         self.hardware_estop = pressed
 
+    def reset(self, now: float, downtime: float = 0.5) -> None:
+        """Reboot the firmware, as a brown-out or watchdog reset would.
+
+        For ``downtime`` seconds it sends nothing and loses what the host sends; then
+        it comes up in its power-up state: sequence numbers from 0, telemetry on, power
+        telemetry off, software e-stop released, latched faults cleared, wheels stopped.
+        """
+        self.resets += 1
+        self._power_on()
+        self._boot_until = now + downtime
+        self.on_connect(self._boot_until)
+
+    @property
+    def booting(self) -> bool:
+        """True while a :meth:`reset` is in progress (as of the last call)."""
+        return self._last_step is not None and self._last_step < self._boot_until
+
     # --- sans-IO interface --------------------------------------------------------------------
 
     def on_connect(self, now: float) -> None:
@@ -136,6 +160,8 @@ class ChassisFirmware:
 
     def receive(self, data: bytes, now: float) -> bytes:
         """Handle bytes from the host; return the immediate replies."""
+        if now < self._boot_until:
+            return b""  # rebooting: nobody is listening
         out = bytearray()
         for cmd in self._decoder.feed(data, now):
             self.received.append((now, cmd))
@@ -146,6 +172,8 @@ class ChassisFirmware:
 
     def poll(self, now: float) -> bytes:
         """Advance the model to ``now``; return the periodic frames that fell due."""
+        if now < self._boot_until:
+            return b""
         self._step(now)
         out = bytearray()
         if self.telemetry_enabled and now >= self._next_telemetry:
@@ -345,9 +373,17 @@ class ChassisSimulator(SimulatorServer):
     Args:
         spec: Device parameters (versions, geometry, rates).
         tcp_port: Serve on ``socket://127.0.0.1:PORT`` instead of a pty (0: any port).
+        faults: Line faults to start with (noise, bit flips, lost bytes, late or lost
+            replies); ``sim.faults`` can be changed while it runs.
     """
 
     firmware: ChassisFirmware
 
-    def __init__(self, spec: ChassisSpec | None = None, *, tcp_port: int | None = None) -> None:
-        super().__init__(ChassisFirmware(spec), tcp_port=tcp_port)
+    def __init__(
+        self,
+        spec: ChassisSpec | None = None,
+        *,
+        tcp_port: int | None = None,
+        faults: LineFaults | None = None,
+    ) -> None:
+        super().__init__(ChassisFirmware(spec), tcp_port=tcp_port, faults=faults)
