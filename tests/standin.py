@@ -3,9 +3,11 @@
 They share no code with ``chassis_sdk``: frames are packed and parsed here by hand,
 straight from PROTOCOL_NOTES.md, so an error in the SDK's codec cannot cancel out
 against the same error in the test double. Each stand-in serves a real pseudo-terminal
-(raw mode, set before anything else) that the SDK opens through its real transport,
-puts noise on the line between frames, and records every frame the host writes with
-its arrival time so tests can wait on them as events.
+(raw mode, set before anything else) or, with ``tcp=True``, a TCP port on 127.0.0.1,
+that the SDK opens through its real transport; it puts noise on the line between
+frames, and records every frame the host writes with its arrival time so tests can
+wait on them as events. ``unplug()`` drops the line; over TCP, ``replug()`` listens on
+the same port again.
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ class PtyPeer:
 
     noise: bool = True
     seed: int = 1
+    tcp: bool = False
+    #: When False, the periodic output (telemetry) pauses; replies still go out.
+    streaming: bool = True
     frames: list[Received] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -53,15 +58,26 @@ class PtyPeer:
         self.port = ""
         self._tasks: list[asyncio.Task[None]] = []
         self.noise_bytes = 0
+        self._server: asyncio.Server | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._tcp_port = 0
+        #: TCP connections accepted so far.
+        self.connections = 0
+        #: ``time.monotonic()`` of the last unplug().
+        self.unplugged_at: float | None = None
 
     async def __aenter__(self) -> Any:
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        self.port = os.ttyname(slave)
         self._cond = asyncio.Condition()
-        asyncio.get_running_loop().add_reader(master, self._readable)
+        if self.tcp:
+            await self.replug()
+            self.port = f"socket://127.0.0.1:{self._tcp_port}"
+        else:
+            master, slave = os.openpty()
+            tty.setraw(slave)
+            os.set_blocking(master, False)
+            self._master, self._slave = master, slave
+            self.port = os.ttyname(slave)
+            asyncio.get_running_loop().add_reader(master, self._readable)
         self._tasks.append(asyncio.create_task(self.run()))
         return self
 
@@ -72,25 +88,59 @@ class PtyPeer:
         self.unplug()
 
     def unplug(self) -> None:
-        """Close the pty: the host sees the device disappear."""
+        """Close the pty, or stop listening and drop the TCP client: the host sees
+        the device disappear."""
+        self.unplugged_at = time.monotonic()
         if self._master >= 0:
             asyncio.get_running_loop().remove_reader(self._master)
             os.close(self._master)
             os.close(self._slave)
             self._master = self._slave = -1
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    async def replug(self) -> None:
+        """(TCP) Listen on the same port again."""
+        assert self.tcp, "a pty cannot be re-plugged at the same path"
+        self._server = await asyncio.start_server(self._serve, "127.0.0.1", self._tcp_port)
+        self._tcp_port = self._server.sockets[0].getsockname()[1]
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._writer is not None:  # one host at a time, like a serial line
+            writer.close()
+            return
+        self._writer = writer
+        self._buf.clear()  # a partial frame does not survive a new connection
+        self.connections += 1
+        try:
+            while data := await reader.read(4096):
+                self._on_bytes(data)
+        except ConnectionError:
+            pass
+        finally:
+            if self._writer is writer:
+                self._writer = None
+            writer.close()
 
     async def run(self) -> None:
         """Periodic output; overridden."""
 
     def send(self, frame: bytes) -> None:
         """Write a frame, with some noise before it when noise is on."""
-        if self._master < 0:
+        if self._master < 0 and self._writer is None:
             return
         data = frame
         if self.noise and self._rng.random() < 0.5:
             junk = self._rng.choice(_NOISE)
             self.noise_bytes += len(junk)
             data = junk + frame
+        if self._writer is not None:
+            self._writer.write(data)
+            return
         with contextlib.suppress(BlockingIOError):
             os.write(self._master, data)
 
@@ -99,6 +149,9 @@ class PtyPeer:
             data = os.read(self._master, 4096)
         except OSError:
             return
+        self._on_bytes(data)
+
+    def _on_bytes(self, data: bytes) -> None:
         self._buf += data
         now = time.monotonic()
         for rec in self.parse(self._buf, now):
@@ -231,7 +284,8 @@ class ChassisStandIn(PtyPeer):
 
     async def run(self) -> None:
         while True:
-            self.send(self.telemetry_frame())
+            if self.streaming:
+                self.send(self.telemetry_frame())
             await asyncio.sleep(self.telemetry_period)
 
 
@@ -328,6 +382,9 @@ class BoardStandIn(PtyPeer):
     async def run(self) -> None:
         n = 0
         while True:
+            if not self.streaming:
+                await asyncio.sleep(self.imu_period)
+                continue
             # accel (164, -82, 164*1) raw -> (1.0, -0.5, 1.0) g; gyro 164 raw -> 10 deg/s
             imu = struct.pack("<9h", 164, -82, 164, 0, -164, 164, 300, -300, -420)
             self.send(frame_b(b"\xfe\xce", 0x11, imu))
