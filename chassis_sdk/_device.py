@@ -19,6 +19,7 @@ cancellation still stops the robot.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import enum
 import logging
 import math
@@ -182,6 +183,7 @@ class Device(Generic[M, K]):
         self._lost_exc: Exception | None = None
         self._closing = asyncio.Event()
         self._runner: asyncio.Task[None] | None = None
+        self._shutdown: asyncio.Future[None] | None = None
         self._watchdog = VelocityWatchdog(
             self._write,
             interval=float(resend_interval),
@@ -276,6 +278,8 @@ class Device(Generic[M, K]):
             PortOpenError: The port cannot be opened (the message says why).
             ChassisError: Already connected.
         """
+        if self._shutdown is not None:  # a close() in progress: let it finish
+            await asyncio.shield(self._shutdown)
         if self._runner is not None:
             raise ChassisError(f"{self.port} is already connected; close() it first")
         self._set_state(ConnectionState.CONNECTING)
@@ -402,32 +406,52 @@ class Device(Generic[M, K]):
         """Stop the robot, close the port and stop the background tasks.
 
         A zero-velocity frame is written and given a bounded time to leave before the
-        port closes. Safe to call more than once, and from any task.
+        port closes. Safe to call more than once, and from any task; a second call
+        waits for the first to finish. Cancelling it does not interrupt it: the port is
+        closed (within about a second) before the cancellation goes on.
         """
-        runner = self._runner
-        if runner is None:
-            return
-        self._runner = None
-        link = self._link
-        self._watchdog.clear()
-        if link is not None and link.write(self._zero_frame()):
-            self._count_sent(1)
-        with anyio.CancelScope(shield=True):
+        shutdown = self._shutdown
+        if shutdown is None:
+            runner = self._runner
+            if runner is None:
+                return
+            self._runner = None
+            link = self._link
+            self._watchdog.clear()
+            if link is not None:
+                zero = self._zero_frame()
+                if link.write(zero):  # synchronously, before anything can interrupt
+                    self._count_sent(len(zero))
+            shutdown = self._shutdown = asyncio.ensure_future(self._shut_down(link, runner))
+        try:
+            await asyncio.shield(shutdown)
+        except asyncio.CancelledError:
+            # An open port and live background tasks must not outlive a cancelled
+            # close(); finishing is bounded by the drain and close timeouts.
+            while not shutdown.done():
+                with contextlib.suppress(asyncio.CancelledError):
+                    await asyncio.shield(shutdown)
+            raise
+
+    async def _shut_down(self, link: Link[M] | None, runner: asyncio.Task[None]) -> None:
+        try:
             if link is not None:
                 await link.drain(_DRAIN_TIMEOUT)
             self._closing.set()
             if link is not None:
                 await link.aclose(_CLOSE_TIMEOUT)
             await runner
-        self._link = None
-        closed = NotConnectedError(f"{self.port} was closed")
-        self._requests.fail_all(closed)
-        for stream in self._streams:
-            stream.fail(None)
-        self._set_state(ConnectionState.DISCONNECTED)
-        # End the state iterators after DISCONNECTED; new ones may subscribe again.
-        self._states.fail(None)
-        self._states.reopen()
+        finally:
+            self._link = None
+            closed = NotConnectedError(f"{self.port} was closed")
+            self._requests.fail_all(closed)
+            for stream in self._streams:
+                stream.fail(None)
+            self._set_state(ConnectionState.DISCONNECTED)
+            # End the state iterators after DISCONNECTED; new ones may subscribe again.
+            self._states.fail(None)
+            self._states.reopen()
+            self._shutdown = None
 
     async def __aenter__(self) -> Self:
         await self.connect()
