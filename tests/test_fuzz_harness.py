@@ -1,0 +1,91 @@
+"""The fuzz harness's checks (fuzz/harness.py), run on its seeds and on seeded random
+mutations of them, so the checks themselves are exercised on every test run; atheris
+drives the same checks coverage-guided in CI (see README)."""
+
+from __future__ import annotations
+
+import importlib.util
+import random
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+HARNESS = Path(__file__).resolve().parent.parent / "fuzz" / "harness.py"
+
+
+def _load() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("fuzz_harness", HARNESS)
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+harness = _load()
+
+
+def _mutate(rng: random.Random, data: bytes) -> bytes:
+    buf = bytearray(data)
+    for _ in range(rng.randint(1, 6)):
+        op = rng.random()
+        if op < 0.3 and buf:
+            buf[rng.randrange(len(buf))] ^= 1 << rng.randrange(8)
+        elif op < 0.5 and buf:
+            del buf[rng.randrange(len(buf))]
+        elif op < 0.7:
+            buf.insert(rng.randrange(len(buf) + 1), rng.randrange(256))
+        elif op < 0.85 and len(buf) > 2:
+            cut = rng.randrange(1, len(buf))
+            buf = buf[cut:] + buf[:cut]
+        else:
+            buf += rng.randbytes(rng.randint(1, 20))
+    return bytes(buf)
+
+
+@pytest.mark.parametrize("target", sorted(harness.TARGETS))
+def test_seeds_are_valid_frames(target: str) -> None:
+    factory, _ = harness.TARGETS[target]
+    for seed in harness.seeds(target):
+        assert factory().feed(seed[1:]), f"seed {seed.hex()} decodes to nothing"
+
+
+@pytest.mark.parametrize("target", sorted(harness.TARGETS))
+def test_checks_hold_on_seeds_and_mutations(target: str) -> None:
+    rng = random.Random(target)
+    seeds = harness.seeds(target)
+    for seed in seeds:
+        harness.check(target, seed)
+    for _ in range(300):
+        harness.check(target, _mutate(rng, rng.choice(seeds)))
+
+
+def test_a_split_dependent_decoder_would_be_caught() -> None:
+    class Forgetful:
+        """Drops whatever one feed() cannot finish: its output depends on the split."""
+
+        def __init__(self) -> None:
+            self.inner = harness.TARGETS["chassis"][0]()
+
+        def feed(self, data: bytes) -> list[object]:
+            out: list[object] = self.inner.feed(data)
+            self.inner.reset()
+            return out
+
+        @property
+        def stats(self) -> object:
+            return self.inner.stats
+
+        @property
+        def buffered(self) -> int:
+            return int(self.inner.buffered)
+
+    harness.TARGETS["forgetful"] = (Forgetful, 256)
+    try:
+        with pytest.raises(AssertionError):
+            harness.check("forgetful", harness.seeds("chassis")[0])
+    finally:
+        del harness.TARGETS["forgetful"]
