@@ -24,6 +24,8 @@ The sans-IO codecs live in :mod:`chassis_sdk.protocol`; the simulators in
 :mod:`chassis_sdk.sim`.
 """
 
+import logging as _logging
+
 from ._device import ConnectionState, LinkStats
 from ._dispatch import Subscription
 from .board import Board
@@ -57,6 +59,10 @@ from .protocol import (
 )
 
 __version__ = "0.1.0"
+
+# A library leaves logging to the application: without its own configuration, nothing
+# from chassis_sdk reaches stderr (configure "chassis_sdk" to see link events).
+_logging.getLogger("chassis_sdk").addHandler(_logging.NullHandler())
 
 __all__ = [
     "BatteryReading",

@@ -91,7 +91,8 @@ class LinkStats:
         length_mismatches: Frames accepted despite a wrong length byte.
         unmatched_replies: Replies nobody was waiting for.
         queue_drops: Messages dropped because a subscriber fell behind.
-        sequence_gaps: Breaks in the device's telemetry sequence numbers.
+        sequence_gaps: Breaks in the device's telemetry sequence numbers within a
+            connection (a reconnect starts counting afresh; see ``reconnects``).
         reconnects: Successful reconnects.
         resends: Velocity frames re-sent by the watchdog.
         command_expiries: Velocity commands zeroed by the deadman or ``duration``.
