@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, ClassVar, NamedTuple, TypeAlias, TypeVar
 
+from ._fast import frozen_builder
 from ._framing import INVALID, NEED_DATA, FrameDecoder
 from ._scale import INT16, UINT8, scale_to_int
 
@@ -361,12 +362,17 @@ _Parser = Callable[[bytearray, int, int, float], Any]
 _ALLOWED_CONTROL = frozenset(b"\t\n\r")
 
 
+_build_imu = frozen_builder(ImuSample)
+_tuple_new = tuple.__new__
+
+
 def _parse_imu(b: bytearray, o: int, n: int, ts: float) -> ImuSample:
+    # The hot path (100 Hz): see _fast.py for why it is built this way.
     ax, ay, az, gx, gy, gz, mx, my, mz = _IMU.unpack_from(b, o)
-    return ImuSample(
-        Vector3(ax / ACCEL_SCALE, ay / ACCEL_SCALE, az / ACCEL_SCALE),
-        Vector3(gx / GYRO_SCALE, gy / GYRO_SCALE, gz / GYRO_SCALE),
-        Vector3(float(mx), float(my), float(mz)),
+    return _build_imu(
+        _tuple_new(Vector3, (ax / ACCEL_SCALE, ay / ACCEL_SCALE, az / ACCEL_SCALE)),
+        _tuple_new(Vector3, (gx / GYRO_SCALE, gy / GYRO_SCALE, gz / GYRO_SCALE)),
+        _tuple_new(Vector3, (float(mx), float(my), float(mz))),
         ts,
     )
 
