@@ -132,6 +132,7 @@ class FrameDecoder(Generic[T]):
             del buf[:pos]
         if dropped:
             stats.bytes_dropped += dropped
+        stats.frames += len(out)
         return out
 
     def _try_frame(self, buf: bytearray, start: int, end: int, out: list[T], ts: float) -> int:
@@ -141,12 +142,14 @@ class FrameDecoder(Generic[T]):
             buf: The buffer; valid bytes are ``buf[start:end]``.
             start: Offset of the head.
             end: End of the valid bytes.
-            out: Append the decoded message here (or nothing, for a frame that is
-                recognised but carries no message).
+            out: Append each decoded message here.
             ts: Timestamp to store on the message.
 
+        A decoder may consume several back-to-back frames in one call; every message
+        it appends is one frame (the caller counts them).
+
         Returns:
-            The frame's length in bytes if it was consumed, :data:`NEED_DATA` if the
+            The bytes consumed (one frame or more) if any were, :data:`NEED_DATA` if the
             candidate is still incomplete, :data:`INVALID` if it is not a frame.
         """
         raise NotImplementedError

@@ -481,7 +481,6 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
         if msg is None:
             self.stats.malformed_frames += 1
             return INVALID
-        self.stats.frames += 1
         out.append(msg)
         return stop - start
 

@@ -715,34 +715,48 @@ class _ProtocolADecoder(FrameDecoder[_M]):
     _table: ClassVar[_FrameTable] = {}
 
     def _try_frame(self, buf: bytearray, start: int, end: int, out: list[_M], ts: float) -> int:
-        if end - start < 6:
-            return NEED_DATA
-        entry = self._table.get(buf[start + 4])
-        if entry is None:
-            return INVALID
-        size, parser = entry
-        claimed = buf[start + 5]
-        if size == 0:
-            if claimed < _OVERHEAD:
+        # Decodes the frame at ``start`` and, while another one follows right after it
+        # (a chunk from a busy port holds many), those too: this saves the shared loop's
+        # scan and call per frame, a third of a frame's cost in the profile. A failure
+        # past the first frame returns what was consumed so far, uncounted: the shared
+        # loop comes back to that frame and it is counted then, once.
+        table = self._table
+        stats = self.stats
+        first = start
+        while True:
+            if end - start < 6:
+                return NEED_DATA if start == first else start - first
+            entry = table.get(buf[start + 4])
+            if entry is None:
+                return INVALID if start == first else start - first
+            size, parser = entry
+            claimed = buf[start + 5]
+            if size == 0:
+                if claimed < _OVERHEAD:
+                    return INVALID if start == first else start - first
+                size = claimed
+            stop = start + size
+            if stop > end:
+                return NEED_DATA if start == first else start - first
+            if buf[stop - 2] != 0xBD or buf[stop - 1] != 0xBC:
+                return INVALID if start == first else start - first
+            if (sum(buf[start : stop - 4]) & 0xFFFF) != buf[stop - 4] | buf[stop - 3] << 8:
+                if start != first:
+                    return start - first
+                stats.checksum_errors += 1
                 return INVALID
-            size = claimed
-        stop = start + size
-        if stop > end:
-            return NEED_DATA
-        if buf[stop - 2] != 0xBD or buf[stop - 1] != 0xBC:
-            return INVALID
-        if (sum(buf[start : stop - 4]) & 0xFFFF) != buf[stop - 4] | buf[stop - 3] << 8:
-            self.stats.checksum_errors += 1
-            return INVALID
-        msg = parser(buf, start + 6, size - _OVERHEAD, buf[start + 2] | buf[start + 3] << 8, ts)
-        if msg is None:
-            self.stats.malformed_frames += 1
-            return INVALID
-        if claimed != size:
-            self.stats.length_mismatches += 1
-        self.stats.frames += 1
-        out.append(msg)
-        return size
+            msg = parser(buf, start + 6, size - _OVERHEAD, buf[start + 2] | buf[start + 3] << 8, ts)
+            if msg is None:
+                if start != first:
+                    return start - first
+                stats.malformed_frames += 1
+                return INVALID
+            if claimed != size:
+                stats.length_mismatches += 1
+            out.append(msg)
+            start = stop
+            if end - start < 2 or buf[start] != 0xED or buf[start + 1] != 0xDE:
+                return start - first
 
 
 class ChassisDecoder(_ProtocolADecoder[ChassisMessage]):
