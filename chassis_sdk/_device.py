@@ -196,6 +196,9 @@ class Device(Generic[M, K]):
         self._unmatched = 0
         self._sequence_gaps = 0
         self._reconnects = 0
+        #: Message type -> what to do with it (set up by ``_init_protocol``); called
+        #: synchronously from ``data_received``, in wire order.
+        self._handlers: dict[type, Callable[[Any], None]] = {}
         self._init_protocol()
 
     # --- hooks for the subclasses ---------------------------------------------------------
@@ -205,10 +208,6 @@ class Device(Generic[M, K]):
         raise NotImplementedError
 
     def _make_decoder(self) -> Any:
-        raise NotImplementedError
-
-    def _handle(self, msg: M) -> None:
-        """Route one decoded message (called synchronously from ``data_received``)."""
         raise NotImplementedError
 
     def _zero_frame(self) -> bytes:
@@ -314,10 +313,10 @@ class Device(Generic[M, K]):
         if self._state is ConnectionState.STALE:
             self._log.warning("%s: frames arrive again; link restored", self.port)
             self._set_state(ConnectionState.CONNECTED)
-        handle = self._handle
+        handlers = self._handlers
         for msg in messages:
             try:
-                handle(msg)
+                handlers[type(msg)](msg)
             except Exception:  # a bug must not stop the frames after it, nor the link
                 self._log.exception("%s: error handling %r", self.port, msg)
 

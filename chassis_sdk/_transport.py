@@ -15,19 +15,33 @@ import asyncio
 import errno
 import importlib
 import logging
+import os
 import time
 from collections.abc import Callable
 from typing import Any, Generic, Protocol, TypeVar, cast
 
 from .errors import PortOpenError
 
+_BACKENDS = {
+    "pyserial-asyncio-fast": "serial_asyncio_fast",
+    "pyserial-asyncio": "serial_asyncio",
+}
+
 
 def _load_backend() -> tuple[Any, str]:
-    """Prefer the maintained fork when installed; both have the same API."""
-    for module, name in (
-        ("serial_asyncio_fast", "pyserial-asyncio-fast"),
-        ("serial_asyncio", "pyserial-asyncio"),
-    ):
+    """Prefer the maintained fork when installed; both have the same API.
+
+    The environment variable ``CHASSIS_SDK_BACKEND`` (``pyserial-asyncio`` or
+    ``pyserial-asyncio-fast``) forces one, to compare them or to rule one out.
+    """
+    forced = os.environ.get("CHASSIS_SDK_BACKEND")
+    if forced:
+        if forced not in _BACKENDS:
+            raise ImportError(
+                f"CHASSIS_SDK_BACKEND={forced!r}: use one of {', '.join(sorted(_BACKENDS))}"
+            )
+        return importlib.import_module(_BACKENDS[forced]), forced
+    for name, module in _BACKENDS.items():
         try:
             return importlib.import_module(module), name
         except ImportError:  # pragma: no cover - depends on the installed extra

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
 import anyio
 
 from ._device import Device
@@ -65,7 +62,7 @@ class Board(Device[BoardMessage, _Key]):
         self._latest_imu: ImuSample | None = None
         self._latest_velocity: VelocityFeedback | None = None
         self._latest_battery: BatteryReading | None = None
-        self._handlers: dict[type, Callable[[Any], None]] = {
+        self._handlers = {
             ImuSample: self._on_imu,
             VelocityFeedback: self._on_velocity,
             BatteryReading: self._on_battery,
@@ -78,9 +75,6 @@ class Board(Device[BoardMessage, _Key]):
 
     def _make_decoder(self) -> BoardDecoder:
         return BoardDecoder()
-
-    def _handle(self, msg: BoardMessage) -> None:
-        self._handlers[type(msg)](msg)
 
     def _on_imu(self, m: ImuSample) -> None:
         self._latest_imu = m

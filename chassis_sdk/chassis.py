@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import datetime
 import time
-from collections.abc import Callable
 from typing import Any
 
 import anyio.lowlevel
@@ -79,7 +78,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._latest: Telemetry | None = None
         self._latest_power: PowerTelemetry | None = None
         self._last_seq: int | None = None
-        self._handlers: dict[type, Callable[[Any], None]] = {
+        self._handlers = {
             Telemetry: self._on_telemetry,
             PowerTelemetry: self._on_power,
             DriverStatus: lambda m: self._resolve(ReplyId.DRIVER_STATUS, m),
@@ -93,9 +92,6 @@ class Chassis(Device[ChassisMessage, ReplyId]):
 
     def _make_decoder(self) -> ChassisDecoder:
         return ChassisDecoder()
-
-    def _handle(self, msg: ChassisMessage) -> None:
-        self._handlers[type(msg)](msg)
 
     def _on_telemetry(self, t: Telemetry) -> None:
         last = self._last_seq
