@@ -1,16 +1,22 @@
-"""Decoder throughput for both protocols (frames/s and MB/s), median of several runs.
+"""Decoder throughput for both protocols (frames/s and MB/s), median of several runs,
+side by side with pymavlink in the same run.
 
+    pip install ".[bench]"     # pymavlink, for the comparison
     python benchmarks/decoder_throughput.py
 
-Measures ChassisDecoder on 0x81 telemetry and BoardDecoder on 0x11 IMU frames, fed in
-4 KiB chunks (what a busy port delivers) and one frame per call (a quiet port), and
-compares with the wire limit at 115200 baud (11,520 bytes/s, 8N1).
+Measures ChassisDecoder on 0x81 telemetry (28 bytes) and BoardDecoder on 0x11 IMU
+frames (23 bytes), fed in 4 KiB chunks (what a busy port delivers) and one frame per
+call (a quiet port), against the wire limit at 115200 baud (11,520 bytes/s, 8N1), and
+pymavlink's MAVLink 2 parser on its 40-byte ATTITUDE message, fed the same way. The
+ratios are taken within this run, so a busy machine slows both sides alike.
 """
 
 from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
+from typing import Any
 
 from chassis_sdk.protocol import (
     BoardDecoder,
@@ -44,7 +50,29 @@ def board_stream() -> tuple[bytes, int]:
     return frame * N, len(frame)
 
 
-def measure(make_decoder: type, stream: bytes, chunk: int) -> float:
+def mavlink_stream() -> tuple[bytes, int] | None:
+    try:
+        from pymavlink.dialects.v20 import common as mavlink
+    except ImportError:
+        return None
+    sender = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    frame = mavlink.MAVLink_attitude_message(1000, 0.1, -0.2, 0.3, 0.01, 0.02, 0.03).pack(sender)
+    return frame * N, len(frame)
+
+
+class MavlinkDecoder:
+    """pymavlink's parser behind the same ``feed`` call."""
+
+    def __init__(self) -> None:
+        from pymavlink.dialects.v20 import common as mavlink
+
+        self._parser = mavlink.MAVLink(None)
+
+    def feed(self, data: bytes) -> list[object]:
+        return self._parser.parse_buffer(data) or []
+
+
+def measure(make_decoder: Callable[[], Any], stream: bytes, chunk: int) -> float:
     """Seconds to decode the whole stream in chunks of `chunk` bytes."""
     chunks = [stream[i : i + chunk] for i in range(0, len(stream), chunk)]
     dec = make_decoder()
@@ -58,20 +86,31 @@ def measure(make_decoder: type, stream: bytes, chunk: int) -> float:
 
 
 def main() -> None:
-    print(f"{'decoder':<16}{'chunking':<12}{'frames/s':>12}{'MB/s':>8}{'x wire limit':>14}")
-    for name, dec, (stream, size) in [
+    cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]] = [
         ("chassis 0x81", ChassisDecoder, chassis_stream()),
         ("board 0x11", BoardDecoder, board_stream()),
-    ]:
+    ]
+    mav = mavlink_stream()
+    if mav is not None:
+        cases.append(("pymavlink ATTITUDE", MavlinkDecoder, mav))
+    print(f"{'decoder':<20}{'chunking':<12}{'frames/s':>12}{'MB/s':>8}{'x wire limit':>14}")
+    rates: dict[tuple[str, str], float] = {}
+    for name, dec, (stream, size) in cases:
         for label, chunk in [("4 KiB", 4096), ("per frame", size)]:
             secs = statistics.median(measure(dec, stream, chunk) for _ in range(RUNS))
-            fps = N / secs
+            fps = rates[name, label] = N / secs
             wire_fps = WIRE_BYTES_PER_S / size
-            print(f"{name:<16}{label:<12}{fps:>12,.0f}{len(stream) / secs / 1e6:>8.1f}"
+            print(f"{name:<20}{label:<12}{fps:>12,.0f}{len(stream) / secs / 1e6:>8.1f}"
                   f"{fps / wire_fps:>14,.0f}")  # fmt: skip
     a, b = WIRE_BYTES_PER_S / 28, WIRE_BYTES_PER_S / 23
     print(f"(median of {RUNS} runs of {N:,} frames; wire limit at 115200 baud: "
           f"{a:.0f} frames/s of 0x81, {b:.0f} of 0x11)")  # fmt: skip
+    if mav is None:
+        print("pymavlink is not installed (pip install '.[bench]'): no comparison")
+        return
+    for label in ("4 KiB", "per frame"):
+        ratio = rates["chassis 0x81", label] / rates["pymavlink ATTITUDE", label]
+        print(f"protocol A decoder / pymavlink, {label}: {ratio:.2f}x (target >= 3x)")
 
 
 if __name__ == "__main__":

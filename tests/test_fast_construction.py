@@ -48,3 +48,14 @@ def test_member_cache_returns_members_and_stays_bounded() -> None:
     docking = MemberCache(DockingState)
     assert docking[4] is DockingState.DOCKED
     assert docking[9].name == "UNKNOWN_9"  # unknown values decode, as without the cache
+
+
+def test_byte_sum_is_the_plain_byte_sum_for_any_frame_size() -> None:
+    import random
+
+    from chassis_sdk.protocol._framing import byte_sum
+
+    rng = random.Random(5)
+    for size in (0, 1, 24, 250, 255, 256):
+        for data in (b"\xff" * size, rng.randbytes(size)):
+            assert byte_sum(data, 0) & 0xFFFF == sum(data)

@@ -25,10 +25,11 @@ Nothing here does I/O or reads a clock: the caller passes a timestamp in.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, fields
 from typing import Generic, TypeVar
 
-__all__ = ["INVALID", "NEED_DATA", "DecoderStats", "FrameDecoder"]
+__all__ = ["INVALID", "NEED_DATA", "DecoderStats", "FrameDecoder", "byte_sum"]
 
 T = TypeVar("T")
 
@@ -36,6 +37,12 @@ T = TypeVar("T")
 NEED_DATA = 0
 #: ``_try_frame`` result: the candidate at this offset is not a frame; skip one byte.
 INVALID = -1
+
+#: ``byte_sum(data, 0) & 0xFFFF`` is ``sum(data)`` for any frame of either protocol, at half
+#: the cost: it is Adler-32, whose low 16 bits are the byte sum modulo 65521 (from 0);
+#: a frame has at most 255 bytes, whose sum (at most 65,025) never reaches the modulus.
+#: Both protocols' checks are byte sums (A: 16-bit, B: 8-bit), so both use it.
+byte_sum = zlib.adler32
 
 
 @dataclass(slots=True)
@@ -99,27 +106,32 @@ class FrameDecoder(Generic[T]):
         Returns:
             The decoded messages (possibly none). Never raises for any input.
         """
-        buf = self._buf
-        buf += data
+        stored = self._buf
+        # With nothing held over (the usual case), parse the chunk where it lies and
+        # keep only its unfinished tail; otherwise append it to what is held.
+        buf: bytes | bytearray
+        if stored:
+            stored += data
+            buf = stored
+        else:
+            buf = data if type(data) is bytes else bytes(data)
         stats = self.stats
+        n = len(buf)
         stats.bytes_received += len(data)
         out: list[T] = []
         head = self._head
-        first = head[0]
-        n = len(buf)
         pos = 0
         dropped = 0
-        try_frame = self._try_frame
         while pos < n:
             start = buf.find(head, pos)
             if start < 0:
                 # Keep a trailing first head byte: its partner may be in the next chunk.
-                keep = n - 1 if buf[n - 1] == first else n
+                keep = n - 1 if buf[n - 1] == head[0] else n
                 dropped += keep - pos
                 pos = keep
                 break
             dropped += start - pos
-            consumed = try_frame(buf, start, n, out, timestamp)
+            consumed = self._try_frame(buf, start, n, out, timestamp)
             if consumed > 0:
                 pos = start + consumed
             elif consumed == NEED_DATA:
@@ -128,14 +140,19 @@ class FrameDecoder(Generic[T]):
             else:
                 dropped += 1
                 pos = start + 1
-        if pos:
-            del buf[:pos]
+        if buf is stored:
+            if pos:
+                del stored[:pos]
+        elif pos < n:
+            stored += buf[pos:]
         if dropped:
             stats.bytes_dropped += dropped
         stats.frames += len(out)
         return out
 
-    def _try_frame(self, buf: bytearray, start: int, end: int, out: list[T], ts: float) -> int:
+    def _try_frame(
+        self, buf: bytes | bytearray, start: int, end: int, out: list[T], ts: float
+    ) -> int:
         """Try to decode one frame whose head is at ``buf[start]``.
 
         Args:

@@ -27,7 +27,7 @@ from enum import IntEnum
 from typing import Any, ClassVar, NamedTuple, TypeAlias, TypeVar
 
 from ._fast import frozen_builder
-from ._framing import INVALID, NEED_DATA, FrameDecoder
+from ._framing import INVALID, NEED_DATA, FrameDecoder, byte_sum
 from ._scale import INT16, UINT8, scale_to_int
 
 __all__ = [
@@ -358,7 +358,7 @@ class BoardEncoder:
 
 # --- decoding ----------------------------------------------------------------------------
 
-_Parser = Callable[[bytearray, int, int, float], Any]
+_Parser = Callable[[bytes | bytearray, int, int, float], Any]
 _ALLOWED_CONTROL = frozenset(b"\t\n\r")
 
 
@@ -366,7 +366,7 @@ _build_imu = frozen_builder(ImuSample)
 _tuple_new = tuple.__new__
 
 
-def _parse_imu(b: bytearray, o: int, n: int, ts: float) -> ImuSample:
+def _parse_imu(b: bytes | bytearray, o: int, n: int, ts: float) -> ImuSample:
     # The hot path (100 Hz): see _fast.py for why it is built this way.
     ax, ay, az, gx, gy, gz, mx, my, mz = _IMU.unpack_from(b, o)
     return _build_imu(
@@ -377,16 +377,16 @@ def _parse_imu(b: bytearray, o: int, n: int, ts: float) -> ImuSample:
     )
 
 
-def _parse_velocity(b: bytearray, o: int, n: int, ts: float) -> VelocityFeedback:
+def _parse_velocity(b: bytes | bytearray, o: int, n: int, ts: float) -> VelocityFeedback:
     v, w = _TWO_I16.unpack_from(b, o)
     return VelocityFeedback(v / 1000, w / 1000, ts)
 
 
-def _parse_battery(b: bytearray, o: int, n: int, ts: float) -> BatteryReading:
+def _parse_battery(b: bytes | bytearray, o: int, n: int, ts: float) -> BatteryReading:
     return BatteryReading(_I16.unpack_from(b, o)[0] / 100, ts)
 
 
-def _parse_log(b: bytearray, o: int, n: int, ts: float) -> LogMessage | None:
+def _parse_log(b: bytes | bytearray, o: int, n: int, ts: float) -> LogMessage | None:
     raw = bytes(b[o : o + n])
     if any(c < 0x20 and c not in _ALLOWED_CONTROL for c in raw) or 0x7F in raw:
         return None
@@ -397,7 +397,9 @@ def _parse_log(b: bytearray, o: int, n: int, ts: float) -> LogMessage | None:
     return LogMessage(text.rstrip("\r\n"), ts)
 
 
-def _parse_switch_reply(b: bytearray, o: int, n: int, ts: float) -> LedReply | BuzzerReply | None:
+def _parse_switch_reply(
+    b: bytes | bytearray, o: int, n: int, ts: float
+) -> LedReply | BuzzerReply | None:
     state = b[o + 1]
     if state > 1:
         return None
@@ -405,7 +407,9 @@ def _parse_switch_reply(b: bytearray, o: int, n: int, ts: float) -> LedReply | B
     return cls(b[o], bool(state))
 
 
-def _parse_switch_cmd(b: bytearray, o: int, n: int, ts: float) -> LedCommand | BuzzerCommand | None:
+def _parse_switch_cmd(
+    b: bytes | bytearray, o: int, n: int, ts: float
+) -> LedCommand | BuzzerCommand | None:
     action = b[o]
     if action > 2:
         return None
@@ -413,19 +417,19 @@ def _parse_switch_cmd(b: bytearray, o: int, n: int, ts: float) -> LedCommand | B
     return cls(SwitchAction(action), b[o + 1])
 
 
-def _parse_pwm(b: bytearray, o: int, n: int, ts: float) -> MotorPwmCommand | None:
+def _parse_pwm(b: bytes | bytearray, o: int, n: int, ts: float) -> MotorPwmCommand | None:
     motor, pwm = _ID_I16.unpack_from(b, o)
     if not 1 <= motor <= 4:
         return None
     return MotorPwmCommand(Motor(motor), pwm)
 
 
-def _parse_velocity_cmd(b: bytearray, o: int, n: int, ts: float) -> VelocityCommand:
+def _parse_velocity_cmd(b: bytes | bytearray, o: int, n: int, ts: float) -> VelocityCommand:
     v, w = _TWO_I16.unpack_from(b, o)
     return VelocityCommand(v, w)
 
 
-def _parse_servo(b: bytearray, o: int, n: int, ts: float) -> ServoCommand | None:
+def _parse_servo(b: bytes | bytearray, o: int, n: int, ts: float) -> ServoCommand | None:
     servo, angle = _ID_I16.unpack_from(b, o)
     if not 1 <= servo <= 2:
         return None
@@ -460,7 +464,9 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
 
     _table: ClassVar[_FrameTable] = {}
 
-    def _try_frame(self, buf: bytearray, start: int, end: int, out: list[_M], ts: float) -> int:
+    def _try_frame(
+        self, buf: bytes | bytearray, start: int, end: int, out: list[_M], ts: float
+    ) -> int:
         if end - start < 4:
             return NEED_DATA
         msg_type = buf[start + 2]
@@ -474,7 +480,7 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
         stop = start + 4 + length
         if stop > end:
             return NEED_DATA
-        if (msg_type + length + sum(buf[start + 4 : stop - 1])) & 0xFF != buf[stop - 1]:
+        if (msg_type + length + byte_sum(buf[start + 4 : stop - 1], 0)) & 0xFF != buf[stop - 1]:
             self.stats.checksum_errors += 1
             return INVALID
         msg = parser(buf, start + 4, length - 1, ts)

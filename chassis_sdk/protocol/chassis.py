@@ -21,7 +21,7 @@ from enum import IntEnum, IntFlag
 from typing import Any, ClassVar, NamedTuple, TypeAlias, TypeVar
 
 from ._fast import MemberCache, frozen_builder
-from ._framing import INVALID, NEED_DATA, FrameDecoder
+from ._framing import INVALID, NEED_DATA, FrameDecoder, byte_sum
 from ._scale import INT16, scale_to_int
 
 __all__ = [
@@ -610,9 +610,13 @@ REPLY_TO: dict[CommandId, ReplyId] = {
 
 # --- decoding ----------------------------------------------------------------------------
 
-# A parser gets (buffer, offset of the data, data length, seq, timestamp) and returns a
-# message, or None if the content is invalid although the frame checked out.
-_Parser = Callable[[bytearray, int, int, int, float], Any]
+# A parser gets (buffer, offset of the frame's head, data length, timestamp) and returns
+# a message, or None if the content is invalid although the frame checked out. The data
+# starts 6 bytes after the head; the sequence number sits at head + 2.
+_Parser = Callable[[bytes | bytearray, int, int, float], Any]
+_DATA = 6
+#: 0x81 from its head: the sequence number and the data in one unpack.
+_TELEMETRY_FRAME = struct.Struct("<2xH2x" + _TELEMETRY.format[1:])
 
 
 _build_telemetry = frozen_builder(Telemetry)
@@ -621,17 +625,17 @@ _docking = MemberCache(DockingState)
 _tuple_new = tuple.__new__
 
 
-def _parse_telemetry(b: bytearray, o: int, n: int, seq: int, ts: float) -> Telemetry:
+def _parse_telemetry(b: bytes | bytearray, s: int, n: int, ts: float) -> Telemetry:
     # The hot path (50 Hz per chassis): see _fast.py for why it is built this way.
-    v, st, dk, vx, wz, fl, fr, rl, rr = _TELEMETRY.unpack_from(b, o)
+    seq, v, st, dk, vx, wz, fl, fr, rl, rr = _TELEMETRY_FRAME.unpack_from(b, s)
     wheels = _tuple_new(WheelSpeeds, (fl / 1000, fr / 1000, rl / 1000, rr / 1000))
     return _build_telemetry(
         v / 10, _status[st], _docking[dk], vx / 1000, wz / 1000, wheels, seq, ts
     )
 
 
-def _parse_driver(b: bytearray, o: int, n: int, seq: int, ts: float) -> DriverStatus:
-    f = _DRIVER.unpack_from(b, o)
+def _parse_driver(b: bytes | bytearray, s: int, n: int, ts: float) -> DriverStatus:
+    f = _DRIVER.unpack_from(b, s + _DATA)
     fl, fr, rl, rr = (
         WheelDriver(DriverError(f[i]), MotorStatus(f[4 + i]), f[8 + i] / 10, f[12 + i] / 10)
         for i in range(4)
@@ -639,44 +643,45 @@ def _parse_driver(b: bytearray, o: int, n: int, seq: int, ts: float) -> DriverSt
     return DriverStatus(fl, fr, rl, rr, f[16] / 10, f[17] / 10, f[18] / 10, f[19] / 10)
 
 
-def _parse_power(b: bytearray, o: int, n: int, seq: int, ts: float) -> PowerTelemetry:
-    a, bb, c, d, vf, vr = _POWER.unpack_from(b, o)
+def _parse_power(b: bytes | bytearray, s: int, n: int, ts: float) -> PowerTelemetry:
+    a, bb, c, d, vf, vr = _POWER.unpack_from(b, s + _DATA)
+    seq = _U16.unpack_from(b, s + 2)[0]
     return PowerTelemetry(WheelCurrents(a / 10, bb / 10, c / 10, d / 10), vf / 10, vr / 10, seq, ts)
 
 
-def _parse_firmware(b: bytearray, o: int, n: int, seq: int, ts: float) -> FirmwareVersion:
-    return FirmwareVersion(_U16.unpack_from(b, o)[0])
+def _parse_firmware(b: bytes | bytearray, s: int, n: int, ts: float) -> FirmwareVersion:
+    return FirmwareVersion(_U16.unpack_from(b, s + _DATA)[0])
 
 
-def _parse_hardware(b: bytearray, o: int, n: int, seq: int, ts: float) -> HardwareVersion | None:
-    raw = bytes(b[o : o + n])
+def _parse_hardware(b: bytes | bytearray, s: int, n: int, ts: float) -> HardwareVersion | None:
+    raw = bytes(b[s + _DATA : s + _DATA + n])
     try:
         return HardwareVersion(raw.decode("ascii").rstrip("\x00"))
     except UnicodeDecodeError:
         return None
 
 
-def _parse_info(b: bytearray, o: int, n: int, seq: int, ts: float) -> ChassisInfo:
-    tw, wb, wd, gr, enc = _INFO.unpack_from(b, o)
+def _parse_info(b: bytes | bytearray, s: int, n: int, ts: float) -> ChassisInfo:
+    tw, wb, wd, gr, enc = _INFO.unpack_from(b, s + _DATA)
     return ChassisInfo(tw / 1000, wb / 1000, wd / 1000, gr, enc)
 
 
-def _parse_date(b: bytearray, o: int, n: int, seq: int, ts: float) -> ShipDate:
-    y, m, d = _DATE.unpack_from(b, o)
+def _parse_date(b: bytes | bytearray, s: int, n: int, ts: float) -> ShipDate:
+    y, m, d = _DATE.unpack_from(b, s + _DATA)
     return ShipDate(2000 + y, m, d)
 
 
-def _parse_command(b: bytearray, o: int, n: int, seq: int, ts: float) -> Command:
-    return Command(CommandId(b[o - 2]), _U16.unpack_from(b, o)[0])
+def _parse_command(b: bytes | bytearray, s: int, n: int, ts: float) -> Command:
+    return Command(CommandId(b[s + 4]), _U16.unpack_from(b, s + _DATA)[0])
 
 
-def _parse_drive(b: bytearray, o: int, n: int, seq: int, ts: float) -> HostCommand | None:
-    mode = _U16.unpack_from(b, o)[0]
+def _parse_drive(b: bytes | bytearray, s: int, n: int, ts: float) -> HostCommand | None:
+    mode = _U16.unpack_from(b, s + _DATA)[0]
     if mode == 0:
-        _, vx, wz = _DRIVE_V.unpack_from(b, o)
+        _, vx, wz = _DRIVE_V.unpack_from(b, s + _DATA)
         return DriveVelocity(vx, wz)
     if mode == 1:
-        _, left, right, _reserved = _DRIVE_W.unpack_from(b, o)
+        _, left, right, _reserved = _DRIVE_W.unpack_from(b, s + _DATA)
         return DriveWheels(left, right)
     return None
 
@@ -714,7 +719,9 @@ class _ProtocolADecoder(FrameDecoder[_M]):
     _head = HEAD
     _table: ClassVar[_FrameTable] = {}
 
-    def _try_frame(self, buf: bytearray, start: int, end: int, out: list[_M], ts: float) -> int:
+    def _try_frame(
+        self, buf: bytes | bytearray, start: int, end: int, out: list[_M], ts: float
+    ) -> int:
         # Decodes the frame at ``start`` and, while another one follows right after it
         # (a chunk from a busy port holds many), those too: this saves the shared loop's
         # scan and call per frame, a third of a frame's cost in the profile. A failure
@@ -740,12 +747,12 @@ class _ProtocolADecoder(FrameDecoder[_M]):
                 return NEED_DATA if start == first else start - first
             if buf[stop - 2] != 0xBD or buf[stop - 1] != 0xBC:
                 return INVALID if start == first else start - first
-            if (sum(buf[start : stop - 4]) & 0xFFFF) != buf[stop - 4] | buf[stop - 3] << 8:
+            if byte_sum(buf[start : stop - 4], 0) & 0xFFFF != buf[stop - 4] | buf[stop - 3] << 8:
                 if start != first:
                     return start - first
                 stats.checksum_errors += 1
                 return INVALID
-            msg = parser(buf, start + 6, size - _OVERHEAD, buf[start + 2] | buf[start + 3] << 8, ts)
+            msg = parser(buf, start, size - _OVERHEAD, ts)
             if msg is None:
                 if start != first:
                     return start - first
