@@ -13,6 +13,7 @@ ratios are taken within this run, so a busy machine slows both sides alike.
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import time
 from collections.abc import Callable
@@ -86,6 +87,11 @@ def measure(make_decoder: Callable[[], Any], stream: bytes, chunk: int) -> float
 
 
 def main() -> None:
+    global RUNS, N
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer, shorter runs (for CI)")
+    if parser.parse_args().quick:
+        RUNS, N = 3, 10_000
     cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]] = [
         ("chassis 0x81", ChassisDecoder, chassis_stream()),
         ("board 0x11", BoardDecoder, board_stream()),

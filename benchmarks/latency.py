@@ -35,6 +35,7 @@ N_FRAMES = 2000
 N_REQUESTS = 2000
 RESEND = 0.02
 N_RESENDS = 300
+QUICK: list[str] = []
 
 
 def summary(samples: list[float]) -> dict[str, float]:
@@ -119,7 +120,7 @@ async def measure() -> dict[str, object]:
 def run_one(backend: str) -> dict[str, object]:
     env = dict(os.environ, CHASSIS_SDK_BACKEND=backend)
     out = subprocess.run(
-        [sys.executable, __file__, "--backend", backend, "--json"],
+        [sys.executable, __file__, "--backend", backend, "--json", *QUICK],
         env=env, check=True, capture_output=True, text=True,
     )  # fmt: skip
     result: dict[str, object] = json.loads(out.stdout)
@@ -130,7 +131,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backend", choices=BACKENDS)
     parser.add_argument("--json", action="store_true", help="print one backend's figures as JSON")
+    parser.add_argument("--quick", action="store_true", help="fewer samples (for CI)")
     args = parser.parse_args()
+    if args.quick:
+        global N_FRAMES, N_REQUESTS, N_RESENDS
+        QUICK.append("--quick")
+        N_FRAMES, N_REQUESTS, N_RESENDS = 300, 300, 50
     if args.json:
         if args.backend:
             os.environ["CHASSIS_SDK_BACKEND"] = args.backend

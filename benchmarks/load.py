@@ -29,6 +29,7 @@ SIMULATORS = Path(__file__).with_name("_simulators.py")
 BACKENDS = ["pyserial-asyncio", "pyserial-asyncio-fast"]
 COUNTS = [1, 8, 32]
 WINDOW = 10.0
+QUICK: list[str] = []
 
 
 def rss_bytes() -> int:
@@ -115,7 +116,7 @@ async def measure(n: int) -> dict[str, object]:
 
 def run_one(n: int, backend: str) -> dict[str, object]:
     out = subprocess.run(
-        [sys.executable, __file__, "--n", str(n), "--backend", backend, "--json"],
+        [sys.executable, __file__, "--n", str(n), "--backend", backend, "--json", *QUICK],
         env=dict(os.environ, CHASSIS_SDK_BACKEND=backend),
         check=True, capture_output=True, text=True,
     )  # fmt: skip
@@ -129,7 +130,13 @@ def main() -> None:
     parser.add_argument("--backend", choices=BACKENDS)
     parser.add_argument("--json", action="store_true", help="one configuration, as JSON")
     parser.add_argument("--floor", action="store_true", help="(with --json) the raw reader")
+    parser.add_argument("--quick", action="store_true", help="1 and 8 chassis, 3 s (for CI)")
     args = parser.parse_args()
+    if args.quick:
+        global WINDOW
+        WINDOW = 3.0
+        COUNTS[:] = [1, 8]
+        QUICK.append("--quick")
     if args.json:
         job = measure_floor(args.n or 1) if args.floor else measure(args.n or 1)
         print(json.dumps(asyncio.run(job)))
@@ -148,7 +155,7 @@ def main() -> None:
                   f"{r['rss_per_chassis_kb']:>9.0f}{r['lost']:>6}")  # fmt: skip
     for n in [args.n] if args.n else COUNTS:
         out = subprocess.run(
-            [sys.executable, __file__, "--n", str(n), "--json", "--floor"],
+            [sys.executable, __file__, "--n", str(n), "--json", "--floor", *QUICK],
             check=True, capture_output=True, text=True,
         )  # fmt: skip
         r = json.loads(out.stdout)
