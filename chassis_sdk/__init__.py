@@ -28,6 +28,7 @@ import logging as _logging
 
 from ._device import ConnectionState, LinkStats
 from ._dispatch import Subscription
+from ._watchdog import MotionLimits
 from .board import Board
 from .chassis import Chassis
 from .errors import (
@@ -38,6 +39,7 @@ from .errors import (
     ProtocolError,
     RequestTimeoutError,
 )
+from .odometry import Odometry
 from .protocol import (
     BatteryReading,
     ChassisInfo,
@@ -78,9 +80,11 @@ __all__ = [
     "DriverStatus",
     "ImuSample",
     "LinkStats",
+    "MotionLimits",
     "Motor",
     "MotorStatus",
     "NotConnectedError",
+    "Odometry",
     "PortOpenError",
     "PowerTelemetry",
     "ProtocolError",

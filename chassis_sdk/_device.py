@@ -35,7 +35,7 @@ import anyio.lowlevel
 
 from ._dispatch import Broadcast, RequestTable, Subscription
 from ._transport import BACKEND, Link, open_link
-from ._watchdog import FrameFactory, VelocityWatchdog
+from ._watchdog import Axes, FrameBuilder, MotionLimits, VelocityWatchdog
 from .errors import (
     ChassisError,
     ConnectionLostError,
@@ -148,6 +148,7 @@ class Device(Generic[M, K]):
         reconnect: bool = False,
         queue_size: int = 64,
         link_timeout: float | None = 1.0,
+        limits: MotionLimits | None = None,
         logger: logging.Logger | None = None,
     ) -> None:
         if not isinstance(port, str) or not port:
@@ -191,6 +192,7 @@ class Device(Generic[M, K]):
             command_timeout=None if command_timeout is None else float(command_timeout),
             logger=self._log,
         )
+        self.limits = limits
         self._bytes_sent = 0
         self._frames_sent = 0
         self._unmatched = 0
@@ -214,8 +216,9 @@ class Device(Generic[M, K]):
         """Build a zero-velocity frame."""
         raise NotImplementedError
 
-    def _velocity_frame(self, linear: float, angular: float) -> FrameFactory:
-        """Validate and return a factory of velocity frames (raises ``ValueError``)."""
+    def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
+        """Check ``(linear, angular)`` (raises ``ValueError``) and return a builder of
+        velocity frames for any values between zero and them."""
         raise NotImplementedError
 
     def _on_link_up(self) -> None:
@@ -540,20 +543,54 @@ class Device(Generic[M, K]):
         The frame is written at once and re-sent every ``resend_interval``. Without
         ``duration`` it stays active until ``command_timeout`` after the *last* call
         (keep calling, as with ROS ``cmd_vel``); with ``duration`` it holds exactly that
-        long. Then one zero frame is written.
+        long. Then one zero frame is written. With :attr:`limits`, what is written is
+        clamped and ramped towards the command; stopping is always immediate.
 
         Raises:
             ValueError: NaN, infinity, a value that overflows the wire field, or a bad
                 ``duration``; nothing is written.
             NotConnectedError: The port is not open.
         """
-        factory = self._velocity_frame(linear, angular)
-        self._drive(factory, check_duration(duration), f"({linear}, {angular})")
+        build = self._velocity_builder(linear, angular)
+        duration = check_duration(duration)
+        self._drive((linear, angular), build, duration, f"({linear}, {angular})", "velocity")
         await anyio.lowlevel.checkpoint()
 
-    def _drive(self, factory: FrameFactory, duration: float | None, description: str) -> None:
+    def _drive(
+        self,
+        target: tuple[float, float],
+        build: FrameBuilder,
+        duration: float | None,
+        description: str,
+        axes: Axes,
+    ) -> None:
         self._ensure_connected()
-        self._watchdog.command(factory, self._zero_frame, duration, description)
+        self._watchdog.command(target, build, self._zero_frame, duration, description, axes)
+
+    @property
+    def limits(self) -> MotionLimits:
+        """The :class:`MotionLimits` applied to what is written; assign to change them
+        (the next write uses the new ones)."""
+        return self._watchdog.limits
+
+    @limits.setter
+    def limits(self, limits: MotionLimits | None) -> None:
+        if limits is not None and not isinstance(limits, MotionLimits):
+            raise ValueError(f"limits must be a MotionLimits or None, got {limits!r}")
+        self._watchdog.limits = limits if limits is not None else MotionLimits()
+
+    @property
+    def commanded_velocity(self) -> tuple[float, float] | None:
+        """The active command as asked: ``(linear, angular)`` (``(left, right)`` in
+        wheel mode), or ``None`` when no command is active."""
+        active = self._watchdog.active
+        return None if active is None else active.target
+
+    @property
+    def written_velocity(self) -> tuple[float, float]:
+        """What was last written for the active command, after limits and ramps
+        (zeros when none is active)."""
+        return self._watchdog.written
 
     async def stop(self) -> None:
         """Write zero velocity now and end the active command.

@@ -14,33 +14,119 @@ asking, or a hung application would drive forever. This class does both:
 * ``stop()`` writes zero now; ``clear()`` forgets the command without writing (the link
   is gone: nothing can be written, and nothing must be resumed later).
 
+Optional :class:`MotionLimits` shape what is *written*, never what was asked: the
+target is clamped to the maximum speeds, and each write moves from the last written
+value towards the target by at most acceleration (or deceleration, when slowing
+towards zero) times the time since the last write, so a ramp advances at the resend
+period or faster if the application calls faster. A stop is never ramped: ``stop()``,
+the deadman, the end of a ``duration`` and the link going away all mean zero at once.
+
 Frames are built by callables so each resend gets a fresh sequence number.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Literal
 
 from ._alarm import Alarm
 from .errors import NotConnectedError
 
-__all__ = ["MotionCommand", "VelocityWatchdog"]
+__all__ = ["MotionCommand", "MotionLimits", "VelocityWatchdog"]
 
 FrameFactory = Callable[[], bytes]
+#: Builds the frame for a pair of values: (linear, angular) or (left, right).
+FrameBuilder = Callable[[float, float], bytes]
+#: What the pair means: body velocities, or left and right wheel speeds.
+Axes = Literal["velocity", "wheels"]
+
+
+@dataclass(frozen=True, slots=True)
+class MotionLimits:
+    """Limits on what the watchdog writes; every one is optional (``None``: no limit).
+
+    Attributes:
+        max_linear: Largest linear speed written (m/s); also caps each side's speed in
+            wheel mode.
+        max_angular: Largest angular speed written (rad/s).
+        linear_acceleration: Ramp rate away from zero (m/s²); wheel mode uses it per
+            side.
+        linear_deceleration: Ramp rate towards zero (m/s²); defaults to
+            ``linear_acceleration``.
+        angular_acceleration: Ramp rate away from zero (rad/s²).
+        angular_deceleration: Ramp rate towards zero (rad/s²); defaults to
+            ``angular_acceleration``.
+
+    Raises:
+        ValueError: A limit is not a finite number > 0.
+    """
+
+    max_linear: float | None = None
+    max_angular: float | None = None
+    linear_acceleration: float | None = None
+    linear_deceleration: float | None = None
+    angular_acceleration: float | None = None
+    angular_deceleration: float | None = None
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{f.name} must be a number or None, got {value!r}")
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{f.name} must be a finite number > 0, got {value!r}")
+
+    def _axis(self, index: int, axes: Axes) -> tuple[float | None, float | None, float | None]:
+        """(maximum, acceleration, deceleration) for value ``index`` of a command."""
+        if axes == "wheels" or index == 0:
+            accel = self.linear_acceleration
+            decel = self.linear_deceleration or accel
+            return self.max_linear, accel, decel
+        accel = self.angular_acceleration
+        return self.max_angular, accel, self.angular_deceleration or accel
+
+
+def _clamp(value: float, limit: float | None) -> float:
+    if limit is None:
+        return value
+    return max(-limit, min(limit, value))
+
+
+def _ramp(
+    current: float, goal: float, accel: float | None, decel: float | None, dt: float
+) -> float:
+    """One step from ``current`` towards ``goal``; slowing towards zero uses ``decel``
+    and stops at zero for the step that would cross it."""
+    if goal == current:
+        return goal
+    slowing = current != 0.0 and (goal - current) * current < 0
+    rate = decel if slowing else accel
+    if rate is None:
+        return goal
+    step = rate * dt
+    nxt = current + max(-step, min(step, goal - current))
+    if slowing and nxt * current < 0:
+        return 0.0
+    return nxt
 
 
 @dataclass(slots=True)
 class MotionCommand:
-    """An active command: how to build it, how to build its zero, when it expires."""
+    """An active command: what was asked, how to build frames, when it expires."""
 
-    frame: FrameFactory
+    target: tuple[float, float]
+    build: FrameBuilder
     zero: FrameFactory
     deadline: float
     description: str
+    axes: Axes = "velocity"
 
 
 class VelocityWatchdog:
@@ -62,14 +148,20 @@ class VelocityWatchdog:
         interval: float,
         command_timeout: float | None,
         logger: logging.Logger,
+        limits: MotionLimits | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self._write = write
         self.interval = interval
         self.command_timeout = command_timeout
+        #: Limits applied to what is written (see :class:`MotionLimits`).
+        self.limits = limits if limits is not None else MotionLimits()
         self._log = logger
         self._clock = clock
         self._active: MotionCommand | None = None
+        #: The last values written for the active command (zero when idle).
+        self.written: tuple[float, float] = (0.0, 0.0)
+        self._last_write: float | None = None
         self._next = 0.0
         self._alarm = Alarm()
         #: Frames re-sent by the background task (not counting the first write).
@@ -83,38 +175,64 @@ class VelocityWatchdog:
         return self._active
 
     def command(
-        self, frame: FrameFactory, zero: FrameFactory, duration: float | None, description: str
+        self,
+        target: tuple[float, float],
+        build: FrameBuilder,
+        zero: FrameFactory,
+        duration: float | None,
+        description: str,
+        axes: Axes = "velocity",
     ) -> None:
-        """Write ``frame()`` now and hold it until it expires.
+        """Write towards ``target`` now and hold it until it expires.
 
         Args:
-            frame: Builds the command frame (called for the first write and each resend).
+            target: The values asked for: (linear, angular) or (left, right).
+            build: Builds the frame for a pair of values (each write calls it anew).
             zero: Builds the matching zero-velocity frame.
             duration: Hold exactly this long (s); ``None`` for the deadman timeout.
             description: For log messages.
+            axes: What ``target`` holds, for the limits.
         """
-        self._write(frame())  # raises before any state changes if not connected
         now = self._clock()
+        cmd = MotionCommand(target, build, zero, 0.0, description, axes)
+        values = self._step(cmd, now)
+        self._write(build(*values))  # raises before any state changes if not connected
+        self.written = values
+        self._last_write = now
         if duration is not None:
-            deadline = now + duration
+            cmd.deadline = now + duration
         elif self.command_timeout is not None:
-            deadline = now + self.command_timeout
+            cmd.deadline = now + self.command_timeout
         else:
-            deadline = math.inf
-        self._active = MotionCommand(frame, zero, deadline, description)
+            cmd.deadline = math.inf
+        self._active = cmd
         self._next = now + self.interval
         self._alarm.wake()
 
     def stop(self, zero: FrameFactory) -> None:
-        """Drop the active command and write a zero frame now."""
-        self._active = None
-        self._alarm.wake()
+        """Drop the active command and write a zero frame now (never ramped)."""
+        self.clear()
         self._write(zero())
 
     def clear(self) -> None:
         """Drop the active command without writing anything (the link is gone)."""
         self._active = None
+        self.written = (0.0, 0.0)
+        self._last_write = None
         self._alarm.wake()
+
+    def _step(self, cmd: MotionCommand, now: float) -> tuple[float, float]:
+        """The values to write now for ``cmd``, within the limits."""
+        limits = self.limits
+        last = self._last_write
+        # From rest, the first write is one resend period's worth of ramp.
+        dt = self.interval if last is None else min(now - last, self.interval)
+        out = []
+        for i in (0, 1):
+            maximum, accel, decel = limits._axis(i, cmd.axes)
+            goal = _clamp(cmd.target[i], maximum)
+            out.append(_ramp(self.written[i], goal, accel, decel, dt))
+        return out[0], out[1]
 
     async def run(self) -> None:
         """Background loop; runs until cancelled."""
@@ -130,7 +248,7 @@ class VelocityWatchdog:
                 await self._alarm.sleep(due - now)
                 continue
             if now >= active.deadline:
-                self._active = None
+                self.clear()
                 self.expiries += 1
                 self._log.debug("velocity command %s expired; writing zero", active.description)
                 self._write_quietly(active.zero)
@@ -139,12 +257,17 @@ class VelocityWatchdog:
             if self._next <= now:  # the loop was blocked: skip the missed slots
                 self._next = now + self.interval
             self.resends += 1
-            self._write_quietly(active.frame)
+            values = self._step(active, now)
+            if self._write_quietly(functools.partial(active.build, *values)):
+                self.written = values
+                self._last_write = now
 
-    def _write_quietly(self, frame: FrameFactory) -> None:
+    def _write_quietly(self, frame: FrameFactory) -> bool:
         try:
             self._write(frame())
         except NotConnectedError:
             # The link dropped between two resends: the supervisor clears us; never
             # resume this command later.
-            self._active = None
+            self.clear()
+            return False
+        return True

@@ -6,7 +6,7 @@ import anyio
 
 from ._device import Device
 from ._dispatch import Subscription
-from ._watchdog import FrameFactory
+from ._watchdog import FrameBuilder
 from .protocol.board import (
     BatteryReading,
     BoardDecoder,
@@ -95,9 +95,10 @@ class Board(Device[BoardMessage, _Key]):
     def _zero_frame(self) -> bytes:
         return self._encoder.encode(_ZERO)
 
-    def _velocity_frame(self, linear: float, angular: float) -> FrameFactory:
-        frame = self._encoder.encode(velocity_command(linear, angular))
-        return lambda: frame  # no sequence number: the same bytes every time
+    def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
+        velocity_command(linear, angular)  # raises ValueError before anything is written
+        encode = self._encoder.encode
+        return lambda v, w: encode(velocity_command(v, w))
 
     # --- commands without a reply -------------------------------------------------------------
 

@@ -10,7 +10,7 @@ import anyio.lowlevel
 
 from ._device import Device
 from ._dispatch import Subscription
-from ._watchdog import FrameFactory
+from ._watchdog import FrameBuilder
 from .errors import ProtocolError
 from .protocol._scale import check_duration
 from .protocol.chassis import (
@@ -65,6 +65,8 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         queue_size: Buffer per stream subscriber; on overflow the oldest is dropped.
         link_timeout: Seconds without a valid frame before the link is reported
             ``STALE`` (a state change, logged once); ``None`` disables the check.
+        limits: Optional :class:`MotionLimits` (maximum speeds, acceleration and
+            deceleration) applied to what the watchdog writes; stops are immediate.
         logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
 
     Raises:
@@ -111,10 +113,10 @@ class Chassis(Device[ChassisMessage, ReplyId]):
     def _zero_frame(self) -> bytes:
         return self._encoder.encode(_ZERO)
 
-    def _velocity_frame(self, linear: float, angular: float) -> FrameFactory:
-        cmd = velocity_command(linear, angular)
+    def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
+        velocity_command(linear, angular)  # raises ValueError before anything is written
         encode = self._encoder.encode
-        return lambda: encode(cmd)
+        return lambda v, w: encode(velocity_command(v, w))
 
     # --- motion (set_velocity and stop come from Device) ---------------------------------------
 
@@ -130,9 +132,15 @@ class Chassis(Device[ChassisMessage, ReplyId]):
             ValueError: NaN, infinity, out of int16 mm/s range, or a bad ``duration``.
             NotConnectedError: The port is not open.
         """
-        cmd = wheel_speeds_command(left, right)
+        wheel_speeds_command(left, right)  # raises ValueError before anything is written
         encode = self._encoder.encode
-        self._drive(lambda: encode(cmd), check_duration(duration), f"wheels ({left}, {right})")
+        self._drive(
+            (left, right),
+            lambda a, b: encode(wheel_speeds_command(a, b)),
+            check_duration(duration),
+            f"wheels ({left}, {right})",
+            "wheels",
+        )
         await anyio.lowlevel.checkpoint()
 
     async def emergency_stop(self) -> None:
