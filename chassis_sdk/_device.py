@@ -43,6 +43,7 @@ from .errors import (
     PortOpenError,
     RequestTimeoutError,
 )
+from .odometry import Odometry, OdometryIntegrator
 from .protocol import DecoderStats
 from .protocol._scale import check_duration
 
@@ -201,6 +202,9 @@ class Device(Generic[M, K]):
         #: Message type -> what to do with it (set up by ``_init_protocol``); called
         #: synchronously from ``data_received``, in wire order.
         self._handlers: dict[type, Callable[[Any], None]] = {}
+        self._odometer = OdometryIntegrator()
+        self._odometry: Broadcast[Odometry] = self._stream()
+        self._latest_odometry: Odometry | None = None
         self._init_protocol()
 
     # --- hooks for the subclasses ---------------------------------------------------------
@@ -602,6 +606,46 @@ class Device(Generic[M, K]):
         self._ensure_connected()
         self._watchdog.stop(self._zero_frame)
         await anyio.lowlevel.checkpoint()
+
+    # --- odometry ---------------------------------------------------------------------------------
+
+    def _integrate(
+        self, linear: float, angular: float, timestamp: float, heading: float | None = None
+    ) -> None:
+        odometry = self._odometer.update(linear, angular, timestamp, heading)
+        self._latest_odometry = odometry
+        self._odometry.publish(odometry)
+
+    def odometry(self) -> Subscription[Odometry]:
+        """Subscribe to the pose dead-reckoned from the device's reported velocities:
+        an async iterator of :class:`~chassis_sdk.Odometry`, one per velocity sample.
+
+        Integration runs all the time, subscribed or not, using the samples'
+        timestamps, so irregular intervals and dropped frames do not bias it; a gap
+        longer than half a second (an outage) is not integrated. See
+        :meth:`configure_odometry` for the sources.
+        """
+        return self._subscribe(self._odometry)
+
+    @property
+    def latest_odometry(self) -> Odometry | None:
+        """The most recent :class:`~chassis_sdk.Odometry`, or ``None``."""
+        return self._latest_odometry
+
+    def reset_odometry(self, x: float = 0.0, y: float = 0.0, heading: float = 0.0) -> None:
+        """Set the current pose (default: the origin, heading 0) and integrate from it.
+
+        Raises:
+            ValueError: A value is not finite.
+        """
+        for name, value in (("x", x), ("y", y), ("heading", heading)):
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value!r}")
+        self._odometer.reset(x, y, heading)
+        self._on_odometry_reset(heading)
+
+    def _on_odometry_reset(self, heading: float) -> None:
+        """Hook: a device with its own heading source resets it too."""
 
     # --- observability ------------------------------------------------------------------------
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import anyio
+import anyio.lowlevel
 
 from ._device import Device
 from ._dispatch import Subscription
@@ -62,6 +65,8 @@ class Board(Device[BoardMessage, _Key]):
         self._latest_imu: ImuSample | None = None
         self._latest_velocity: VelocityFeedback | None = None
         self._latest_battery: BatteryReading | None = None
+        self._gyro_heading: float | None = None  # unwrapped, rad, when heading="imu"
+        self._last_imu_time: float | None = None
         self._handlers = {
             ImuSample: self._on_imu,
             VelocityFeedback: self._on_velocity,
@@ -79,10 +84,40 @@ class Board(Device[BoardMessage, _Key]):
     def _on_imu(self, m: ImuSample) -> None:
         self._latest_imu = m
         self._imu.publish(m)
+        if self._gyro_heading is not None:
+            last, self._last_imu_time = self._last_imu_time, m.timestamp
+            if last is not None and 0 < m.timestamp - last <= self._odometer.max_gap:
+                self._gyro_heading += math.radians(m.gyro.z) * (m.timestamp - last)
 
     def _on_velocity(self, m: VelocityFeedback) -> None:
         self._latest_velocity = m
         self._velocity.publish(m)
+        self._integrate(m.linear, m.angular, m.timestamp, self._gyro_heading)
+
+    def _on_odometry_reset(self, heading: float) -> None:
+        if self._gyro_heading is not None:
+            self._gyro_heading = heading
+
+    async def configure_odometry(self, heading: str = "velocity", *, max_gap: float = 0.5) -> None:
+        """Choose what :meth:`odometry` takes its heading from.
+
+        Args:
+            heading: ``"velocity"`` (default): integrate the angular velocity of 0x12.
+                ``"imu"``: integrate the gyro's z rate from 0x11 (100 Hz), which sees
+                wheel slip that the velocity feedback does not.
+            max_gap: Longest interval between samples that is integrated (s).
+
+        Raises:
+            ValueError: An unknown heading source or a bad ``max_gap``.
+        """
+        if heading not in ("velocity", "imu"):
+            raise ValueError(f"heading must be 'velocity' or 'imu', got {heading!r}")
+        if not (math.isfinite(max_gap) and max_gap > 0):
+            raise ValueError(f"max_gap must be a finite number > 0, got {max_gap!r}")
+        self._odometer.max_gap = max_gap
+        self._gyro_heading = self._odometer.heading if heading == "imu" else None
+        self._last_imu_time = None
+        await anyio.lowlevel.checkpoint()
 
     def _on_battery(self, m: BatteryReading) -> None:
         self._latest_battery = m

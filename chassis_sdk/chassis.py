@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import math
 import time
 from typing import Any
 
@@ -80,6 +81,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._latest: Telemetry | None = None
         self._latest_power: PowerTelemetry | None = None
         self._last_seq: int | None = None
+        self._wheel_track: float | None = None  # effective track, when odometry uses wheels
         self._handlers = {
             Telemetry: self._on_telemetry,
             PowerTelemetry: self._on_power,
@@ -102,6 +104,12 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._last_seq = t.seq
         self._latest = t
         self._telemetry.publish(t)
+        if self._wheel_track is None:
+            self._integrate(t.linear, t.angular, t.timestamp)
+        else:
+            w = t.wheels
+            left, right = (w.front_left + w.rear_left) / 2, (w.front_right + w.rear_right) / 2
+            self._integrate((left + right) / 2, (right - left) / self._wheel_track, t.timestamp)
 
     def _on_power(self, p: PowerTelemetry) -> None:
         self._latest_power = p
@@ -117,6 +125,47 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         velocity_command(linear, angular)  # raises ValueError before anything is written
         encode = self._encoder.encode
         return lambda v, w: encode(velocity_command(v, w))
+
+    async def configure_odometry(
+        self,
+        source: str = "velocity",
+        *,
+        track_width: float | None = None,
+        slip_factor: float = 1.0,
+        max_gap: float = 0.5,
+    ) -> None:
+        """Choose what :meth:`odometry` integrates.
+
+        Args:
+            source: ``"velocity"`` (default): the chassis's own linear and angular
+                velocity from 0x81. ``"wheels"``: the four wheel speeds, with the
+                angular velocity from the left/right difference over the effective
+                track, ``track_width * slip_factor``.
+            track_width: Metres; ``None`` reads it from the chassis (0x09).
+            slip_factor: Skid-steer slip (>= 1): how much wider the effective track is
+                than the geometric one, because the wheels skid in a turn. Calibrate by
+                turning in place a measured angle.
+            max_gap: Longest interval between samples that is integrated (s).
+
+        Raises:
+            ValueError: An unknown source, or a value out of range.
+            RequestTimeoutError: ``track_width`` was not given and 0x09 went unanswered.
+        """
+        if source not in ("velocity", "wheels"):
+            raise ValueError(f"source must be 'velocity' or 'wheels', got {source!r}")
+        if not (math.isfinite(slip_factor) and slip_factor >= 1.0):
+            raise ValueError(f"slip_factor must be a finite number >= 1, got {slip_factor!r}")
+        if track_width is not None and not (math.isfinite(track_width) and track_width > 0):
+            raise ValueError(f"track_width must be a finite number > 0, got {track_width!r}")
+        if not (math.isfinite(max_gap) and max_gap > 0):
+            raise ValueError(f"max_gap must be a finite number > 0, got {max_gap!r}")
+        track: float | None = None
+        if source == "wheels":
+            if track_width is None:
+                track_width = (await self.get_chassis_info()).track_width
+            track = track_width * slip_factor
+        self._odometer.max_gap = max_gap
+        self._wheel_track = track
 
     # --- motion (set_velocity and stop come from Device) ---------------------------------------
 

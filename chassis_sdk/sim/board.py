@@ -67,6 +67,8 @@ class BoardFirmware:
         self.resets = 0
         self._boot_until = -math.inf
         self._battery = self.spec.battery_full  # the battery outlives a reset
+        #: The true pose (x m, y m, heading rad unwrapped) from the simulated motion.
+        self.pose = (0.0, 0.0, 0.0)
         self._power_on()
 
     def _power_on(self) -> None:
@@ -190,6 +192,13 @@ class BoardFirmware:
         self.linear += dv
         self.angular += dw
         self._linear_accel = dv / dt
+        mid = self.heading + self.angular * dt / 2
+        x, y, h = self.pose
+        self.pose = (
+            x + self.linear * dt * math.cos(mid),
+            y + self.linear * dt * math.sin(mid),
+            h + self.angular * dt,
+        )
         self.heading = (self.heading + self.angular * dt) % (2 * math.pi)
         moving = abs(self.linear) > 1e-6 or abs(self.angular) > 1e-6
         if moving:

@@ -90,6 +90,8 @@ class ChassisFirmware:
         self.hardware_estop = False
         self._boot_until = -math.inf
         self._battery_open = self.spec.battery_full  # the battery outlives a reset
+        #: The true pose (x m, y m, heading rad unwrapped) from the simulated wheels.
+        self.pose = (0.0, 0.0, 0.0)
         self._power_on()
 
     def _power_on(self) -> None:
@@ -304,6 +306,13 @@ class ChassisFirmware:
             self.wheels[i] += dv
             self._accel[i] = dv / dt
             self._peak[i] = max(self._peak[i], abs(self._current(i)))
+        # The true pose, for tests to hold odometry against (midpoint rule per step).
+        left = (self.wheels[0] + self.wheels[2]) / 2
+        right = (self.wheels[1] + self.wheels[3]) / 2
+        v, w = (left + right) / 2, (right - left) / self.spec.info.track_width
+        x, y, heading = self.pose
+        mid = heading + w * dt / 2
+        self.pose = (x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), heading + w * dt)
         moving = any(abs(w) > 1e-6 for w in self.wheels)
         if moving:
             self._battery_open -= self.spec.battery_drain * dt

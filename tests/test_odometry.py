@@ -1,0 +1,165 @@
+"""Odometry: the integrator on its own (exact arcs, any sampling, gaps), then against
+the simulators' true pose."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from chassis_sdk import Board, Chassis
+from chassis_sdk.odometry import OdometryIntegrator, wrap_angle
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _example(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def run(samples: list[tuple[float, float, float]]) -> OdometryIntegrator:
+    odo = OdometryIntegrator(max_gap=10.0)
+    for v, w, t in samples:
+        odo.update(v, w, t)
+    return odo
+
+
+# --- the integrator ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "times",
+    [
+        pytest.param([i * 0.02 for i in range(101)], id="regular 50 Hz"),
+        pytest.param([0, 0.003, 0.05, 0.051, 0.3, 0.9, 1.2, 2.0], id="irregular"),
+        pytest.param([i * 0.02 for i in range(101) if i % 7], id="dropped frames"),
+    ],
+)
+def test_straight_line_is_exact_however_it_is_sampled(times: list[float]) -> None:
+    odo = run([(0.5, 0.0, t) for t in times])
+    assert odo.x == pytest.approx(0.5 * (times[-1] - times[0]), abs=1e-12)
+    assert odo.y == 0.0
+
+
+def test_a_full_circle_closes_and_a_quarter_lands_on_the_arc() -> None:
+    v, w = 0.5, 0.8  # radius 0.625 m
+    period = 2 * math.pi / w
+    odo = run([(v, w, period * i / 37) for i in range(38)])  # an odd, coarse sampling
+    assert math.hypot(odo.x, odo.y) < 1e-9
+    assert odo.heading == pytest.approx(2 * math.pi)
+    quarter = run([(v, w, 0.0), (v, w, period / 4)])
+    assert (quarter.x, quarter.y) == pytest.approx((0.625, 0.625))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    segments=st.lists(
+        st.tuples(st.floats(-1, 1), st.floats(-2, 2), st.floats(0.01, 0.4)),
+        min_size=1,
+        max_size=8,
+    ),
+    splits=st.lists(st.integers(1, 6), min_size=8, max_size=8),
+)
+def test_subdividing_samples_does_not_change_the_pose(
+    segments: list[tuple[float, float, float]], splits: list[int]
+) -> None:
+    """Piecewise-constant motion: one sample per segment or several give the same pose."""
+    coarse, fine, t = [(0.0, 0.0, 0.0)], [(0.0, 0.0, 0.0)], 0.0
+    for (v, w, dt), k in zip(segments, splits, strict=False):
+        fine += [(v, w, t + dt * (i + 1) / k) for i in range(k)]
+        t += dt
+        coarse.append((v, w, t))
+    a, b = run(coarse), run(fine)
+    assert (a.x, a.y, a.heading) == pytest.approx((b.x, b.y, b.heading), abs=1e-9)
+
+
+def test_a_long_gap_is_not_integrated() -> None:
+    odo = OdometryIntegrator(max_gap=0.5)
+    odo.update(1.0, 0.0, 0.0)
+    odo.update(1.0, 0.0, 0.1)
+    pose = odo.update(1.0, 0.0, 3.0)  # an outage: the speed across it is unknown
+    assert pose.x == pytest.approx(0.1)
+    assert odo.skipped_gaps == 1
+    assert odo.update(1.0, 0.0, 3.1).x == pytest.approx(0.2)
+
+
+def test_reset_heading_wrap_and_bad_options() -> None:
+    odo = OdometryIntegrator()
+    odo.reset(1.0, 2.0, 3 * math.pi)
+    pose = odo.update(0.0, 0.0, 5.0)
+    assert (pose.x, pose.y) == (1.0, 2.0)
+    assert pose.heading == pytest.approx(math.pi)
+    assert wrap_angle(-math.pi) == math.pi
+    with pytest.raises(ValueError, match="max_gap"):
+        OdometryIntegrator(max_gap=0)
+
+
+def test_an_external_heading_replaces_the_integrated_one() -> None:
+    odo = OdometryIntegrator()
+    odo.update(1.0, 0.0, 0.0, heading=0.0)
+    pose = odo.update(1.0, 0.0, 0.5, heading=math.pi)  # turned half round per the gyro
+    assert pose.heading == pytest.approx(math.pi)
+    assert (pose.x, pose.y) == pytest.approx((0.0, 1 / math.pi))  # a half circle of 0.5 m
+
+
+# --- against the simulators -------------------------------------------------------------------
+
+
+@pytest.mark.timeout(90)
+async def test_a_1_m_square_closes_and_odometry_matches_the_simulators_truth() -> None:
+    """Stated tolerance: the square closes within 2 cm and 1 degree by odometry, and
+    odometry is within 1 cm and 0.5 degree of the simulator's true pose at the end."""
+    drive = _example("drive_to_pose")
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        end = await drive.square(robot, 1.0)
+        x, y, heading = sim.firmware.pose
+    assert math.hypot(end.x, end.y) < 0.02
+    assert abs(math.degrees(end.heading)) < 1.0
+    assert math.hypot(end.x - x, end.y - y) < 0.01
+    assert abs(math.degrees(wrap_angle(end.heading - heading))) < 0.5
+    assert robot.stats.sequence_gaps == 0
+
+
+async def test_chassis_wheel_odometry_with_track_from_0x89() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        await robot.configure_odometry("wheels")  # reads track_width from the chassis
+        robot.reset_odometry()
+        await robot.set_velocity(0.4, 0.8, duration=1.0)
+        async for pose in robot.odometry():
+            if pose.timestamp > 0 and robot.commanded_velocity is None and pose.linear == 0:
+                break
+        x, y, heading = sim.firmware.pose
+        assert pose.distance_to(x, y) < 0.01
+        assert pose.heading == pytest.approx(wrap_angle(heading), abs=0.01)
+        with pytest.raises(ValueError, match="slip_factor"):
+            await robot.configure_odometry("wheels", track_width=0.5, slip_factor=0.5)
+        with pytest.raises(ValueError, match="source"):
+            await robot.configure_odometry("gps")
+
+
+async def test_board_odometry_with_imu_heading_matches_the_simulator() -> None:
+    async with BoardSimulator() as sim, Board(sim.port) as board:
+        await board.configure_odometry(heading="imu")
+        await anext(board.odometry())
+        board.reset_odometry()
+        start = sim.firmware.pose
+        await board.set_velocity(0.3, 0.6, duration=1.5)
+        async for pose in board.odometry():
+            if board.commanded_velocity is None and abs(pose.linear) < 1e-3:
+                break
+        x, y, heading = (a - b for a, b in zip(sim.firmware.pose, start, strict=True))
+        assert pose.distance_to(x, y) < 0.03
+        assert pose.heading == pytest.approx(wrap_angle(heading), abs=math.radians(2))
