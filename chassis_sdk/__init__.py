@@ -31,6 +31,7 @@ from ._dispatch import Subscription
 from ._watchdog import MotionLimits
 from .board import Board
 from .chassis import Chassis
+from .diagnostics import Diagnosis
 from .errors import (
     ChassisError,
     ConnectionLostError,
@@ -39,6 +40,7 @@ from .errors import (
     ProtocolError,
     RequestTimeoutError,
 )
+from .events import EventKind, RobotEvent
 from .odometry import Odometry
 from .protocol import (
     BatteryReading,
@@ -75,9 +77,11 @@ __all__ = [
     "ChassisStatus",
     "ConnectionLostError",
     "ConnectionState",
+    "Diagnosis",
     "DockingState",
     "DriverError",
     "DriverStatus",
+    "EventKind",
     "ImuSample",
     "LinkStats",
     "MotionLimits",
@@ -89,6 +93,7 @@ __all__ = [
     "PowerTelemetry",
     "ProtocolError",
     "RequestTimeoutError",
+    "RobotEvent",
     "Servo",
     "Subscription",
     "Telemetry",

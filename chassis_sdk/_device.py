@@ -43,6 +43,7 @@ from .errors import (
     PortOpenError,
     RequestTimeoutError,
 )
+from .events import BatteryMonitor, EventKind, RobotEvent
 from .odometry import Odometry, OdometryIntegrator
 from .protocol import DecoderStats
 from .protocol._scale import check_duration
@@ -150,6 +151,7 @@ class Device(Generic[M, K]):
         queue_size: int = 64,
         link_timeout: float | None = 1.0,
         limits: MotionLimits | None = None,
+        battery_low: float | None = None,
         logger: logging.Logger | None = None,
     ) -> None:
         if not isinstance(port, str) or not port:
@@ -205,6 +207,8 @@ class Device(Generic[M, K]):
         self._odometer = OdometryIntegrator()
         self._odometry: Broadcast[Odometry] = self._stream()
         self._latest_odometry: Odometry | None = None
+        self._events: Broadcast[RobotEvent] = self._stream()
+        self._battery_monitor = BatteryMonitor(battery_low)
         self._init_protocol()
 
     # --- hooks for the subclasses ---------------------------------------------------------
@@ -270,10 +274,20 @@ class Device(Generic[M, K]):
                 await self._state_changed.wait()
 
     def _set_state(self, state: ConnectionState) -> None:
-        if state is self._state:
+        old = self._state
+        if state is old:
             return
-        self._log.info("%s: %s -> %s", self.port, self._state.value, state.value)
+        self._log.info("%s: %s -> %s", self.port, old.value, state.value)
         self._state = state
+        kind = None
+        if state is ConnectionState.STALE:
+            kind = EventKind.LINK_STALE
+        elif state in (ConnectionState.RECONNECTING, ConnectionState.LOST):
+            kind = EventKind.LINK_LOST
+        elif state is ConnectionState.CONNECTED and old is not ConnectionState.CONNECTING:
+            kind = EventKind.LINK_RESTORED
+        if kind is not None:
+            self._emit(RobotEvent(kind, "", time.monotonic()))
         self._states.publish(state)
         changed, self._state_changed = self._state_changed, asyncio.Event()
         changed.set()
@@ -387,9 +401,9 @@ class Device(Generic[M, K]):
             self._log.warning("%s", error)
             self._requests.fail_all(error)
             if not self.reconnect:
+                self._set_state(ConnectionState.LOST)  # first, so LINK_LOST reaches events()
                 for stream in self._streams:
                     stream.fail(error)
-                self._set_state(ConnectionState.LOST)
                 return
             self._set_state(ConnectionState.RECONNECTING)
             await self._reopen()
@@ -606,6 +620,44 @@ class Device(Generic[M, K]):
         self._ensure_connected()
         self._watchdog.stop(self._zero_frame)
         await anyio.lowlevel.checkpoint()
+
+    # --- events -----------------------------------------------------------------------------------
+
+    def _emit(self, event: RobotEvent) -> None:
+        self._log.info("%s: %s", self.port, event)
+        self._events.publish(event)
+
+    def _battery(self, voltage: float, timestamp: float) -> None:
+        event = self._battery_monitor.update(voltage, timestamp)
+        if event is not None:
+            self._emit(event)
+
+    def events(self) -> Subscription[RobotEvent]:
+        """Subscribe to :class:`~chassis_sdk.RobotEvent` edges: e-stops, bumpers, driver
+        faults, docking changes (chassis), battery low/ok (with ``battery_low``), and
+        the link going stale, lost and restored. Each edge is reported once.
+        """
+        return self._subscribe(self._events)
+
+    @property
+    def battery_low(self) -> float | None:
+        """Voltage below which ``BATTERY_LOW`` is reported (``None``: not watched)."""
+        return self._battery_monitor.threshold
+
+    def _link_findings(self) -> tuple[list[str], list[str]]:
+        """(faults, notes) about the link and battery, for ``diagnose()``."""
+        faults: list[str] = []
+        notes: list[str] = []
+        if self._state is not ConnectionState.CONNECTED:
+            faults.append(f"link {self._state.value}")
+        age = self.last_frame_age
+        if age is None:
+            faults.append("no valid frame received yet")
+        else:
+            notes.append(f"last frame {age:.2f} s ago, via {BACKEND}")
+        if self._battery_monitor.low:
+            faults.append(f"battery below {self._battery_monitor.threshold:g} V")
+        return faults, notes
 
     # --- odometry ---------------------------------------------------------------------------------
 

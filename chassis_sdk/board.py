@@ -10,6 +10,8 @@ import anyio.lowlevel
 from ._device import Device
 from ._dispatch import Subscription
 from ._watchdog import FrameBuilder
+from .diagnostics import Diagnosis
+from .errors import RequestTimeoutError
 from .protocol.board import (
     BatteryReading,
     BoardDecoder,
@@ -60,7 +62,7 @@ class Board(Device[BoardMessage, _Key]):
         self._id_slots: anyio.Semaphore | None = None
         self._imu = self._stream()
         self._velocity = self._stream()
-        self._battery = self._stream()
+        self._battery_stream = self._stream()
         self._logs = self._stream()
         self._latest_imu: ImuSample | None = None
         self._latest_velocity: VelocityFeedback | None = None
@@ -121,7 +123,8 @@ class Board(Device[BoardMessage, _Key]):
 
     def _on_battery(self, m: BatteryReading) -> None:
         self._latest_battery = m
-        self._battery.publish(m)
+        self._battery_stream.publish(m)
+        self._battery(m.voltage, m.timestamp)
 
     def _on_log(self, m: LogMessage) -> None:
         self._log.debug("%s: board log: %s", self.port, m.text)
@@ -207,6 +210,29 @@ class Board(Device[BoardMessage, _Key]):
         """Read the buzzer state (retried up to ``retries`` times)."""
         return await self._switch(BoardType.BUZZER, SwitchAction.READ)
 
+    async def diagnose(self) -> Diagnosis:
+        """Gather the board's health into one report: connection and link counters, the
+        battery, an IMU plausibility check (about 1 g at rest or cruising) and the LED
+        and buzzer states (read now, if connected). ``print()`` it to read it."""
+        faults, notes = self._link_findings()
+        battery = self._latest_battery
+        notes.append(
+            "battery: no reading yet" if battery is None else f"battery {battery.voltage:.2f} V"
+        )
+        imu = self._latest_imu
+        if imu is None:
+            faults.append("no IMU sample received")
+        else:
+            g = math.sqrt(imu.accel.x**2 + imu.accel.y**2 + imu.accel.z**2)
+            (notes if 0.8 <= g <= 1.2 else faults).append(f"IMU reads |a| = {g:.2f} g")
+        if self.is_connected:
+            for name, read in (("LED", self.get_led), ("buzzer", self.get_buzzer)):
+                try:
+                    notes.append(f"{name} {'on' if await read() else 'off'}")
+                except RequestTimeoutError:
+                    faults.append(f"{name} request unanswered")
+        return Diagnosis("board", self.port, self._state, self.stats, tuple(faults), tuple(notes))
+
     # --- streams --------------------------------------------------------------------------------
 
     def imu(self) -> Subscription[ImuSample]:
@@ -219,7 +245,7 @@ class Board(Device[BoardMessage, _Key]):
 
     def battery(self) -> Subscription[BatteryReading]:
         """Subscribe to battery readings (0x13), volts."""
-        return self._subscribe(self._battery)
+        return self._subscribe(self._battery_stream)
 
     def logs(self) -> Subscription[str]:
         """Subscribe to the board's log lines (0xF1)."""

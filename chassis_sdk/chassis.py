@@ -5,14 +5,18 @@ from __future__ import annotations
 import datetime
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
+import anyio
 import anyio.lowlevel
 
 from ._device import Device
 from ._dispatch import Subscription
 from ._watchdog import FrameBuilder
-from .errors import ProtocolError
+from .diagnostics import Diagnosis, driver_findings, status_findings
+from .errors import NotConnectedError, ProtocolError, RequestTimeoutError
+from .events import StatusEdges
 from .protocol._scale import check_duration
 from .protocol.chassis import (
     REPLY_TO,
@@ -20,6 +24,7 @@ from .protocol.chassis import (
     ChassisEncoder,
     ChassisInfo,
     ChassisMessage,
+    ChassisStatus,
     CommandId,
     DriverStatus,
     DriveVelocity,
@@ -68,6 +73,8 @@ class Chassis(Device[ChassisMessage, ReplyId]):
             ``STALE`` (a state change, logged once); ``None`` disables the check.
         limits: Optional :class:`MotionLimits` (maximum speeds, acceleration and
             deceleration) applied to what the watchdog writes; stops are immediate.
+        battery_low: Report ``BATTERY_LOW`` in :meth:`events` below this voltage
+            (and ``BATTERY_OK`` 0.2 V above it); ``None`` (default) does not watch.
         logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
 
     Raises:
@@ -81,6 +88,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._latest: Telemetry | None = None
         self._latest_power: PowerTelemetry | None = None
         self._last_seq: int | None = None
+        self._edges = StatusEdges()
         self._wheel_track: float | None = None  # effective track, when odometry uses wheels
         self._handlers = {
             Telemetry: self._on_telemetry,
@@ -104,6 +112,9 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._last_seq = t.seq
         self._latest = t
         self._telemetry.publish(t)
+        for event in self._edges.update(t.status, t.docking, t.timestamp):
+            self._emit(event)
+        self._battery(t.voltage, t.timestamp)
         if self._wheel_track is None:
             self._integrate(t.linear, t.angular, t.timestamp)
         else:
@@ -192,47 +203,149 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         )
         await anyio.lowlevel.checkpoint()
 
-    async def emergency_stop(self) -> None:
+    async def emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
         """Engage the software emergency stop (0x03) and end any velocity command.
 
         The chassis reports it in ``Telemetry.status`` (``SOFTWARE_ESTOP``).
+
+        Args:
+            confirm: Return only once telemetry shows ``SOFTWARE_ESTOP``.
+            timeout: Seconds to wait for that (with ``confirm``).
+
+        Raises:
+            RequestTimeoutError: ``confirm`` and the bit did not show in time.
         """
         self._ensure_connected()
         self._watchdog.clear()
         self._write(self._encoder.emergency_stop(True))
         await self.stop()
+        if confirm:
+            await self._confirm(
+                lambda t: ChassisStatus.SOFTWARE_ESTOP in t.status, timeout, "SOFTWARE_ESTOP set"
+            )
 
-    async def release_emergency_stop(self) -> None:
+    async def release_emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
         """Release the software emergency stop (0x03, 0). The robot does not move until
-        the next velocity command."""
+        the next velocity command.
+
+        Args:
+            confirm: Return only once telemetry shows ``SOFTWARE_ESTOP`` cleared.
+            timeout: Seconds to wait for that (with ``confirm``).
+        """
         await self._send(self._encoder.emergency_stop(False))
+        if confirm:
+            await self._confirm(
+                lambda t: ChassisStatus.SOFTWARE_ESTOP not in t.status,
+                timeout,
+                "SOFTWARE_ESTOP cleared",
+            )
 
     async def clear_faults(
-        self, *, driver: bool = True, front_bumper: bool = True, rear_bumper: bool = True
+        self,
+        *,
+        driver: bool = True,
+        front_bumper: bool = True,
+        rear_bumper: bool = True,
+        confirm: bool = False,
+        timeout: float = 1.0,
     ) -> None:
         """Clear latched faults (0x05).
 
+        Args:
+            driver, front_bumper, rear_bumper: What to clear.
+            confirm: Return only once telemetry shows the selected faults clear (a
+                bumper still pressed, or a driver still failing, makes this time out).
+            timeout: Seconds to wait for that (with ``confirm``).
+
         Raises:
             ValueError: Nothing selected to clear.
+            RequestTimeoutError: ``confirm`` and a selected fault is still set.
         """
         what = FaultClear(0)
+        bits = ChassisStatus(0)
         if driver:
             what |= FaultClear.DRIVER
+            bits |= ChassisStatus.DRIVER_FAULT
         if front_bumper:
             what |= FaultClear.FRONT_BUMPER
+            bits |= ChassisStatus.FRONT_BUMPER
         if rear_bumper:
             what |= FaultClear.REAR_BUMPER
+            bits |= ChassisStatus.REAR_BUMPER
         if not what:
             raise ValueError("clear_faults() with nothing to clear: select at least one")
         await self._send(self._encoder.clear_faults(what))
+        if confirm:
+            await self._confirm(lambda t: not t.status & bits, timeout, f"{bits!r} clear")
 
-    async def start_docking(self) -> None:
-        """Start automatic docking (0x06, 1); follow ``Telemetry.docking``."""
+    async def start_docking(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
+        """Start automatic docking (0x06, 1); follow ``Telemetry.docking``, or
+        ``await robot.wait_for(lambda t: t.docking is DockingState.DOCKED, 60)``.
+
+        Args:
+            confirm: Return only once telemetry shows ``DOCKING_ENABLED``.
+            timeout: Seconds to wait for that (with ``confirm``).
+        """
         await self._send(self._encoder.docking(True))
+        if confirm:
+            await self._confirm(
+                lambda t: ChassisStatus.DOCKING_ENABLED in t.status, timeout, "DOCKING_ENABLED"
+            )
 
-    async def stop_docking(self) -> None:
-        """Stop automatic docking (0x06, 0)."""
+    async def stop_docking(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
+        """Stop automatic docking (0x06, 0).
+
+        Args:
+            confirm: Return only once telemetry shows ``DOCKING_ENABLED`` cleared.
+            timeout: Seconds to wait for that (with ``confirm``).
+        """
         await self._send(self._encoder.docking(False))
+        if confirm:
+            await self._confirm(
+                lambda t: ChassisStatus.DOCKING_ENABLED not in t.status,
+                timeout,
+                "DOCKING_ENABLED cleared",
+            )
+
+    async def _confirm(
+        self, predicate: Callable[[Telemetry], bool], timeout: float, what: str
+    ) -> None:
+        """Wait for a frame that arrived after the command and shows its effect."""
+        sent = time.monotonic()
+        try:
+            await self.wait_for(lambda t: t.timestamp >= sent and predicate(t), timeout)
+        except TimeoutError:
+            raise RequestTimeoutError(
+                f"{self.port}: telemetry did not show {what} within {timeout:g} s"
+            ) from None
+
+    async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float) -> Telemetry:
+        """Wait for telemetry that satisfies ``predicate`` and return it.
+
+        The latest frame counts, so a condition that already holds returns at once.
+        Example: ``await robot.wait_for(lambda t: t.docking is DockingState.DOCKED, 60)``.
+
+        Args:
+            predicate: Called with each :class:`Telemetry`.
+            timeout: Seconds (finite); the wait always ends.
+
+        Raises:
+            TimeoutError: No frame satisfied ``predicate`` in time.
+            ValueError: ``timeout`` is not a finite number > 0.
+            ConnectionLostError: The link dropped (without ``reconnect``).
+        """
+        if not (isinstance(timeout, int | float) and math.isfinite(timeout) and timeout > 0):
+            raise ValueError(f"timeout must be a finite number > 0, got {timeout!r}")
+        async with self.telemetry() as frames:
+            latest = self._latest
+            if latest is not None and predicate(latest):
+                return latest
+            with anyio.move_on_after(timeout):
+                async for t in frames:
+                    if predicate(t):
+                        return t
+                raise NotConnectedError(f"{self.port} was closed while waiting")
+        raise TimeoutError(f"{self.port}: no telemetry satisfied the condition in {timeout:g} s")
 
     async def enable_telemetry(self, enabled: bool = True) -> None:
         """Switch the 50 Hz telemetry stream on or off (0x01). On at power-up."""
@@ -293,6 +406,46 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         :meth:`get_firmware_version`."""
         reply: DriverStatus = await self._read(CommandId.DRIVER_STATUS)
         return reply
+
+    async def diagnose(self) -> Diagnosis:
+        """Gather the robot's health into one report: connection and link counters, every
+        set status bit of the latest telemetry, and every error bit of each wheel's
+        driver (read now with 0xB0, if connected). ``print()`` it for a readable report.
+
+        Example:
+            >>> report = await robot.diagnose()  # doctest: +SKIP
+            >>> if not report.ok:  # doctest: +SKIP
+            ...     print(report)
+        """
+        faults, notes = self._link_findings()
+        latest = self._latest
+        if latest is None:
+            faults.append("no telemetry received")
+        else:
+            f, n = status_findings(latest.status)
+            faults += f
+            notes += n
+            notes.append(f"battery {latest.voltage:.1f} V, docking {latest.docking.name}")
+        drivers = None
+        if self.is_connected:
+            try:
+                drivers = await self.get_driver_status()
+            except RequestTimeoutError:
+                faults.append("driver status (0xB0) unanswered")
+            else:
+                f, n = driver_findings(drivers)
+                faults += f
+                notes += n
+        return Diagnosis(
+            "chassis",
+            self.port,
+            self._state,
+            self.stats,
+            tuple(faults),
+            tuple(notes),
+            None if latest is None else latest.status,
+            drivers,
+        )
 
     # --- streams --------------------------------------------------------------------------------
 

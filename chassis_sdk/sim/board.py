@@ -141,6 +141,10 @@ class BoardFirmware:
         """When :meth:`poll` next has something to send."""
         return min(self._next_imu, self._next_velocity, self._next_battery)
 
+    def set_battery(self, voltage: float) -> None:
+        """Set the battery voltage (it keeps draining from there)."""
+        self._battery = voltage
+
     def log(self, text: str) -> None:
         """Queue a log line for the next poll."""
         self._pending_logs.append(text)

@@ -78,7 +78,8 @@ class ChassisFirmware:
     """The firmware model: ``receive(bytes, now)`` and ``poll(now)`` return bytes to send.
 
     Tests and the CLI reach into it to trigger faults: :meth:`press_bumper`,
-    :meth:`set_driver_fault`, :meth:`set_hardware_estop`, :meth:`reset`.
+    :meth:`set_driver_fault`, :meth:`set_driver_offline`, :meth:`set_hardware_estop`,
+    :meth:`set_remote_estop`, :meth:`set_battery`, :meth:`reset`.
     """
 
     def __init__(self, spec: ChassisSpec | None = None) -> None:
@@ -88,6 +89,9 @@ class ChassisFirmware:
         #: Times :meth:`reset` was called.
         self.resets = 0
         self.hardware_estop = False
+        self.remote_estop = False
+        self.remote_online = False
+        self.drivers_offline = [False, False]
         self._boot_until = -math.inf
         self._battery_open = self.spec.battery_full  # the battery outlives a reset
         #: The true pose (x m, y m, heading rad unwrapped) from the simulated wheels.
@@ -134,6 +138,20 @@ class ChassisFirmware:
     def set_hardware_estop(self, pressed: bool) -> None:
         """Press or release the hardware emergency-stop button."""
         self.hardware_estop = pressed
+
+    def set_remote_estop(self, pressed: bool) -> None:
+        """Press or release the remote control's emergency stop (the remote comes
+        online for it)."""
+        self.remote_estop = pressed
+        self.remote_online = True
+
+    def set_driver_offline(self, front: bool, offline: bool = True) -> None:
+        """Take the front or rear motor-driver board off the bus (or put it back)."""
+        self.drivers_offline[0 if front else 1] = offline
+
+    def set_battery(self, voltage: float) -> None:
+        """Set the battery's open-circuit voltage (it keeps draining from there)."""
+        self._battery_open = voltage
 
     def reset(self, now: float, downtime: float = 0.5) -> None:
         """Reboot the firmware, as a brown-out or watchdog reset would.
@@ -268,7 +286,14 @@ class ChassisFirmware:
             s |= ChassisStatus.HARDWARE_ESTOP
         if self.software_estop:
             s |= ChassisStatus.SOFTWARE_ESTOP
-        s |= ChassisStatus.REMOTE_OFFLINE  # no remote control in the simulator
+        if self.remote_estop:
+            s |= ChassisStatus.REMOTE_ESTOP
+        if not self.remote_online:
+            s |= ChassisStatus.REMOTE_OFFLINE
+        if self.drivers_offline[0]:
+            s |= ChassisStatus.FRONT_DRIVER_OFFLINE
+        if self.drivers_offline[1]:
+            s |= ChassisStatus.REAR_DRIVER_OFFLINE
         for bit, err in zip(_DRIVER_ERROR_BITS, self.driver_errors, strict=True):
             if err:
                 s |= bit
@@ -283,7 +308,8 @@ class ChassisFirmware:
     def _may_move(self, now: float) -> bool:
         return (
             now - self._last_drive <= self.spec.command_timeout
-            and not (self.software_estop or self.hardware_estop)
+            and not (self.software_estop or self.hardware_estop or self.remote_estop)
+            and not any(self.drivers_offline)
             and not (self.front_bumper or self.rear_bumper)
             and not any(self.driver_errors)
         )
@@ -301,7 +327,7 @@ class ChassisFirmware:
         for i in range(4):
             goal = self.target[i] if may_move else 0.0
             dv = max(-max_dv, min(max_dv, goal - self.wheels[i]))
-            if not may_move and (self.software_estop or self.hardware_estop):
+            if not may_move and (self.software_estop or self.hardware_estop or self.remote_estop):
                 dv = goal - self.wheels[i]  # an emergency stop brakes at once
             self.wheels[i] += dv
             self._accel[i] = dv / dt
