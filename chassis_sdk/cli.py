@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import contextlib
 import dataclasses
 import datetime
@@ -19,11 +20,14 @@ import time
 from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
 from typing import Any
 
+import anyio
+
 from . import (
     BatteryReading,
     Board,
     Chassis,
     ChassisError,
+    Diagnosis,
     ImuSample,
     RequestTimeoutError,
     Telemetry,
@@ -183,12 +187,8 @@ async def _info(port: str, protocol: str, timeout: float) -> None:
                 await _print_chassis_info(robot)
             except RequestTimeoutError as exc:
                 _explain_silence(robot, exc, "chassis")
-            status = await robot.get_driver_status()
-            for name, d in zip(
-                ("front_left", "front_right", "rear_left", "rear_right"), status.wheels, strict=True
-            ):
-                errors = d.errors.name if d.errors else "ok"
-                _out(f"driver {name:<12} {errors}, {d.current:+.1f} A")
+            await _first(robot.telemetry(), timeout, "telemetry (0x81)")
+            _out(str(await robot.diagnose()))
     else:
         async with Board(port, request_timeout=timeout) as board:
             _out(f"port         {port}")
@@ -202,7 +202,7 @@ async def _info(port: str, protocol: str, timeout: float) -> None:
             _out(f"imu          accel z {imu.accel.z:+.2f} g (about +1 at rest)")
             battery = await _first(board.battery(), 2.0, "battery readings (0x13, 1 Hz)")
             _out(f"battery      {battery.voltage:.2f} V")
-            _out("self-check   ok")
+            _out(str(await board.diagnose()))
 
 
 class WrongProtocolError(ChassisError):
@@ -239,16 +239,39 @@ async def _drive(port: str, protocol: str, linear: float, angular: float, second
 
 
 async def _monitor(port: str, seconds: float | None) -> None:
-    async with Chassis(port) as robot:
-        end = None if seconds is None else time.monotonic() + seconds
+    async with Chassis(port) as robot, anyio.create_task_group() as tg:
+        recent: collections.deque[str] = collections.deque(maxlen=4)
+        report: list[Diagnosis] = []
+
+        async def follow_events() -> None:
+            async for event in robot.events():
+                recent.append(f"{time.strftime('%H:%M:%S')} {event}")
+                if plain:
+                    _out(f"event: {event}")
+
+        async def check_health() -> None:  # diagnose() reads 0xB0: once a second is plenty
+            while True:
+                report[:] = [await robot.diagnose()]
+                await anyio.sleep(1.0)
+
         try:
             from rich.live import Live
             from rich.table import Table
+
+            plain = False
         except ImportError:  # plain lines without rich
+            plain = True
+        tg.start_soon(follow_events)
+        tg.start_soon(check_health)
+        end = None if seconds is None else time.monotonic() + seconds
+        if plain:
+            await _first(robot.telemetry(), 2.0, "telemetry (0x81)")
+            _out(str(await robot.diagnose()))
             async for t in robot.telemetry():
                 _out(_format_telemetry(t))
                 if end is not None and time.monotonic() >= end:
-                    return
+                    break
+            tg.cancel_scope.cancel()
             return
 
         def render(t: Telemetry) -> Table:
@@ -268,6 +291,10 @@ async def _monitor(port: str, seconds: float | None) -> None:
             ]
             table.add_row("status", ", ".join(str(b) for b in bits) or "ok")
             table.add_row("docking", t.docking.name)
+            if report:
+                faults = report[0].faults
+                table.add_row("faults", "\n".join(faults) if faults else "none")
+            table.add_row("events", "\n".join(recent) or "-")
             s = robot.stats
             table.add_row(
                 "link",
@@ -283,7 +310,8 @@ async def _monitor(port: str, seconds: float | None) -> None:
                     live.update(render(t), refresh=True)
                     last = t.timestamp
                 if end is not None and time.monotonic() >= end:
-                    return
+                    break
+        tg.cancel_scope.cancel()
 
 
 async def _record(port: str, path: str, seconds: float) -> None:

@@ -159,9 +159,12 @@ async def test_sim_prints_its_port_and_info_reaches_it_from_another_process() ->
         code, out, err = await run("-m", "chassis_sdk.cli", "info", port)
         assert code == 0, err
         assert "hardware     ZKWL-brush-motor-chassis" in out
-        code, out, err = await run("-m", "chassis_sdk.cli", "monitor", port, "--seconds", "0.5")
+        assert ": connected, OK" in out  # the diagnose() report
+        assert "note   status REMOTE_OFFLINE" in out
+        code, out, err = await run("-m", "chassis_sdk.cli", "monitor", port, "--seconds", "1.5")
         assert code == 0, err
         assert "REMOTE_OFFLINE" in out
+        assert "faults" in out
         code, out, err = await run(
             "-m", "chassis_sdk.cli", "drive", port, "--linear", "0.2", "--duration", "0.3"
         )
