@@ -40,16 +40,21 @@ def rss_bytes() -> int:
     raise RuntimeError("no VmRSS in /proc/self/status")
 
 
-async def measure_floor(n: int) -> dict[str, object]:
-    """The same streams read by the least any reader can do: ``loop.add_reader`` and
-    ``os.read``, no parsing. What this machine charges for the wake-ups alone."""
+async def start_simulators(n: int) -> tuple[asyncio.subprocess.Process, list[str]]:
+    """Start ``_simulators.py`` with ``n`` chassis; return it and their ports."""
     proc = await asyncio.create_subprocess_exec(
         sys.executable, str(SIMULATORS), str(n),
         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
     )  # fmt: skip
     assert proc.stdout is not None
+    return proc, [(await proc.stdout.readline()).decode().strip() for _ in range(n)]
+
+
+async def measure_floor(n: int) -> dict[str, object]:
+    """The same streams read by the least any reader can do: ``loop.add_reader`` and
+    ``os.read``, no parsing. What this machine charges for the wake-ups alone."""
+    proc, ports = await start_simulators(n)
     assert proc.stdin is not None
-    ports = [(await proc.stdout.readline()).decode().strip() for _ in range(n)]
     loop = asyncio.get_running_loop()
     fds = [os.open(p, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK) for p in ports]
     try:
@@ -71,13 +76,8 @@ async def measure_floor(n: int) -> dict[str, object]:
 async def measure(n: int) -> dict[str, object]:
     from chassis_sdk import Chassis
 
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, str(SIMULATORS), str(n),
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-    )  # fmt: skip
-    assert proc.stdout is not None
+    proc, ports = await start_simulators(n)
     assert proc.stdin is not None
-    ports = [(await proc.stdout.readline()).decode().strip() for _ in range(n)]
     base = rss_bytes()
     frames = [0] * n
 

@@ -220,9 +220,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._write(self._encoder.emergency_stop(True))
         await self.stop()
         if confirm:
-            await self._confirm(
-                lambda t: ChassisStatus.SOFTWARE_ESTOP in t.status, timeout, "SOFTWARE_ESTOP set"
-            )
+            await self._confirm_bit(ChassisStatus.SOFTWARE_ESTOP, True, timeout)
 
     async def release_emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
         """Release the software emergency stop (0x03, 0). The robot does not move until
@@ -234,11 +232,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         """
         await self._send(self._encoder.emergency_stop(False))
         if confirm:
-            await self._confirm(
-                lambda t: ChassisStatus.SOFTWARE_ESTOP not in t.status,
-                timeout,
-                "SOFTWARE_ESTOP cleared",
-            )
+            await self._confirm_bit(ChassisStatus.SOFTWARE_ESTOP, False, timeout)
 
     async def clear_faults(
         self,
@@ -288,9 +282,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         """
         await self._send(self._encoder.docking(True))
         if confirm:
-            await self._confirm(
-                lambda t: ChassisStatus.DOCKING_ENABLED in t.status, timeout, "DOCKING_ENABLED"
-            )
+            await self._confirm_bit(ChassisStatus.DOCKING_ENABLED, True, timeout)
 
     async def stop_docking(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
         """Stop automatic docking (0x06, 0).
@@ -301,11 +293,15 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         """
         await self._send(self._encoder.docking(False))
         if confirm:
-            await self._confirm(
-                lambda t: ChassisStatus.DOCKING_ENABLED not in t.status,
-                timeout,
-                "DOCKING_ENABLED cleared",
-            )
+            await self._confirm_bit(ChassisStatus.DOCKING_ENABLED, False, timeout)
+
+    async def _confirm_bit(self, bit: ChassisStatus, present: bool, timeout: float) -> None:
+        name = bit.name or repr(bit)
+        await self._confirm(
+            lambda t: (bit in t.status) is present,
+            timeout,
+            f"{name} set" if present else f"{name} cleared",
+        )
 
     async def _confirm(
         self, predicate: Callable[[Telemetry], bool], timeout: float, what: str

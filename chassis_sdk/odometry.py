@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .protocol._fast import frozen_builder
+
 __all__ = ["Odometry", "OdometryIntegrator"]
 
 
@@ -42,6 +44,10 @@ class Odometry:
     def distance_to(self, x: float, y: float) -> float:
         """Straight-line distance (m) from this pose to the point ``(x, y)``."""
         return math.hypot(x - self.x, y - self.y)
+
+
+# One Odometry per velocity sample: built the cheap way (see protocol/_fast.py).
+_build = frozen_builder(Odometry)
 
 
 def wrap_angle(angle: float) -> float:
@@ -93,7 +99,7 @@ class OdometryIntegrator:
                 self.skipped_gaps += 1
             elif dt > 0:
                 self._advance(linear, angular, dt, heading)
-        return Odometry(self.x, self.y, wrap_angle(self._heading), linear, angular, timestamp)
+        return _build(self.x, self.y, wrap_angle(self._heading), linear, angular, timestamp)
 
     def _advance(self, v: float, w: float, dt: float, heading: float | None) -> None:
         h0 = self._heading
