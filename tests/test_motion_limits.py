@@ -157,3 +157,25 @@ async def test_wheel_mode_ramps_each_side_with_the_linear_limits() -> None:
         sides = [struct.unpack("<Hhh", f.payload[:6])[1:] for f in drive_frames(dev.frames)]
         assert sides[0] == (-100, 100)
         assert sides[-1] == (-400, 200)  # clamped to max_linear, each side ramped
+
+
+async def test_the_board_ramps_through_the_same_watchdog() -> None:
+    from chassis_sdk import Board
+
+    from .standin import BoardStandIn
+
+    limits = MotionLimits(linear_acceleration=1.0, max_angular=0.5)
+    async with (
+        BoardStandIn(noise=False) as dev,
+        Board(dev.port, limits=limits, command_timeout=None) as board,
+    ):
+        await board.set_velocity(0.2, 2.0)
+        await dev.wait_for(lambda fs: len([f for f in fs if f.kind == 0x22]) >= 5)
+        await board.stop()
+        await dev.wait_for(lambda fs: fs[-1].kind == 0x22 and fs[-1].payload == bytes(4))
+    sent = [struct.unpack("<hh", f.payload) for f in dev.frames if f.kind == 0x22]
+    # 1 m/s² at the 50 ms period: about 50 mm/s per write (to the timer's precision).
+    assert [v for v, _ in sent[:4]] == pytest.approx([50, 100, 150, 200], abs=2)
+    assert all(w == 500 for _, w in sent[:-1])  # clamped, and no angular ramp was set
+    assert sent[-1] == (0, 0)
+    assert sent[-2][0] >= 198  # the stop is not ramped
