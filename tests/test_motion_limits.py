@@ -176,6 +176,7 @@ async def test_the_board_ramps_through_the_same_watchdog() -> None:
     sent = [struct.unpack("<hh", f.payload) for f in dev.frames if f.kind == 0x22]
     # 1 m/s² at the 50 ms period: about 50 mm/s per write (to the timer's precision).
     assert [v for v, _ in sent[:4]] == pytest.approx([50, 100, 150, 200], abs=2)
-    assert all(w == 500 for _, w in sent[:-1])  # clamped, and no angular ramp was set
-    assert sent[-1] == (0, 0)
-    assert sent[-2][0] >= 198  # the stop is not ramped
+    stop = sent.index((0, 0))  # stop(), then the zero written on leaving the block
+    assert all(w == 500 for _, w in sent[:stop])  # clamped; no angular ramp was set
+    assert sent[stop - 1][0] >= 198  # full speed right before: the stop is not ramped
+    assert set(sent[stop:]) == {(0, 0)}
