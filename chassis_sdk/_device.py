@@ -5,15 +5,17 @@ Lifetime
 --------
 ``connect()`` opens the port, then starts a runner task that owns an anyio task group
 with the background tasks (the watchdog, the link supervisor and the link-health
-monitor). Running the group in
-its own task, rather than in the caller's, keeps the caller's cancel scopes out of it,
-so ``connect()`` and ``close()`` may be called from different tasks, and a failure in
-the background never cancels application code in the middle of a request.
+monitor). Running the group in its own task, rather than in the caller's, keeps the
+caller's cancel scopes out of it, so ``connect()`` and ``close()`` may be called from
+different tasks, and a failure in the background never cancels application code in the
+middle of a request.
 
 ``close()`` writes a zero-velocity frame first (synchronously, before anything that can
 be interrupted), waits a bounded time for it to leave, then closes the port and stops
-the background tasks, shielded from cancellation so that leaving ``async with`` on
-cancellation still stops the robot.
+the background tasks. That second part runs as a task of its own which ``close()``
+waits out even when it is cancelled (anyio's shield does not hold back a plain
+``task.cancel()``), so leaving ``async with`` on cancellation still stops the robot and
+never leaves a port open.
 """
 
 from __future__ import annotations
