@@ -165,11 +165,6 @@ class ChassisFirmware:
         self._boot_until = now + downtime
         self.on_connect(self._boot_until)
 
-    @property
-    def booting(self) -> bool:
-        """True while a :meth:`reset` is in progress (as of the last call)."""
-        return self._last_step is not None and self._last_step < self._boot_until
-
     # --- sans-IO interface --------------------------------------------------------------------
 
     def on_connect(self, now: float) -> None:
