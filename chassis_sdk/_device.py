@@ -24,7 +24,6 @@ import asyncio
 import contextlib
 import enum
 import logging
-import math
 import random
 import time
 from collections.abc import Callable, Hashable
@@ -48,7 +47,7 @@ from .errors import (
 from .events import BatteryMonitor, EventKind, RobotEvent
 from .odometry import Odometry, OdometryIntegrator
 from .protocol import DecoderStats
-from .protocol._scale import check_duration
+from .protocol._scale import check_duration, check_real
 
 __all__ = ["ConnectionState", "LinkStats"]
 
@@ -125,13 +124,7 @@ class LinkStats:
 def _check_positive(name: str, value: float, *, allow_none: bool = False) -> None:
     if value is None and allow_none:
         return
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or not math.isfinite(value)
-        or value <= 0
-    ):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    check_real(value, name, low=0, low_open=True)
 
 
 class Device(Generic[M, K]):
@@ -692,9 +685,9 @@ class Device(Generic[M, K]):
         Raises:
             ValueError: A value is not finite.
         """
-        for name, value in (("x", x), ("y", y), ("heading", heading)):
-            if not math.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value!r}")
+        x = check_real(x, "x")
+        y = check_real(y, "y")
+        heading = check_real(heading, "heading")
         self._odometer.reset(x, y, heading)
         self._on_odometry_reset(heading)
 

@@ -36,6 +36,7 @@ from typing import Literal
 
 from ._alarm import Alarm
 from .errors import NotConnectedError
+from .protocol._scale import check_real
 
 __all__ = ["MotionCommand", "MotionLimits", "VelocityWatchdog"]
 
@@ -78,10 +79,7 @@ class MotionLimits:
             value = getattr(self, f.name)
             if value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{f.name} must be a number or None, got {value!r}")
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{f.name} must be a finite number > 0, got {value!r}")
+            check_real(value, f.name, low=0, low_open=True)
 
     def _axis(self, index: int, axes: Axes) -> tuple[float | None, float | None, float | None]:
         """(maximum, acceleration, deceleration) for value ``index`` of a command."""

@@ -12,6 +12,7 @@ from ._dispatch import Subscription
 from ._watchdog import FrameBuilder
 from .diagnostics import Diagnosis
 from .errors import RequestTimeoutError
+from .protocol._scale import check_real
 from .protocol.board import (
     BatteryReading,
     BoardDecoder,
@@ -114,8 +115,7 @@ class Board(Device[BoardMessage, _Key]):
         """
         if heading not in ("velocity", "imu"):
             raise ValueError(f"heading must be 'velocity' or 'imu', got {heading!r}")
-        if not (math.isfinite(max_gap) and max_gap > 0):
-            raise ValueError(f"max_gap must be a finite number > 0, got {max_gap!r}")
+        max_gap = check_real(max_gap, "max_gap", low=0, low_open=True, unit="s")
         self._odometer.max_gap = max_gap
         self._gyro_heading = self._odometer.heading if heading == "imu" else None
         self._last_imu_time = None

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime
-import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -17,7 +16,7 @@ from ._watchdog import FrameBuilder
 from .diagnostics import Diagnosis, driver_findings, status_findings
 from .errors import NotConnectedError, ProtocolError, RequestTimeoutError
 from .events import StatusEdges
-from .protocol._scale import check_duration
+from .protocol._scale import check_duration, check_real
 from .protocol.chassis import (
     REPLY_TO,
     ChassisDecoder,
@@ -164,12 +163,10 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         """
         if source not in ("velocity", "wheels"):
             raise ValueError(f"source must be 'velocity' or 'wheels', got {source!r}")
-        if not (math.isfinite(slip_factor) and slip_factor >= 1.0):
-            raise ValueError(f"slip_factor must be a finite number >= 1, got {slip_factor!r}")
-        if track_width is not None and not (math.isfinite(track_width) and track_width > 0):
-            raise ValueError(f"track_width must be a finite number > 0, got {track_width!r}")
-        if not (math.isfinite(max_gap) and max_gap > 0):
-            raise ValueError(f"max_gap must be a finite number > 0, got {max_gap!r}")
+        slip_factor = check_real(slip_factor, "slip_factor", low=1)
+        if track_width is not None:
+            track_width = check_real(track_width, "track_width", low=0, low_open=True, unit="m")
+        max_gap = check_real(max_gap, "max_gap", low=0, low_open=True, unit="s")
         track: float | None = None
         if source == "wheels":
             if track_width is None:
@@ -330,8 +327,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
             ValueError: ``timeout`` is not a finite number > 0.
             ConnectionLostError: The link dropped (without ``reconnect``).
         """
-        if not (isinstance(timeout, int | float) and math.isfinite(timeout) and timeout > 0):
-            raise ValueError(f"timeout must be a finite number > 0, got {timeout!r}")
+        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
         async with self.telemetry() as frames:
             latest = self._latest
             if latest is not None and predicate(latest):

@@ -11,9 +11,9 @@ edge is reported once; a level that holds produces nothing more.
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass
 
+from .protocol._scale import check_real
 from .protocol.chassis import ChassisStatus, DockingState
 
 __all__ = ["BatteryMonitor", "EventKind", "RobotEvent", "StatusEdges"]
@@ -125,8 +125,8 @@ class BatteryMonitor:
 
     def __init__(self, threshold: float | None, hysteresis: float = 0.2) -> None:
         for name, value in (("battery_low", threshold), ("hysteresis", hysteresis)):
-            if value is not None and not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0 or None, got {value!r}")
+            if value is not None:
+                check_real(value, name, low=0, unit="V")
         self.threshold = threshold
         self.hysteresis = hysteresis
         self.low = False

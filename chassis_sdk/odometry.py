@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 from .protocol._fast import frozen_builder
+from .protocol._scale import check_real
 
 __all__ = ["Odometry", "OdometryIntegrator"]
 
@@ -64,9 +65,7 @@ class OdometryIntegrator:
     """
 
     def __init__(self, max_gap: float = 0.5) -> None:
-        if not (math.isfinite(max_gap) and max_gap > 0):
-            raise ValueError(f"max_gap must be a finite number > 0, got {max_gap!r}")
-        self.max_gap = max_gap
+        self.max_gap = check_real(max_gap, "max_gap", low=0, low_open=True, unit="s")
         self.x = 0.0
         self.y = 0.0
         self._heading = 0.0  # unwrapped, so many turns integrate without loss

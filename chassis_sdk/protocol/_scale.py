@@ -4,11 +4,56 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["INT16", "UINT8", "UINT16", "check_duration", "scale_to_int"]
+__all__ = ["INT16", "UINT8", "UINT16", "check_duration", "check_real", "scale_to_int"]
 
 INT16 = (-32768, 32767)
 UINT16 = (0, 65535)
 UINT8 = (0, 255)
+
+
+def check_real(
+    value: object,
+    name: str,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    unit: str = "",
+) -> float:
+    """Return ``value`` as a ``float`` if it is a real, finite number within bounds.
+
+    The one check every number from a caller goes through: ``bool`` is not a number
+    here, an ``int`` too large for a float is out of range (not an ``OverflowError``),
+    NaN and infinities are refused.
+
+    Args:
+        value: What the caller passed.
+        name: Argument name, for the error message.
+        low, high: Inclusive bounds (``low`` exclusive with ``low_open``), if any.
+        unit: For the error message.
+
+    Raises:
+        ValueError: Any of the above; the message names the argument and the range.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    too_low = low is not None and (number <= low if low_open else number < low)
+    if too_low or (high is not None and number > high):
+        u = f" {unit}" if unit else ""
+        if high is None:
+            rule = f"> {low:g}{u}" if low_open else f">= {low:g}{u}"
+        elif low is None:
+            rule = f"<= {high:g}{u}"
+        else:
+            rule = f"{low:g} to {high:g}{u}"
+        raise ValueError(f"{name} must be a finite number {rule}, got {value!r}")
+    return number
 
 
 def scale_to_int(value: float, scale: float, bounds: tuple[int, int], name: str, unit: str) -> int:
@@ -24,26 +69,18 @@ def scale_to_int(value: float, scale: float, bounds: tuple[int, int], name: str,
     Raises:
         ValueError: ``value`` is not a real number, is NaN or infinite, or is out of range.
     """
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{name} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    wire = round(value * scale)
+    scaled = check_real(value, name) * scale
     lo, hi = bounds
-    if not lo <= wire <= hi:
+    if not (math.isfinite(scaled) and lo <= round(scaled) <= hi):
         raise ValueError(
             f"{name}={value!r} {unit} is out of range: the wire field holds "
             f"{lo / scale:g} to {hi / scale:g} {unit}"
         )
-    return wire
+    return round(scaled)
 
 
 def check_duration(duration: float | None) -> float | None:
     """Validate a ``duration=`` argument: ``None`` or a finite number of seconds > 0."""
     if duration is None:
         return None
-    if isinstance(duration, bool) or not isinstance(duration, int | float):
-        raise ValueError(f"duration must be a number of seconds or None, got {duration!r}")
-    if not math.isfinite(duration) or duration <= 0:
-        raise ValueError(f"duration must be finite and > 0 seconds, got {duration!r}")
-    return float(duration)
+    return check_real(duration, "duration", low=0, low_open=True, unit="s")

@@ -244,6 +244,8 @@ def motor_pwm_command(motor: int, pwm: int) -> MotorPwmCommand:
         ValueError: Unknown motor, or a PWM value that is not an int16 integer.
     """
     try:
+        if isinstance(motor, bool):
+            raise ValueError
         m = Motor(motor)
     except ValueError:
         raise ValueError(
@@ -265,6 +267,8 @@ def servo_command(servo: int, angle: float) -> ServoCommand:
             after scaling (±3276.7°).
     """
     try:
+        if isinstance(servo, bool):
+            raise ValueError
         s = Servo(servo)
     except ValueError:
         raise ValueError(f"unknown servo {servo!r}: use 1 or 2") from None

@@ -13,7 +13,6 @@ This module is I/O-free: bytes in, messages out; messages in, bytes out.
 from __future__ import annotations
 
 import datetime
-import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,9 +21,10 @@ from typing import Any, ClassVar, NamedTuple, TypeAlias, TypeVar
 
 from ._fast import MemberCache, frozen_builder
 from ._framing import INVALID, NEED_DATA, FrameDecoder, byte_sum
-from ._scale import INT16, scale_to_int
+from ._scale import INT16, check_real, scale_to_int
 
 __all__ = [
+    "ANGULAR_LIMIT",
     "HEAD",
     "TAIL",
     "ChassisCommandDecoder",
@@ -64,7 +64,11 @@ TAIL = b"\xbd\xbc"
 _HEADER = struct.Struct("<HHBB")
 _CHECK = struct.Struct("<H")
 _OVERHEAD = 10  # head 2 + seq 2 + id 1 + len 1 + check 2 + tail 2
-_FLOAT32_MAX = 3.4028234663852886e38
+#: The largest angular velocity a drive command may ask for (rad/s). The float32 field
+#: holds far more, but the chassis reports its angular velocity as int16 mrad/s, so it
+#: cannot even say it turns faster than this; a larger value is a mistake (degrees for
+#: radians, a runaway controller), refused before anything is written.
+ANGULAR_LIMIT = 32.767
 
 
 class CommandId(IntEnum):
@@ -404,17 +408,15 @@ def velocity_command(linear: float, angular: float) -> DriveVelocity:
 
     Args:
         linear: Linear velocity in m/s (sent as int16 mm/s).
-        angular: Angular velocity in rad/s (sent as float32).
+        angular: Angular velocity in rad/s (sent as float32), at most
+            :data:`ANGULAR_LIMIT` either way.
 
     Raises:
         ValueError: A value is NaN, infinite, or does not fit its wire field.
     """
     linear_mm = scale_to_int(linear, 1000, INT16, "linear", "m/s")
-    if isinstance(angular, bool) or not isinstance(angular, int | float):
-        raise ValueError(f"angular must be a number, got {angular!r}")
-    if not math.isfinite(angular) or abs(angular) > _FLOAT32_MAX:
-        raise ValueError(f"angular must be a finite float32 value in rad/s, got {angular!r}")
-    return DriveVelocity(linear_mm, float(angular))
+    wz = check_real(angular, "angular", low=-ANGULAR_LIMIT, high=ANGULAR_LIMIT, unit="rad/s")
+    return DriveVelocity(linear_mm, wz)
 
 
 def wheel_speeds_command(left: float, right: float) -> DriveWheels:
