@@ -94,8 +94,10 @@ class LinkStats:
         length_mismatches: Frames accepted despite a wrong length byte.
         unmatched_replies: Replies nobody was waiting for.
         queue_drops: Messages dropped because a subscriber fell behind.
-        sequence_gaps: Breaks in the device's telemetry sequence numbers within a
-            connection (a reconnect starts counting afresh; see ``reconnects``).
+        sequence_gaps: Breaks in the device's frame numbers (protocol A), whether it
+            keeps one counter for every frame or one per frame id (detected; see
+            ``Chassis.sequence_scheme``). Counted within each connection: the break
+            a reconnect makes is not a gap.
         reconnects: Successful reconnects.
         resends: Velocity frames re-sent by the watchdog.
         command_expiries: Velocity commands zeroed by the deadman or ``duration``.
@@ -194,7 +196,6 @@ class Device(Generic[M, K]):
         self._bytes_sent = 0
         self._frames_sent = 0
         self._unmatched = 0
-        self._sequence_gaps = 0
         self._reconnects = 0
         #: Message type -> what to do with it (set up by ``_init_protocol``); called
         #: synchronously from ``data_received``, in wire order.
@@ -223,6 +224,10 @@ class Device(Generic[M, K]):
         """Check ``(linear, angular)`` (raises ``ValueError``) and return a builder of
         velocity frames for any values between zero and them."""
         raise NotImplementedError
+
+    def _sequence_gaps(self) -> int:
+        """Breaks in the device's frame numbers (protocols that number frames)."""
+        return 0
 
     def _on_link_up(self) -> None:
         """Reset per-connection state (called on connect and each reconnect)."""
@@ -709,7 +714,7 @@ class Device(Generic[M, K]):
             length_mismatches=d.length_mismatches,
             unmatched_replies=self._unmatched,
             queue_drops=sum(s.dropped for s in self._streams),
-            sequence_gaps=self._sequence_gaps,
+            sequence_gaps=self._sequence_gaps(),
             reconnects=self._reconnects,
             resends=self._watchdog.resends,
             command_expiries=self._watchdog.expiries,

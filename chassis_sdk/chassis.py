@@ -80,13 +80,14 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         ValueError: An option is out of range.
     """
 
+    _decoder: ChassisDecoder
+
     def _init_protocol(self) -> None:
         self._encoder = ChassisEncoder()
         self._telemetry = self._stream()
         self._power = self._stream()
         self._latest: Telemetry | None = None
         self._latest_power: PowerTelemetry | None = None
-        self._last_seq: int | None = None
         self._edges = StatusEdges()
         self._wheel_track: float | None = None  # effective track, when odometry uses wheels
         self._handlers = {
@@ -104,11 +105,17 @@ class Chassis(Device[ChassisMessage, ReplyId]):
     def _make_decoder(self) -> ChassisDecoder:
         return ChassisDecoder()
 
+    def _sequence_gaps(self) -> int:
+        return self._decoder.sequence.gaps
+
+    @property
+    def sequence_scheme(self) -> str | None:
+        """How this chassis numbers its frames, as detected from them: ``"shared"``
+        (one counter for every frame), ``"per-id"`` (one per frame id), or ``None``
+        until enough frames have shown which (see ``LinkStats.sequence_gaps``)."""
+        return self._decoder.sequence.scheme
+
     def _on_telemetry(self, t: Telemetry) -> None:
-        last = self._last_seq
-        if last is not None and t.seq != (last + 1) & 0xFFFF:
-            self._sequence_gaps += 1
-        self._last_seq = t.seq
         self._latest = t
         self._telemetry.publish(t)
         for event in self._edges.update(t.status, t.docking, t.timestamp):
@@ -126,7 +133,7 @@ class Chassis(Device[ChassisMessage, ReplyId]):
         self._power.publish(p)
 
     def _on_link_up(self) -> None:
-        self._last_seq = None
+        self._decoder.sequence.reset()
 
     def _zero_frame(self) -> bytes:
         return self._encoder.encode(_ZERO)
@@ -418,6 +425,13 @@ class Chassis(Device[ChassisMessage, ReplyId]):
             faults += f
             notes += n
             notes.append(f"battery {latest.voltage:.1f} V, docking {latest.docking.name}")
+        scheme = self.sequence_scheme
+        notes.append(
+            "frame numbering: "
+            + {"shared": "one counter for every frame", "per-id": "one counter per frame id"}.get(
+                scheme or "", "not yet known"
+            )
+        )
         drivers = None
         if self.is_connected:
             try:

@@ -47,6 +47,7 @@ __all__ = [
     "MotorStatus",
     "PowerTelemetry",
     "ReplyId",
+    "SequenceTracker",
     "ShipDate",
     "Telemetry",
     "WheelCurrents",
@@ -707,6 +708,67 @@ _HOST_FRAMES: _FrameTable = {
 }
 
 
+class SequenceTracker:
+    """Counts breaks in a chassis's frame numbers (FRAME-NUMS), whichever way it counts.
+
+    The document does not say whether the chassis keeps one counter for every frame it
+    sends (0x81, 0xB1 and replies interleaved) or one counter per frame id. Each scheme
+    predicts the next number differently, so every frame is checked against both:
+
+    * a frame that only the *shared* prediction gets right is evidence for it, one that
+      only the *per-id* prediction gets right is evidence for that; after
+      :data:`EVIDENCE` more votes for one scheme than the other, it is the scheme;
+    * once the scheme is known, a frame it did not predict is a gap (counted once,
+      however many frames were lost);
+    * before that, a frame that *neither* predicts is a gap under either scheme, so it
+      is counted; one that only one of them predicts is not (it cannot be told apart
+      from evidence), so a gap in the first few frames may go uncounted, never a
+      false one.
+
+    Sans-IO: the decoder calls :meth:`update` for every valid frame; the device calls
+    :meth:`reset` on every new connection (a reconnect starts counting afresh).
+    """
+
+    #: Votes ahead that settle the scheme.
+    EVIDENCE = 3
+
+    __slots__ = ("_by_id", "_last", "_votes", "gaps", "scheme")
+
+    def __init__(self) -> None:
+        #: Breaks found so far (kept across :meth:`reset`).
+        self.gaps = 0
+        #: ``None`` until known, then ``"shared"`` or ``"per-id"``.
+        self.scheme: str | None = None
+        self._last: int | None = None
+        self._by_id: dict[int, int] = {}
+        self._votes = 0  # > 0: shared is ahead; < 0: per-id is ahead
+
+    def reset(self) -> None:
+        """Forget the last numbers (a new connection); the scheme and count stay."""
+        self._last = None
+        self._by_id.clear()
+
+    def update(self, frame_id: int, seq: int) -> None:
+        """Check one frame's number."""
+        last = self._last
+        previous = self._by_id.get(frame_id)
+        self._last = self._by_id[frame_id] = seq
+        if last is None:
+            return
+        shared = seq == (last + 1) & 0xFFFF
+        per_id = previous is None or seq == (previous + 1) & 0xFFFF
+        scheme = self.scheme
+        if scheme is None:
+            if shared != per_id:
+                self._votes += 1 if shared else -1
+                if abs(self._votes) >= self.EVIDENCE:
+                    self.scheme = "shared" if self._votes > 0 else "per-id"
+            elif not shared:
+                self.gaps += 1
+        elif not (shared if scheme == "shared" else per_id):
+            self.gaps += 1
+
+
 class _ProtocolADecoder(FrameDecoder[_M]):
     """Framing for protocol A, parametrised by the table of frames it accepts.
 
@@ -720,6 +782,13 @@ class _ProtocolADecoder(FrameDecoder[_M]):
 
     _head = HEAD
     _table: ClassVar[_FrameTable] = {}
+
+    __slots__ = ("sequence",)
+
+    def __init__(self) -> None:
+        super().__init__()
+        #: Breaks in the frame numbers (see :class:`SequenceTracker`).
+        self.sequence = SequenceTracker()
 
     def _try_frame(
         self, buf: bytes | bytearray, start: int, end: int, out: list[_M], ts: float
@@ -762,6 +831,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
                 return INVALID
             if claimed != size:
                 stats.length_mismatches += 1
+            self.sequence.update(buf[start + 4], buf[start + 2] | buf[start + 3] << 8)
             out.append(msg)
             start = stop
             if end - start < 2 or buf[start] != 0xED or buf[start + 1] != 0xDE:

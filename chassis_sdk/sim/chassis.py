@@ -13,11 +13,13 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal
 
 from ..protocol.chassis import (
     ChassisCommandDecoder,
     ChassisEncoder,
     ChassisInfo,
+    ChassisMessage,
     ChassisStatus,
     CommandId,
     DockingState,
@@ -72,6 +74,9 @@ class ChassisSpec:
     battery_resistance: float = 0.03  #: Ω: sag per ampere drawn
     battery_drain: float = 0.0005  #: V per second of driving
     docking_step: float = 1.0  #: s per docking state
+    #: How FRAME-NUMS count (the document leaves it open): ``"per-id"``, one counter
+    #: per frame id, or ``"shared"``, one counter for every frame the chassis sends.
+    sequence: Literal["per-id", "shared"] = "per-id"
 
 
 class ChassisFirmware:
@@ -101,9 +106,7 @@ class ChassisFirmware:
     def _power_on(self) -> None:
         """The state after power-up (the hardware e-stop button is physical: it stays)."""
         self._decoder = ChassisCommandDecoder()
-        self._telemetry_encoder = ChassisEncoder()
-        self._power_encoder = ChassisEncoder()
-        self._reply_encoder = ChassisEncoder()
+        self._encoders: dict[type, ChassisEncoder] = {}  # sequence numbers from 0
         self.telemetry_enabled = True
         self.power_enabled = False
         self.software_estop = False
@@ -192,10 +195,10 @@ class ChassisFirmware:
         self._step(now)
         out = bytearray()
         if self.telemetry_enabled and now >= self._next_telemetry:
-            out += self._telemetry_encoder.encode(self.telemetry())
+            out += self._encode(self.telemetry())
             self._next_telemetry = next_slot(self._next_telemetry, self.spec.telemetry_period, now)
         if self.power_enabled and now >= self._next_power:
-            out += self._power_encoder.encode(self.power())
+            out += self._encode(self.power())
             self._next_power = next_slot(self._next_power, self.spec.power_period, now)
         return bytes(out)
 
@@ -218,7 +221,6 @@ class ChassisFirmware:
         if isinstance(cmd, DriveVelocity | DriveWheels):
             self._drive(cmd, now)
             return b""
-        enc = self._reply_encoder
         cid, value = cmd.id, cmd.value
         if cid is CommandId.TELEMETRY:
             self.telemetry_enabled = bool(value)
@@ -247,16 +249,24 @@ class ChassisFirmware:
                 self.docking_enabled = False
                 self.docking_state = DockingState.EXITED
         elif cid is CommandId.FIRMWARE_VERSION:
-            return enc.encode(FirmwareVersion(self.spec.firmware_version))
+            return self._encode(FirmwareVersion(self.spec.firmware_version))
         elif cid is CommandId.HARDWARE_VERSION:
-            return enc.encode(HardwareVersion(self.spec.hardware_version))
+            return self._encode(HardwareVersion(self.spec.hardware_version))
         elif cid is CommandId.CHASSIS_INFO:
-            return enc.encode(self.spec.info)
+            return self._encode(self.spec.info)
         elif cid is CommandId.SHIP_DATE:
-            return enc.encode(ShipDate(*self.spec.ship_date))
+            return self._encode(ShipDate(*self.spec.ship_date))
         elif cid is CommandId.DRIVER_STATUS:
-            return enc.encode(self.driver_status())
+            return self._encode(self.driver_status())
         return b""
+
+    def _encode(self, msg: ChassisMessage) -> bytes:
+        """A frame numbered as ``spec.sequence`` says (each message type is one id)."""
+        key = object if self.spec.sequence == "shared" else type(msg)
+        encoder = self._encoders.get(key)
+        if encoder is None:
+            encoder = self._encoders[key] = ChassisEncoder()
+        return encoder.encode(msg)
 
     def _drive(self, cmd: DriveVelocity | DriveWheels, now: float) -> None:
         self._last_drive = now
