@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
-SCRIPTS = ["decoder_throughput.py", "latency.py", "load.py"]
+SCRIPTS = ["decoder_throughput.py", "latency.py", "load.py", "phantoms.py"]
 
 
 def main() -> int:

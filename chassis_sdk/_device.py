@@ -92,6 +92,8 @@ class LinkStats:
         checksum_errors: Received candidate frames with a bad check.
         malformed_frames: Frames that checked out but carried invalid content.
         length_mismatches: Frames accepted despite a wrong length byte.
+        misaligned_frames: Frames that passed the check but were refused because the
+            bytes after them showed them shifted by line noise (protocol B).
         unmatched_replies: Replies nobody was waiting for.
         queue_drops: Messages dropped because a subscriber fell behind.
         sequence_gaps: Breaks in the device's frame numbers (protocol A), whether it
@@ -111,6 +113,7 @@ class LinkStats:
     checksum_errors: int = 0
     malformed_frames: int = 0
     length_mismatches: int = 0
+    misaligned_frames: int = 0
     unmatched_replies: int = 0
     queue_drops: int = 0
     sequence_gaps: int = 0
@@ -712,6 +715,7 @@ class Device(Generic[M, K]):
             checksum_errors=d.checksum_errors,
             malformed_frames=d.malformed_frames,
             length_mismatches=d.length_mismatches,
+            misaligned_frames=d.misaligned_frames,
             unmatched_replies=self._unmatched,
             queue_drops=sum(s.dropped for s in self._streams),
             sequence_gaps=self._sequence_gaps(),

@@ -26,8 +26,9 @@ from chassis_sdk.sim import BoardFirmware, ChassisFirmware
 TARGETS: dict[str, tuple[Callable[[], Any], int]] = {
     "chassis": (a.ChassisDecoder, 256),
     "chassis-commands": (a.ChassisCommandDecoder, 256),
-    "board": (b.BoardDecoder, 259),
-    "board-commands": (b.BoardCommandDecoder, 259),
+    # Protocol B holds up to three bytes past a frame whose end could start a head.
+    "board": (b.BoardDecoder, 262),
+    "board-commands": (b.BoardCommandDecoder, 262),
 }
 
 

@@ -342,3 +342,89 @@ def test_random_chunking_yields_every_frame(idx: list[int], cuts: list[int]) -> 
 @given(st.binary(max_size=400))
 def test_command_decoder_never_raises(data: bytes) -> None:
     BoardCommandDecoder().feed(data)
+
+
+# --- misaligned candidates (phantoms) -----------------------------------------------------------
+
+
+def _phantom_swallowing(next_frame: bytes) -> bytes:
+    """An IMU candidate that checks out although its last byte is ``next_frame``'s
+    first: what a byte lost inside a frame leaves, 1 time in 256."""
+    data = bytearray(18)
+    data[0] = (0xFE - 0x11 - 0x13) & 0xFF  # makes the one-byte check come out as 0xFE
+    assert next_frame[0] == 0xFE
+    return DEVICE_HEAD + bytes((0x11, 0x13)) + bytes(data)  # + next_frame's 0xFE
+
+
+class _FramingOnly(BoardDecoder):
+    check_alignment = False
+
+
+def test_a_candidate_that_swallows_the_next_frames_head_is_refused() -> None:
+    good = ENC.encode(VelocityFeedback(0.25, -0.5))
+    stream = _phantom_swallowing(good) + good
+    # Framing alone takes the phantom (all zeros: an IMU reading 0 g) and loses the
+    # good frame whose head it swallowed.
+    plain = _FramingOnly().feed(stream)
+    assert [type(m) for m in plain] == [ImuSample]
+    for feed in (
+        lambda d: d.feed(stream),
+        lambda d: [m for b in stream for m in d.feed(bytes((b,)))],
+    ):
+        dec = BoardDecoder()
+        assert feed(dec) == [VelocityFeedback(0.25, -0.5)]
+        assert dec.stats.misaligned_frames == 1
+
+
+def test_a_frame_that_could_end_in_a_head_waits_for_three_more_bytes() -> None:
+    # Mag z = -420 (5C FE) makes the data end in 0xFE; pick the x value so that the
+    # check byte is 0xCE too: the frame ends in FE CE, which may start a frame.
+    for x in range(-32768, 32768):
+        frame = ENC.encode(
+            ImuSample(Vector3(x / 164.0, 0, 0), Vector3(0, 0, 0), Vector3(300, -300, -420))
+        )
+        if frame.endswith(b"\xfe\xce"):
+            break
+    dec = BoardDecoder()
+    assert dec.feed(frame) == []  # undecided: FE CE could be a frame's start
+    nxt = ENC.encode(VelocityFeedback(0.25, -0.5))
+    assert len(dec.feed(nxt[:1])) == 1  # 0xFE is no type: it was this frame's end
+    assert dec.feed(nxt[1:]) == [VelocityFeedback(0.25, -0.5)]
+    # Followed by a plausible type and length instead, it would be refused: the one
+    # shape in which a good frame is lost (its data must spell FE CE 12 05 itself).
+    dec = BoardDecoder()
+    assert dec.feed(frame + b"\x12\x05") == []
+    assert dec.stats.misaligned_frames == 1
+
+
+def _board_stream(rng: random.Random, n: int) -> list[bytes]:
+    frames = []
+    for i in range(n):
+        accel = Vector3(1 + rng.randrange(-20, 20) / 164, rng.randrange(-30, 30) / 164, 0.0)
+        frames.append(
+            ENC.encode(ImuSample(accel, Vector3(1.0, -2.0, 0.5), Vector3(300, -300, -420)))
+        )
+        if i % 5 == 0:
+            frames.append(ENC.encode(VelocityFeedback(0.25, rng.randrange(-500, 500) / 1000)))
+    return frames
+
+
+def test_lost_bytes_make_far_fewer_phantoms_and_no_fewer_good_frames() -> None:
+    """Deterministic: a fixed stream, fixed damage, fixed chunking."""
+    rng = random.Random(5)
+    frames = _board_stream(rng, 20_000)
+    sent = {repr(m) for m in _FramingOnly().feed(b"".join(frames))}
+    damaged = bytearray()
+    for frame in frames:
+        damaged += bytes(b for b in frame if rng.random() >= 0.01)  # 1 % of bytes lost
+    results = {}
+    for name, factory in (("plain", _FramingOnly), ("aligned", BoardDecoder)):
+        dec = factory()
+        out = [repr(m) for m in dec.feed(bytes(damaged))]
+        phantoms = sum(m not in sent for m in out)
+        results[name] = (phantoms, len(set(out) & sent), dec.stats.misaligned_frames)
+    plain, aligned = results["plain"], results["aligned"]
+    assert plain[0] >= 10  # the damage does make phantoms through framing alone
+    assert aligned[0] * 5 <= plain[0]  # at least 80 % fewer
+    assert aligned[1] >= plain[1]  # and no good frame lost for it
+    assert aligned[2] >= plain[0] - aligned[0]

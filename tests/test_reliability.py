@@ -228,12 +228,17 @@ async def test_board_line_noise_is_survived(tcp_port: int | None) -> None:
         BoardSimulator(BoardSpec(imu_period=0.002), tcp_port=tcp_port, faults=faults) as sim,
         Board(sim.port, request_timeout=0.1, retries=10) as board,
     ):
-        n = 0
+        # A one-byte checksum lets some damaged frames through whatever the framing
+        # does (an inserted byte, two flips that cancel: benchmarks/phantoms.py
+        # measures about 50 per MB at this damage, about 0.25 in these 200 samples),
+        # so a bound, not zero: more than 4 would be a 1-in-100,000 run.
+        n = implausible = 0
         async for sample in board.imu():
-            assert 0.9 < sample.accel.z < 1.1
+            implausible += not 0.9 < sample.accel.z < 1.1
             n += 1
             if n == 200:
                 break
+        assert implausible <= 4
         assert await board.get_led() is False
         assert board.stats.bytes_dropped > 0
         assert sim.fault_counts.noise_bytes > 0

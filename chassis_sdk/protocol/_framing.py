@@ -17,8 +17,9 @@ have arrived to reject it; frame lengths are bounded by the one-byte length fiel
 that delay is bounded too.
 
 The buffer never holds more than one incomplete candidate after ``feed`` returns (at
-most the largest frame, 259 bytes), plus a possible first head byte: its size is bounded
-without any explicit limit, whatever the input.
+most the largest frame, 259 bytes, plus the three bytes protocol B may look past it),
+or a possible first head byte: its size is bounded without any explicit limit,
+whatever the input.
 
 Nothing here does I/O or reads a clock: the caller passes a timestamp in.
 """
@@ -58,6 +59,9 @@ class DecoderStats:
             (an unknown drive mode, log text that is not UTF-8, ...).
         length_mismatches: Frames accepted although their length byte was wrong (the
             vendor's 0x89 example has this defect; real firmware may too).
+        misaligned_frames: Candidates that passed the check but that the bytes after
+            them showed to be shifted by a lost or inserted byte (protocol B, whose
+            one-byte check lets 1 in 256 corrupted frames through).
     """
 
     bytes_received: int = 0
@@ -66,6 +70,7 @@ class DecoderStats:
     checksum_errors: int = 0
     malformed_frames: int = 0
     length_mismatches: int = 0
+    misaligned_frames: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """Return the counters as a plain ``dict`` (handy for logging and JSON)."""
