@@ -11,9 +11,9 @@ import asyncio
 import copy
 import weakref
 from collections import deque
-from collections.abc import Hashable
+from collections.abc import Coroutine, Hashable
 from types import TracebackType
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 __all__ = ["Broadcast", "RequestTable", "Subscription"]
 
@@ -29,9 +29,14 @@ class Subscription(Generic[T]):
     buffered message is dropped (and counted), so a slow consumer always sees the newest
     data and never holds more than ``maxlen`` messages in memory.
 
-    Breaking out of ``async for`` unsubscribes: the broadcast holds subscriptions only
-    weakly, so an abandoned iterator is gone as soon as nothing refers to it. Use
-    ``async with`` or :meth:`close` to unsubscribe explicitly.
+    Leaving an ``async for`` over it (``break``, ``return``, an exception) unsubscribes
+    at once, even while the application still holds the subscription object: the loop
+    iterates a small companion object that ends the subscription the moment the loop
+    lets go of it (CPython frees it there, by reference count, not at some later
+    garbage collection). A subscription is iterated by one ``async for``; iterating
+    it again after leaving the loop ends at once. An abandoned subscription that was
+    never iterated is gone as soon as nothing refers to it (the broadcast holds
+    subscriptions weakly). ``async with`` or :meth:`close` unsubscribes explicitly.
     """
 
     __slots__ = ("__weakref__", "_broadcast", "_buffer", "_ended", "_error", "_waiter", "dropped")
@@ -68,8 +73,8 @@ class Subscription(Generic[T]):
         self._buffer.clear()
         self._finish(None)
 
-    def __aiter__(self) -> Subscription[T]:
-        return self
+    def __aiter__(self) -> _Iteration[T]:
+        return _Iteration(self)
 
     async def __anext__(self) -> T:
         while True:
@@ -96,6 +101,26 @@ class Subscription(Generic[T]):
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+class _Iteration(Generic[T]):
+    """What ``async for`` holds while it iterates a :class:`Subscription`; when the
+    loop ends, however it ends, the loop drops it and it ends the subscription."""
+
+    __slots__ = ("_next", "_sub")
+
+    def __init__(self, sub: Subscription[T]) -> None:
+        self._sub = sub
+        self._next = sub.__anext__
+
+    def __aiter__(self) -> _Iteration[T]:
+        return self
+
+    def __anext__(self) -> Coroutine[Any, Any, T]:
+        return self._next()
+
+    def __del__(self) -> None:
+        self._sub.close()
 
 
 class Broadcast(Generic[T]):

@@ -176,15 +176,14 @@ async def test_silence_marks_the_link_stale_once_and_a_frame_restores_it(
 
 async def test_device_sequence_gaps_are_counted() -> None:
     async with ChassisStandIn(tcp=True, noise=False) as dev, Chassis(dev.port) as robot:
-        sub = robot.telemetry()
-        first = await anext(sub)
-        dev.seq += 5  # the device skips five frames, twice
-        async for t in sub:
-            if t.seq >= first.seq + 8:
-                break
-        dev.seq += 3
-        async for _ in sub:
-            if robot.stats.sequence_gaps == 2:
+        first: int | None = None
+        async for t in robot.telemetry():
+            if first is None:
+                first = t.seq
+                dev.seq += 5  # the device skips five frames, twice
+            elif t.seq == first + 8:
+                dev.seq += 3
+            elif robot.stats.sequence_gaps == 2:
                 break
         assert robot.stats.sequence_gaps == 2
 
