@@ -34,7 +34,7 @@ from typing import Any, Generic, Self, TypeVar
 import anyio
 import anyio.lowlevel
 
-from ._dispatch import Broadcast, RequestTable, Subscription
+from ._dispatch import Broadcast, Reply, RequestTable, Subscription
 from ._transport import BACKEND, Link, open_link
 from ._watchdog import Axes, FrameBuilder, MotionLimits, VelocityWatchdog
 from .errors import (
@@ -95,6 +95,8 @@ class LinkStats:
         misaligned_frames: Frames that passed the check but were refused because the
             bytes after them showed them shifted by line noise (protocol B).
         unmatched_replies: Replies nobody was waiting for.
+        late_replies: Replies to requests that had already timed out: dropped, never
+            given to a later call (see "Requests" in the README).
         queue_drops: Messages dropped because a subscriber fell behind.
         sequence_gaps: Breaks in the device's frame numbers (protocol A), whether it
             keeps one counter for every frame or one per frame id (detected; see
@@ -115,6 +117,7 @@ class LinkStats:
     length_mismatches: int = 0
     misaligned_frames: int = 0
     unmatched_replies: int = 0
+    late_replies: int = 0
     queue_drops: int = 0
     sequence_gaps: int = 0
     reconnects: int = 0
@@ -175,7 +178,7 @@ class Device(Generic[M, K]):
         self.link_timeout = None if link_timeout is None else float(link_timeout)
         self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
         self._decoder = self._make_decoder()
-        self._requests: RequestTable[K, Any] = RequestTable()
+        self._requests: RequestTable[K, Any] = RequestTable(quarantine=self.request_timeout)
         self._streams: list[Broadcast[Any]] = []
         self._state = ConnectionState.DISCONNECTED
         self._states: Broadcast[ConnectionState] = Broadcast(queue_size)
@@ -199,6 +202,7 @@ class Device(Generic[M, K]):
         self._bytes_sent = 0
         self._frames_sent = 0
         self._unmatched = 0
+        self._late_replies = 0
         self._reconnects = 0
         #: Message type -> what to do with it (set up by ``_init_protocol``); called
         #: synchronously from ``data_received``, in wire order.
@@ -306,6 +310,7 @@ class Device(Generic[M, K]):
             await asyncio.shield(self._shutdown)
         if self._runner is not None:
             raise ChassisError(f"{self.port} is already connected; close() it first")
+        self._requests.quarantine = self._reply_quarantine()
         self._set_state(ConnectionState.CONNECTING)
         for stream in self._streams:
             stream.reopen()
@@ -317,6 +322,12 @@ class Device(Generic[M, K]):
             raise
         self._runner = asyncio.create_task(self._run(), name=f"chassis_sdk:{self.port}")
         self._set_state(ConnectionState.CONNECTED)
+
+    def _reply_quarantine(self) -> float:
+        """How long a key whose reply is overdue stays out of use (see RequestTable):
+        one more ``request_timeout``, so a reply up to twice that late is still
+        recognised as late; a later one is taken as lost."""
+        return self.request_timeout
 
     async def _open(self) -> None:
         self._lost.clear()
@@ -522,25 +533,45 @@ class Device(Generic[M, K]):
             what: Names the request in errors.
         """
         attempts = self.retries + 1 if read_only else 1
-        for attempt in range(1, attempts + 1):
-            self._ensure_connected()
-            frame, key = build()
-            fut = self._requests.expect(key)
-            try:
+        table = self._requests
+        key: K | None = None
+        call: asyncio.Future[Any] | None = None
+        try:
+            for attempt in range(1, attempts + 1):
+                self._ensure_connected()
+                frame, new_key = build()
+                if call is None or new_key != key:
+                    # A new key (protocol B allocates one per attempt) gives up the
+                    # old; the same key (protocol A) keeps the call, so a reply to an
+                    # earlier attempt answers it.
+                    if key is not None:
+                        table.release(key)
+                        key = None
+                    call = await table.acquire(new_key)
+                    key = new_key
+                    self._ensure_connected()
                 self._write(frame)
-                with anyio.fail_after(self.request_timeout):
-                    return await fut
-            except TimeoutError:
+                table.sent(key)
+                # asyncio.wait, unlike a cancel scope, leaves the call's future intact
+                # for the next attempt.
+                done, _ = await asyncio.wait((call,), timeout=self.request_timeout)
+                if done:
+                    return call.result()
                 self._log.debug("%s: %s attempt %d timed out", self.port, what, attempt)
-            finally:
-                self._requests.discard(key, fut)
+        finally:
+            if key is not None:
+                table.release(key)
         raise RequestTimeoutError(
             f"no reply to {what} from {self.port} within {self.request_timeout:g} s "
             f"({attempts} attempt{'s' if attempts > 1 else ''})"
         )
 
     def _resolve(self, key: K, msg: Any) -> None:
-        if not self._requests.resolve(key, msg):
+        outcome = self._requests.resolve(key, msg)
+        if outcome is Reply.LATE:
+            self._late_replies += 1
+            self._log.info("%s: late reply %r dropped (its request had timed out)", self.port, msg)
+        elif outcome is Reply.UNMATCHED:
             self._unmatched += 1
             self._log.info("%s: unmatched reply %r", self.port, msg)
 
@@ -717,6 +748,7 @@ class Device(Generic[M, K]):
             length_mismatches=d.length_mismatches,
             misaligned_frames=d.misaligned_frames,
             unmatched_replies=self._unmatched,
+            late_replies=self._late_replies,
             queue_drops=sum(s.dropped for s in self._streams),
             sequence_gaps=self._sequence_gaps(),
             reconnects=self._reconnects,

@@ -8,14 +8,17 @@ resolving a request sets a future's result.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import copy
+import enum
+import time
 import weakref
 from collections import deque
-from collections.abc import Coroutine, Hashable
+from collections.abc import Callable, Coroutine, Hashable
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
-__all__ = ["Broadcast", "RequestTable", "Subscription"]
+__all__ = ["Broadcast", "Reply", "RequestTable", "Subscription"]
 
 T = TypeVar("T")
 K = TypeVar("K", bound=Hashable)
@@ -196,66 +199,204 @@ class Broadcast(Generic[T]):
         self._refs = tuple(ref for ref in self._refs if ref() is not sub)
 
 
-class RequestTable(Generic[K, T]):
-    """Futures waiting for replies, keyed by what the reply carries.
+class Reply(enum.Enum):
+    """What :meth:`RequestTable.resolve` made of a reply."""
 
-    Several waiters may share a key (protocol A replies carry no tag, so concurrent
-    requests for the same reply id are answered in order): they queue, first in, first
-    served. Protocol B keys are unique while in flight; :meth:`pending` lets the
-    allocator skip ids in use.
-    """
+    MATCHED = "matched"  #: given to the call waiting for it
+    LATE = "late"  #: the answer to a request whose call already gave up: dropped
+    UNMATCHED = "unmatched"  #: nobody asked for it
 
-    __slots__ = ("_waiters",)
+
+class _Slot(Generic[T]):
+    """One key's state: the call holding it, its replies in flight, who waits for it."""
+
+    __slots__ = ("call", "in_flight", "quarantine_until", "queue")
 
     def __init__(self) -> None:
-        self._waiters: dict[K, deque[asyncio.Future[T]]] = {}
+        self.call: asyncio.Future[T] | None = None
+        self.in_flight = 0
+        self.quarantine_until = 0.0
+        self.queue: deque[_Turn] = deque()
+
+
+class _Turn:
+    """A call's place in the line for a key; woken when it may look again."""
+
+    __slots__ = ("_fut", "_loop")
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._fut: asyncio.Future[None] = loop.create_future()
+
+    def wake(self, error: BaseException | None = None) -> None:
+        if not self._fut.done():
+            if error is None:
+                self._fut.set_result(None)
+            else:
+                self._fut.set_exception(error)
+
+    async def wait(self, delay: float | None) -> None:
+        """Until woken, or ``delay`` seconds; a wake before the wait is not lost."""
+        handle = None if delay is None else self._loop.call_later(max(delay, 0.0), self.wake)
+        try:
+            await self._fut
+        finally:
+            if handle is not None:
+                handle.cancel()
+            fut = self._fut
+            if fut.done() and not fut.cancelled() and fut.exception() is None:
+                self._fut = self._loop.create_future()  # ready for the next wake
+
+
+class RequestTable(Generic[K, T]):
+    """Calls waiting for replies, keyed by what the reply carries; built so that a late
+    reply can never answer a later call.
+
+    The rule, which holds by construction:
+
+    * **One call per key at a time.** A call *acquires* its key; another call for the
+      same key waits its turn. Protocol A replies carry no tag (the reply id is the
+      key), so this is what lets a reply be attributed at all; protocol B allocates a
+      free request id per call, so it never waits.
+    * **Replies are counted per key.** Each request written adds one reply in flight;
+      each reply that arrives takes one away. A reply arriving while its key's call is
+      waiting answers it (a reply to an earlier *attempt of the same call* is as good an
+      answer as the reply to the latest one); a reply arriving when the call has gone
+      is **late**: dropped, and reported as such.
+    * **Quarantine.** When a call gives up with replies still in flight, its key is not
+      handed to the next call until those replies have arrived (and been dropped) or
+      ``quarantine`` seconds have passed; after that they are taken as lost.
+
+    The cost: after a timeout, the next request for that key waits for the late reply
+    or the quarantine; concurrent calls for one protocol A reply id are served one
+    after another.
+
+    Args:
+        quarantine: Seconds a key whose replies are overdue stays out of use.
+        clock: Monotonic clock (replaceable in tests).
+    """
+
+    __slots__ = ("_clock", "_slots", "_watchers", "quarantine")
+
+    def __init__(self, quarantine: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.quarantine = quarantine
+        self._clock = clock
+        self._slots: dict[K, _Slot[T]] = {}
+        self._watchers: list[asyncio.Future[None]] = []
+
+    async def released(self, timeout: float) -> None:
+        """Wait until some key is released or answered (or ``timeout`` s pass)."""
+        fut = asyncio.get_running_loop().create_future()
+        self._watchers.append(fut)
+        try:
+            await asyncio.wait((fut,), timeout=timeout)
+        finally:
+            with contextlib.suppress(ValueError):
+                self._watchers.remove(fut)
 
     def __len__(self) -> int:
-        return sum(len(q) for q in self._waiters.values())
+        """The number of calls holding a key."""
+        return sum(1 for slot in self._slots.values() if slot.call is not None)
 
-    def expect(self, key: K) -> asyncio.Future[T]:
-        """Register a waiter for ``key`` and return its future."""
-        fut: asyncio.Future[T] = asyncio.get_running_loop().create_future()
-        self._waiters.setdefault(key, deque()).append(fut)
-        return fut
+    def in_flight(self, key: K) -> int:
+        """Replies still expected for ``key``."""
+        slot = self._slots.get(key)
+        return 0 if slot is None else slot.in_flight
 
-    def pending(self, key: K) -> bool:
-        """True if a waiter for ``key`` is registered."""
-        return key in self._waiters
+    def is_free(self, key: K) -> bool:
+        """True if a call could take ``key`` now, without waiting."""
+        slot = self._slots.get(key)
+        return slot is None or (
+            slot.call is None
+            and not slot.queue
+            and (slot.in_flight == 0 or self._clock() >= slot.quarantine_until)
+        )
 
-    def resolve(self, key: K, value: T) -> bool:
-        """Give ``value`` to the oldest live waiter for ``key``.
+    async def acquire(self, key: K) -> asyncio.Future[T]:
+        """Take ``key`` for one call, waiting (in order of arrival) for the call holding
+        it and for its quarantine to end; return the future the call's reply resolves.
 
-        Returns:
-            False if nobody was waiting (the caller counts it as unmatched).
+        Raises:
+            BaseException: What :meth:`fail_all` was given, if it ran meanwhile.
         """
-        queue = self._waiters.get(key)
-        while queue:
-            fut = queue.popleft()
-            if not queue:
-                del self._waiters[key]
-            if not fut.done():
-                fut.set_result(value)
-                return True
-            queue = self._waiters.get(key)
-        return False
+        slot = self._slots.get(key)
+        if slot is None:
+            slot = self._slots[key] = _Slot()
+        loop = asyncio.get_running_loop()
+        if slot.call is not None or slot.queue or not self._past_quarantine(slot):
+            turn = _Turn(loop)
+            slot.queue.append(turn)
+            try:
+                while (
+                    slot.call is not None
+                    or slot.queue[0] is not turn
+                    or (not self._past_quarantine(slot))
+                ):
+                    delay = None
+                    if slot.call is None and slot.queue[0] is turn:
+                        delay = slot.quarantine_until - self._clock()
+                    await turn.wait(delay)
+            except BaseException:
+                slot.queue.remove(turn)
+                self._next(key, slot)
+                raise
+            slot.queue.remove(turn)
+        # Replies still counted past the quarantine are taken as lost.
+        slot.in_flight = 0
+        slot.call = call = loop.create_future()
+        return call
 
-    def discard(self, key: K, fut: asyncio.Future[T]) -> None:
-        """Remove a waiter (after its timeout or cancellation)."""
-        queue = self._waiters.get(key)
-        if queue is None:
+    def _past_quarantine(self, slot: _Slot[T]) -> bool:
+        return slot.in_flight == 0 or self._clock() >= slot.quarantine_until
+
+    def sent(self, key: K) -> None:
+        """Count one request written for ``key``: one more reply in flight."""
+        self._slots[key].in_flight += 1
+
+    def resolve(self, key: K, value: T) -> Reply:
+        """Attribute a reply for ``key``; see the class docstring for the rule."""
+        slot = self._slots.get(key)
+        if slot is None:
+            return Reply.UNMATCHED
+        expected = slot.in_flight > 0
+        if expected:
+            slot.in_flight -= 1
+        call = slot.call
+        if call is not None and not call.done():
+            call.set_result(value)
+            return Reply.MATCHED
+        if slot.call is None:
+            self._next(key, slot)
+        return Reply.LATE if expected else Reply.UNMATCHED
+
+    def release(self, key: K) -> None:
+        """End the call holding ``key`` (answered, timed out or cancelled); replies still
+        in flight put the key in quarantine."""
+        slot = self._slots.get(key)
+        if slot is None:
             return
-        try:
-            queue.remove(fut)
-        except ValueError:
-            return
-        if not queue:
-            del self._waiters[key]
+        slot.call = None
+        if slot.in_flight:
+            slot.quarantine_until = self._clock() + self.quarantine
+        self._next(key, slot)
+
+    def _next(self, key: K, slot: _Slot[T]) -> None:
+        """Wake the first call waiting for ``key``, or forget an idle key."""
+        watchers, self._watchers = self._watchers, []
+        for fut in watchers:
+            if not fut.done():
+                fut.set_result(None)
+        if slot.queue:
+            slot.queue[0].wake()
+        elif slot.call is None and slot.in_flight == 0 and self._slots.get(key) is slot:
+            del self._slots[key]  # (a slot fail_all dropped is not the table's any more)
 
     def fail_all(self, error: BaseException) -> None:
-        """Fail every waiter with ``error`` (the link is gone)."""
-        waiters, self._waiters = self._waiters, {}
-        for queue in waiters.values():
-            for fut in queue:
-                if not fut.done():
-                    fut.set_exception(error)
+        """Fail every call, and every call waiting for a key, with ``error`` (the link
+        is gone: nothing in flight will be answered on it)."""
+        slots, self._slots = self._slots, {}
+        for slot in slots.values():
+            if slot.call is not None and not slot.call.done():
+                slot.call.set_exception(copy.copy(error))
+            for turn in slot.queue:
+                turn.wake(copy.copy(error))

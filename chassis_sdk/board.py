@@ -11,7 +11,7 @@ from ._device import Device
 from ._dispatch import Subscription
 from ._watchdog import FrameBuilder
 from .diagnostics import Diagnosis
-from .errors import RequestTimeoutError
+from .errors import ChassisError, RequestTimeoutError
 from .protocol._scale import check_real
 from .protocol.board import (
     BatteryReading,
@@ -33,7 +33,11 @@ from .protocol.board import (
     velocity_command,
 )
 
-__all__ = ["Board"]
+__all__ = ["ID_QUARANTINE", "Board"]
+
+#: Seconds (at least; ten request timeouts if longer) a request id whose request timed
+#: out stays retired, unless its late reply arrives first.
+ID_QUARANTINE = 30.0
 
 _ZERO = VelocityCommand(0, 0)
 _Key = tuple[BoardType, int]
@@ -46,8 +50,10 @@ class Board(Device[BoardMessage, _Key]):
     :class:`~chassis_sdk.Chassis`.
 
     LED and buzzer requests carry a one-byte request id that the board copies into its
-    reply. Ids are allocated round-robin, skipping any still in flight, so any number of
-    requests (up to 256) may be outstanding and replies may come back in any order.
+    reply. Ids are allocated round-robin, skipping any in use, so up to 256 requests
+    may be outstanding and replies may come back in any order. An id whose request
+    timed out is retired until its late reply arrives (and is dropped) or
+    :data:`ID_QUARANTINE` seconds pass, so a late reply never answers a later request.
 
     Example:
         >>> async def main() -> None:  # doctest: +SKIP
@@ -60,7 +66,6 @@ class Board(Device[BoardMessage, _Key]):
     def _init_protocol(self) -> None:
         self._encoder = BoardEncoder()
         self._next_id = 0
-        self._id_slots: anyio.Semaphore | None = None
         self._imu = self._stream()
         self._velocity = self._stream()
         self._battery_stream = self._stream()
@@ -163,30 +168,46 @@ class Board(Device[BoardMessage, _Key]):
 
     # --- requests -------------------------------------------------------------------------------
 
-    def _allocate_id(self, kind: BoardType) -> int:
-        # Unique across LED and buzzer so a stray reply can never be taken for another.
-        pending = self._requests.pending
+    def _reply_quarantine(self) -> float:
+        return max(ID_QUARANTINE, 10 * self.request_timeout)
+
+    def _allocate_id(self) -> int:
+        """The next request id free for both LED and buzzer (so a stray reply can never
+        be taken for another kind's), round-robin, skipping ids in use or retired.
+
+        Raises:
+            ChassisError: All 256 are in use or retired.
+        """
         for _ in range(256):
             rid = self._next_id
             self._next_id = (rid + 1) & 0xFF
-            if not pending((BoardType.LED, rid)) and not pending((BoardType.BUZZER, rid)):
+            if self._id_free(rid):
                 return rid
-        raise AssertionError("no free request id although a slot was acquired")
+        raise ChassisError(
+            f"{self.port}: all 256 request ids are in flight or retired after timeouts; "
+            "is the board answering?"
+        )
+
+    def _id_free(self, rid: int) -> bool:
+        free = self._requests.is_free
+        return free((BoardType.LED, rid)) and free((BoardType.BUZZER, rid))
 
     async def _switch(self, kind: BoardType, action: SwitchAction) -> bool:
-        if self._id_slots is None:
-            self._id_slots = anyio.Semaphore(256)
         cls = LedCommand if kind is BoardType.LED else BuzzerCommand
         encode = self._encoder.encode
 
         def build() -> tuple[bytes, _Key]:
-            rid = self._allocate_id(kind)
+            rid = self._allocate_id()
             return encode(cls(action, rid)), (kind, rid)
 
-        async with self._id_slots:
-            reply: LedReply | BuzzerReply = await self._request(
-                build, read_only=action is SwitchAction.READ, what=f"{kind.name} {action.name}"
-            )
+        # Up to 256 requests are in flight; more wait for an id to come free.
+        with anyio.fail_after(self.request_timeout * (self.retries + 1)):
+            while not any(map(self._id_free, range(256))):
+                self._ensure_connected()
+                await self._requests.released(self.request_timeout)
+        reply: LedReply | BuzzerReply = await self._request(
+            build, read_only=action is SwitchAction.READ, what=f"{kind.name} {action.name}"
+        )
         return reply.on
 
     async def set_led(self, on: bool) -> bool:

@@ -237,7 +237,7 @@ async def test_request_timeout_retries_then_raises_within_bound() -> None:
         assert await robot.get_hardware_version() == "ZKWL-brush-motor-chassis"
 
 
-async def test_late_reply_is_counted_as_unmatched_not_raised() -> None:
+async def test_late_reply_is_counted_as_late_not_raised() -> None:
     async with (
         ChassisStandIn(reply_delay=0.3) as dev,
         Chassis(dev.port, request_timeout=0.1, retries=0) as robot,
@@ -245,9 +245,10 @@ async def test_late_reply_is_counted_as_unmatched_not_raised() -> None:
         with pytest.raises(RequestTimeoutError):
             await robot.get_firmware_version()
         async for _ in robot.telemetry():
-            if robot.stats.unmatched_replies:
+            if robot.stats.late_replies:
                 break
         assert dev.of_kind(0x07)
+        assert robot.stats.unmatched_replies == 0
 
 
 @pytest.mark.parametrize("how", ["normal", "exception", "cancel"])

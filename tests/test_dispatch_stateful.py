@@ -19,7 +19,7 @@ from hypothesis.stateful import (
     rule,
 )
 
-from chassis_sdk._dispatch import Broadcast, RequestTable, Subscription
+from chassis_sdk._dispatch import Broadcast, Reply, RequestTable, Subscription
 
 T = TypeVar("T")
 KEYS = st.sampled_from([0x87, 0x88, 0x89, ("led", 1), ("led", 2)])
@@ -44,71 +44,148 @@ class _Loop:
         self.loop.close()
 
 
-class RequestTableMachine(RuleBasedStateMachine):
-    """The table against a model: per key, a FIFO of futures (including ones cancelled
-    but not yet discarded, which a resolve must skip)."""
+class _FakeTimeLoop(asyncio.SelectorEventLoop):
+    """An event loop whose clock only moves when the test says: timers (the table's
+    quarantine wake-ups) fire exactly when the model says they are due."""
 
-    waiters = Bundle("waiters")
+    now = 1000.0
+
+    def time(self) -> float:
+        return self.now
+
+
+QUARANTINE = 2.0
+
+
+class _Call:
+    def __init__(self, key: Any, task: asyncio.Task[asyncio.Future[int]]) -> None:
+        self.key = key
+        self.task = task
+        self.answered = False
+
+
+class RequestTableMachine(RuleBasedStateMachine):
+    """The table against a model of its rule: one call per key (the others wait in
+    order), replies counted in flight per key, a reply with no live call is late if one
+    was in flight, and a key with overdue replies is quarantined."""
+
+    calls = Bundle("calls")
 
     def __init__(self) -> None:
         super().__init__()
-        self.rt = _Loop()
-        self.table: RequestTable[Any, int] = RequestTable()
-        self.model: dict[Any, list[asyncio.Future[int]]] = {}
+        self.loop = _FakeTimeLoop()
+        self.table: RequestTable[Any, int] = RequestTable(QUARANTINE, clock=self.loop.time)
+        # The model, per key: the call holding it, replies in flight, quarantine end,
+        # calls waiting in order.
+        self.holder: dict[Any, _Call | None] = {}
+        self.in_flight: dict[Any, int] = {}
+        self.until: dict[Any, float] = {}
+        self.waiting: dict[Any, deque[_Call]] = {}
 
-    @rule(target=waiters, key=KEYS)
-    def expect(self, key: Any) -> tuple[Any, asyncio.Future[int]]:
-        fut = self.rt.call(lambda: self.table.expect(key))
-        self.model.setdefault(key, []).append(fut)
-        return key, fut
+    def settle(self) -> None:
+        for _ in range(5):
+            self.loop.run_until_complete(asyncio.sleep(0))
+
+    def hand_over(self, key: Any) -> None:
+        """The model's rule for who holds ``key`` next."""
+        queue = self.waiting.setdefault(key, deque())
+        if self.holder.get(key) is not None or not queue:
+            return
+        if self.in_flight.get(key, 0) and self.loop.now < self.until.get(key, 0.0):
+            return
+        self.holder[key] = queue.popleft()
+        self.in_flight[key] = 0
+
+    @rule(target=calls, key=KEYS)
+    def start(self, key: Any) -> _Call:
+        task = self.loop.create_task(self.table.acquire(key))
+        call = _Call(key, task)
+        self.waiting.setdefault(key, deque()).append(call)
+        self.hand_over(key)
+        self.settle()
+        return call
+
+    @rule(call=calls)
+    def send(self, call: _Call) -> None:
+        if self.holder.get(call.key) is call:
+            self.table.sent(call.key)
+            self.in_flight[call.key] += 1
 
     @rule(key=KEYS, value=st.integers())
-    def resolve(self, key: Any, value: int) -> None:
-        queue = self.model.get(key, [])
-        live = next((f for f in queue if not f.done()), None)
-        assert self.table.resolve(key, value) is (live is not None)
-        if live is None:
-            self.model.pop(key, None)
+    def reply(self, key: Any, value: int) -> None:
+        holder = self.holder.get(key)
+        live = holder is not None and not holder.task.result().done()
+        had = self.in_flight.get(key, 0)
+        if had:
+            self.in_flight[key] = had - 1
+        expected = Reply.MATCHED if live else Reply.LATE if had else Reply.UNMATCHED
+        assert self.table.resolve(key, value) is expected
+        if live:
+            assert holder is not None
+            assert holder.task.result().result() == value
+            holder.answered = True
+        self.hand_over(key)
+        self.settle()
+
+    @rule(call=consumes(calls))
+    def finish(self, call: _Call) -> None:
+        """The call ends: answered, timed out, or cancelled while holding the key."""
+        if self.holder.get(call.key) is call:
+            self.table.release(call.key)
+            self.holder[call.key] = None
+            if self.in_flight.get(call.key):
+                self.until[call.key] = self.loop.now + QUARANTINE
+        elif call in self.waiting.get(call.key, ()):
+            call.task.cancel()
+            self.waiting[call.key].remove(call)
+        else:
             return
-        assert live.result() == value
-        del queue[: queue.index(live) + 1]  # skipped dead waiters go with it
-        if not queue:
-            del self.model[key]
+        self.hand_over(call.key)
+        self.settle()
 
-    @rule(w=consumes(waiters))
-    def give_up(self, w: tuple[Any, asyncio.Future[int]]) -> None:
-        """A timeout or cancellation, as ``Device._request`` handles it."""
-        key, fut = w
-        fut.cancel()
-        self.table.discard(key, fut)
-        queue = self.model.get(key, [])
-        if fut in queue:
-            queue.remove(fut)
-            if not queue:
-                del self.model[key]
-
-    @rule(w=consumes(waiters))
-    def cancel_without_discard(self, w: tuple[Any, asyncio.Future[int]]) -> None:
-        w[1].cancel()
+    @rule(dt=st.sampled_from([0.5, 1.0, 2.5]))
+    def time_passes(self, dt: float) -> None:
+        self.loop.now += dt
+        for key in list(self.waiting):
+            self.hand_over(key)
+        self.settle()
 
     @rule()
     def fail_all(self) -> None:
         error = ConnectionError("lost")
         self.table.fail_all(error)
-        for queue in self.model.values():
-            for fut in queue:
-                if not fut.cancelled():
-                    assert fut.exception() is error
-        self.model.clear()
+        self.settle()
+        for call in self.holder.values():
+            if call is not None:  # an unanswered call fails; an answered one keeps it
+                outcome = call.task.result().exception()
+                assert (outcome is None) if call.answered else isinstance(outcome, ConnectionError)
+        for queue in self.waiting.values():
+            for call in queue:
+                assert isinstance(call.task.exception(), ConnectionError)
+        self.holder.clear()
+        self.in_flight.clear()
+        self.until.clear()
+        self.waiting.clear()
 
     @invariant()
     def agrees_with_model(self) -> None:
-        assert len(self.table) == sum(len(q) for q in self.model.values())
         for key in (0x87, 0x88, 0x89, ("led", 1), ("led", 2)):
-            assert self.table.pending(key) is bool(self.model.get(key))
+            holder = self.holder.get(key)
+            if holder is not None:
+                assert holder.task.done(), "the model gave it the key"
+            for call in self.waiting.get(key, ()):
+                assert not call.task.done(), "the model has it waiting"
+            assert self.table.in_flight(key) == self.in_flight.get(key, 0) or (
+                holder is None and not self.waiting.get(key)
+            )
+        assert len(self.table) == sum(1 for h in self.holder.values() if h is not None)
 
     def teardown(self) -> None:
-        self.rt.close()
+        for queue in self.waiting.values():
+            for call in queue:
+                call.task.cancel()
+        self.settle()
+        self.loop.close()
 
 
 class _SubModel:

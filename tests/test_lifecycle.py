@@ -102,7 +102,7 @@ async def test_cancelling_a_chassis_request_leaves_nothing_pending(
     silent = {0x07, 0x08, 0x09, 0x0A, 0xB0}
     async with (
         ChassisStandIn(silent_ids=silent) as dev,
-        Chassis(dev.port, request_timeout=5.0) as robot,
+        Chassis(dev.port, request_timeout=1.0) as robot,
     ):
         task = asyncio.ensure_future(call(robot))
         await dev.wait_for(lambda fs: bool(dev.of_kind(kind)))
@@ -113,7 +113,9 @@ async def test_cancelling_a_chassis_request_leaves_nothing_pending(
         assert type(info.value) is asyncio.CancelledError  # never wrapped
         assert len(robot._requests) == 0
         dev.silent_ids.clear()
-        await call(robot)  # the device is still usable
+        # Still usable: the next request of that kind waits for the cancelled one's
+        # reply or, as here where it never comes, a request_timeout's quarantine.
+        await call(robot)
         assert robot.stats.unmatched_replies == 0
 
 
@@ -137,10 +139,13 @@ async def test_cancelling_a_board_request_releases_its_id(
         results = await asyncio.gather(*tasks, return_exceptions=True)
         assert all(type(r) is asyncio.CancelledError for r in results)
         assert len(board._requests) == 0
-        assert board._id_slots is not None
-        assert board._id_slots.value == 256
+        # Their requests went out, so their ids are retired until the replies come or
+        # the quarantine passes: the next request takes a fresh one and succeeds.
+        used = [f.payload[1] for f in dev.frames if f.kind in (1, 2)]
+        assert not any(board._id_free(rid) for rid in used)
         dev.silent = False
         await call(board)
+        assert dev.frames[-1].payload[1] not in used
 
 
 async def test_cancelling_stream_reads_and_waits_leaves_them_usable() -> None:
