@@ -10,12 +10,18 @@ caller's cancel scopes out of it, so ``connect()`` and ``close()`` may be called
 different tasks, and a failure in the background never cancels application code in the
 middle of a request.
 
-``close()`` writes a zero-velocity frame first (synchronously, before anything that can
-be interrupted), waits a bounded time for it to leave, then closes the port and stops
-the background tasks. That second part runs as a task of its own which ``close()``
-waits out even when it is cancelled (anyio's shield does not hold back a plain
-``task.cancel()``), so leaving ``async with`` on cancellation still stops the robot and
-never leaves a port open.
+``close()`` first fences off every writer, synchronously, before anything that can be
+interrupted: from then on every call that would write raises ``NotConnectedError``,
+and the link takes one last velocity frame, zero, and refuses any after it. It then
+waits a bounded time for what was written to leave, stops the background tasks (a
+reconnect in progress with them), and closes whatever link is installed then; a link
+that a reconnect opens after the fence is closed unused. That second part runs as a
+task of its own which ``close()`` waits out even when it is cancelled (anyio's shield
+does not hold back a plain ``task.cancel()``), so leaving ``async with`` on
+cancellation still stops the robot and never leaves a port open.
+
+Every loop-bound primitive (the events below) is made by ``connect()``, so a device
+object works in any event loop it is connected in, one ``asyncio.run()`` after another.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ import anyio
 import anyio.lowlevel
 
 from ._dispatch import Broadcast, Reply, RequestTable, Subscription
-from ._transport import BACKEND, Link, open_link
+from ._transport import BACKEND, QUEUE_LIMIT, Link, open_link
 from ._watchdog import Axes, FrameBuilder, MotionLimits, VelocityWatchdog
 from .errors import (
     ChassisError,
@@ -97,6 +103,9 @@ class LinkStats:
         unmatched_replies: Replies nobody was waiting for.
         late_replies: Replies to requests that had already timed out: dropped, never
             given to a later call (see "Requests" in the README).
+        frames_discarded: Frames not sent because the device was not reading: velocity
+            frames replaced by newer ones or expired while they waited, frames over the
+            bound of what may wait, and what was still waiting at close.
         queue_drops: Messages dropped because a subscriber fell behind.
         sequence_gaps: Breaks in the device's frame numbers (protocol A), whether it
             keeps one counter for every frame or one per frame id (detected; see
@@ -118,6 +127,7 @@ class LinkStats:
     misaligned_frames: int = 0
     unmatched_replies: int = 0
     late_replies: int = 0
+    frames_discarded: int = 0
     queue_drops: int = 0
     sequence_gaps: int = 0
     reconnects: int = 0
@@ -155,6 +165,7 @@ class Device(Generic[M, K]):
         link_timeout: float | None = 1.0,
         limits: MotionLimits | None = None,
         battery_low: float | None = None,
+        connect_timeout: float = 2.0,
         logger: logging.Logger | None = None,
     ) -> None:
         if not isinstance(port, str) or not port:
@@ -169,6 +180,7 @@ class Device(Generic[M, K]):
         if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
             raise ValueError(f"queue_size must be an integer >= 1, got {queue_size!r}")
         _check_positive("link_timeout", link_timeout, allow_none=True)  # type: ignore[arg-type]
+        _check_positive("connect_timeout", connect_timeout)
         self.port = port
         self.baudrate = baudrate
         self.request_timeout = float(request_timeout)
@@ -176,24 +188,32 @@ class Device(Generic[M, K]):
         self.reconnect = bool(reconnect)
         self.queue_size = queue_size
         self.link_timeout = None if link_timeout is None else float(link_timeout)
+        self.connect_timeout = float(connect_timeout)
         self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
         self._decoder = self._make_decoder()
         self._requests: RequestTable[K, Any] = RequestTable(quarantine=self.request_timeout)
         self._streams: list[Broadcast[Any]] = []
         self._state = ConnectionState.DISCONNECTED
         self._states: Broadcast[ConnectionState] = Broadcast(queue_size)
-        # Replaced on every change, so each waiter sees the change it waited on.
+        # Events bind to the loop that first waits on them, so they are made anew by
+        # every connect(): the device works in any event loop it is connected in.
+        # _state_changed is also replaced on every change, so each waiter sees the
+        # change it waited on.
         self._state_changed = asyncio.Event()
+        self._lost = asyncio.Event()
+        self._closing = asyncio.Event()
         self._link: Link[M] | None = None
         self._opened_at = 0.0
         self._last_frame_time: float | None = None
-        self._lost = asyncio.Event()
         self._lost_exc: Exception | None = None
-        self._closing = asyncio.Event()
         self._runner: asyncio.Task[None] | None = None
         self._shutdown: asyncio.Future[None] | None = None
+        # Set the moment close() starts (and by a failed runner): from then on nothing
+        # is written but the zero frame, and every call gets NotConnectedError.
+        self._fenced = False
+        self._connecting = False
         self._watchdog = VelocityWatchdog(
-            self._write,
+            self._write_velocity,
             interval=float(resend_interval),
             command_timeout=None if command_timeout is None else float(command_timeout),
             logger=self._log,
@@ -203,6 +223,7 @@ class Device(Generic[M, K]):
         self._frames_sent = 0
         self._unmatched = 0
         self._late_replies = 0
+        self._discarded = 0  # by links already closed
         self._reconnects = 0
         #: Message type -> what to do with it (set up by ``_init_protocol``); called
         #: synchronously from ``data_received``, in wire order.
@@ -308,18 +329,26 @@ class Device(Generic[M, K]):
         """
         if self._shutdown is not None:  # a close() in progress: let it finish
             await asyncio.shield(self._shutdown)
-        if self._runner is not None:
+        if self._runner is not None or self._connecting:
             raise ChassisError(f"{self.port} is already connected; close() it first")
+        self._connecting = True
+        self._fenced = False
+        self._state_changed = asyncio.Event()
+        self._lost = asyncio.Event()
+        self._closing = asyncio.Event()
         self._requests.quarantine = self._reply_quarantine()
         self._set_state(ConnectionState.CONNECTING)
         for stream in self._streams:
             stream.reopen()
-        self._closing.clear()
         try:
             await self._open()
+            if self._link is None:  # close() was called while the port was opening
+                raise NotConnectedError(f"{self.port} was closed while connecting")
         except BaseException:
+            self._connecting = False
             self._set_state(ConnectionState.DISCONNECTED)
             raise
+        self._connecting = False
         self._runner = asyncio.create_task(self._run(), name=f"chassis_sdk:{self.port}")
         self._set_state(ConnectionState.CONNECTED)
 
@@ -334,11 +363,18 @@ class Device(Generic[M, K]):
         self._lost_exc = None
         self._decoder.reset()
         self._on_link_up()
-        self._link = await open_link(
-            self.port,
-            self.baudrate,
-            lambda: Link(self._decoder, self._received, self._on_lost, self._log),
-        )
+
+        def make_link() -> Link[M]:
+            link: Link[M] = Link(
+                self._decoder, self._received, lambda exc: self._on_lost(link, exc), self._log
+            )
+            return link
+
+        link = await open_link(self.port, self.baudrate, make_link, timeout=self.connect_timeout)
+        if self._fenced:  # close() started while the port was opening: never use it
+            await self._close_link(link)
+            return
+        self._link = link
         self._opened_at = time.monotonic()
         self._log.info("%s: opened at %d baud via %s", self.port, self.baudrate, BACKEND)
 
@@ -376,10 +412,20 @@ class Device(Generic[M, K]):
             )
             self._set_state(ConnectionState.STALE)
 
-    def _on_lost(self, exc: Exception | None) -> None:
+    def _on_lost(self, link: Link[M], exc: Exception | None) -> None:
+        if link.accounted:
+            return
+        link.accounted = True
+        self._discarded += link.discarded
+        if link is not self._link:  # one that close() kept from being installed
+            return
         self._link = None
         self._lost_exc = exc
         self._lost.set()
+
+    async def _close_link(self, link: Link[M]) -> None:
+        await link.aclose(_CLOSE_TIMEOUT)
+        self._on_lost(link, None)  # in case connection_lost did not come in time
 
     async def _run(self) -> None:
         try:
@@ -395,7 +441,13 @@ class Device(Generic[M, K]):
         except Exception as exc:  # a bug in a background task: fail loudly, stop safely
             self._log.exception("%s: background task failed", self.port)
             error = ChassisError(f"background task failed: {exc!r}")
+            # Nothing will resend or expire a command from here on: zero goes out first.
+            self._fenced = True
             self._watchdog.clear()
+            link = self._link
+            zero = self._zero_frame()
+            if link is not None and link.close_velocity(zero):
+                self._count_sent(len(zero))
             self._requests.fail_all(error)
             for stream in self._streams:
                 stream.fail(error)
@@ -433,6 +485,8 @@ class Device(Generic[M, K]):
                 self._log.debug("%s: reconnect failed: %s", self.port, exc)
                 delay = min(delay * _BACKOFF_FACTOR, _BACKOFF_CAP)
                 continue
+            if self._link is None:  # closing
+                return
             self._reconnects += 1
             self._set_state(ConnectionState.CONNECTED)
             return
@@ -447,15 +501,19 @@ class Device(Generic[M, K]):
         """
         shutdown = self._shutdown
         if shutdown is None:
+            # Fence off every writer first, synchronously: from here on a racing
+            # set_velocity() gets NotConnectedError and the link refuses any velocity
+            # frame after this zero, so zero is the last one on the wire.
+            self._fenced = True
+            self._watchdog.clear()
             runner = self._runner
             if runner is None:
-                return
+                return  # never connected, or a connect() in progress that will see the fence
             self._runner = None
             link = self._link
-            self._watchdog.clear()
             if link is not None:
                 zero = self._zero_frame()
-                if link.write(zero):  # synchronously, before anything can interrupt
+                if link.close_velocity(zero):
                     self._count_sent(len(zero))
             shutdown = self._shutdown = asyncio.ensure_future(self._shut_down(link, runner))
         try:
@@ -473,10 +531,15 @@ class Device(Generic[M, K]):
             if link is not None:
                 await link.drain(_DRAIN_TIMEOUT)
             self._closing.set()
-            if link is not None:
-                await link.aclose(_CLOSE_TIMEOUT)
+            # The runner first: a reconnect in progress is cancelled, and whatever
+            # link is installed once it has stopped is the one to close.
             await runner
+            link = self._link
+            if link is not None:
+                await self._close_link(link)
         finally:
+            if self._link is not None:  # close() itself was cancelled past its bounds
+                self._on_lost(self._link, None)
             self._link = None
             closed = NotConnectedError(f"{self.port} was closed")
             self._requests.fail_all(closed)
@@ -506,15 +569,34 @@ class Device(Generic[M, K]):
         self._bytes_sent += n_bytes
         self._frames_sent += 1
 
+    def _not_connected(self) -> NotConnectedError:
+        state = "closing" if self._fenced else self._state.value
+        return NotConnectedError(f"{self.port} is {state}, not connected")
+
     def _write(self, frame: bytes) -> None:
+        """Write a frame that is not a velocity command."""
         link = self._link
-        if link is None or not link.write(frame):
-            raise NotConnectedError(f"{self.port} is {self._state.value}, not connected")
+        if link is None or self._fenced:
+            raise self._not_connected()
+        if not link.write(frame):
+            if link.is_open:
+                raise ChassisError(
+                    f"{self.port}: the device is not reading; {QUEUE_LIMIT} bytes already "
+                    "wait to be sent, so this frame was discarded"
+                )
+            raise self._not_connected()
+        self._count_sent(len(frame))
+
+    def _write_velocity(self, frame: bytes, expires: float) -> None:
+        """Write a velocity frame (the watchdog's writer): state, not a queue."""
+        link = self._link
+        if link is None or self._fenced or not link.write_velocity(frame, expires):
+            raise self._not_connected()
         self._count_sent(len(frame))
 
     def _ensure_connected(self) -> None:
-        if self._link is None or self._state not in _OPEN:
-            raise NotConnectedError(f"{self.port} is {self._state.value}, not connected")
+        if self._link is None or self._fenced or self._state not in _OPEN:
+            raise self._not_connected()
 
     async def _send(self, frame: bytes) -> None:
         """Write a command that has no reply; return once it is handed to the port."""
@@ -749,6 +831,8 @@ class Device(Generic[M, K]):
             misaligned_frames=d.misaligned_frames,
             unmatched_replies=self._unmatched,
             late_replies=self._late_replies,
+            frames_discarded=self._discarded
+            + (self._link.discarded if self._link is not None else 0),
             queue_drops=sum(s.dropped for s in self._streams),
             sequence_gaps=self._sequence_gaps(),
             reconnects=self._reconnects,

@@ -1,24 +1,66 @@
 """The link: one ``asyncio.Protocol`` per port, and the only module that knows which
 pyserial asyncio package is in use.
 
-pyserial-asyncio-fast (an optional extra) is preferred when installed: it writes eagerly
-instead of on the next loop iteration, calls ``connection_lost`` only once the port is
-really closed, and opens ``socket://`` URLs with the loop's own connection (pyserial's
-socket ``close()`` sleeps 0.3 s on the event loop). Both open every URL through
-``serial.serial_for_url``, so device paths, pseudo-terminals and ``socket://host:port``
-work alike.
+Why the write path is shaped this way
+-------------------------------------
+A robot that stops reading its UART (a hung MCU, a USB CDC device whose firmware
+stalls) fills the kernel's output buffer. pyserial's ``Serial.write`` with
+``write_timeout=0`` swallows ``EAGAIN`` and loops, so a transport that calls it with a
+full buffer freezes the whole event loop; and a transport that buffers without bound
+sends minutes-old velocity commands the moment the device reads again. So:
+
+* a write **never blocks or spins**. For a serial port the link writes to its own
+  duplicate of the descriptor with one non-blocking ``os.write`` and, when the kernel
+  takes only part of a frame, keeps the rest and waits for the descriptor itself; the
+  pyserial transports never see a write. (Besides the spin, pyserial-asyncio-fast 0.16
+  leaves its writer callback registered after a blocked write drains, and it then
+  raises ``AssertionError`` on every loop iteration.) ``Serial.write`` is replaced by a
+  single ``os.write`` anyway, and ``Serial.flush`` (a blocking ``tcdrain``, which
+  pyserial-asyncio calls on the loop while closing) by a no-op. Sockets use asyncio's
+  own transport with a high-water mark of 0, so it pauses the link as soon as it holds
+  a byte;
+* while the port cannot take bytes the link holds frames under a discipline that knows
+  what they are. A **velocity frame is state, not a queue**: only the newest waits (the
+  one it replaces is discarded and counted), and one whose command has expired by the
+  time the port can take it is dropped, so the first velocity frame after a stall is
+  never stale. Other frames (requests, e-stops) wait in order, bounded;
+* writes are **eager** (pyserial-asyncio would hold every frame until the loop's next
+  writer callback, so a frame queued just before the application blocks the loop
+  would leave a whole block later);
+* :meth:`Link.aclose` drains with a bound; what has not left by then is discarded
+  (kernel output queue flushed with ``tcflush``, transport aborted) and the descriptors
+  are closed, so nothing stale is sent after ``close()``.
+
+Opening is bounded and never blocks the loop: device paths are opened in a daemon
+thread (pyserial's open, its advisory ``flock`` and termios set-up are blocking calls),
+``socket://host:port`` with the loop's own non-blocking connect (pyserial's socket
+handler connects with a blocking 5 s call, and its ``close()`` sleeps 0.3 s), each under
+``connect_timeout``. Serial devices are opened exclusively: a second opener, in this
+process or another, gets :class:`~chassis_sdk.PortOpenError` naming who holds the port.
+
+pyserial-asyncio-fast (an optional extra) is preferred when installed; both open device
+paths through ``serial.serial_for_url``, so ``/dev/tty*`` and pseudo-terminals work
+alike. ``CHASSIS_SDK_BACKEND`` forces one.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
 import importlib
 import logging
+import math
 import os
+import termios
+import threading
 import time
+import urllib.parse
+from collections import deque
 from collections.abc import Callable
 from typing import Any, Generic, Protocol, TypeVar, cast
+
+import serial
 
 from .errors import PortOpenError
 
@@ -55,6 +97,10 @@ __all__ = ["BACKEND", "Link", "open_link"]
 
 M = TypeVar("M")
 
+#: Bytes of non-velocity frames held while the port cannot take them (requests and
+#: commands are at most a few dozen bytes each; past this the device is not reading).
+QUEUE_LIMIT = 1024
+
 
 class Decoder(Protocol[M]):
     """What the link needs of a decoder."""
@@ -65,7 +111,8 @@ class Decoder(Protocol[M]):
 
 
 class Link(asyncio.Protocol, Generic[M]):
-    """Feeds received bytes to the decoder synchronously and hands each message on.
+    """Feeds received bytes to the decoder synchronously and hands each message on;
+    writes frames without ever blocking, under the discipline described above.
 
     Args:
         decoder: The protocol's decoder (kept across reconnects for its stats).
@@ -87,11 +134,41 @@ class Link(asyncio.Protocol, Generic[M]):
         self._on_messages = on_messages
         self._on_lost = on_lost
         self._log = logger
+        self._loop = asyncio.get_running_loop()
         self.transport: asyncio.WriteTransport | None = None
-        self.closed = asyncio.get_running_loop().create_future()
+        self.closed = self._loop.create_future()
+        # For a serial port: our own duplicate of its descriptor, written to directly.
+        # pyserial's transports never see a write (see the module docstring), and the
+        # duplicate outlives their close of the original until we are done with it.
+        self._wfd: int | None = None
+        self._blocked = False  # the port cannot take bytes now
+        self._partial = b""  # the unsent rest of a frame (serial ports)
+        self._queue: deque[bytes] = deque()
+        self._queued_bytes = 0
+        self._velocity: tuple[bytes, float] | None = None  # newest held frame, its expiry
+        self._velocity_closed = False
+        self._write_error: Exception | None = None
+        self._flushed: asyncio.Future[None] | None = None
+        #: Frames the link discarded: velocity frames replaced by newer ones or expired
+        #: while the port could not take them, frames over the queue limit, and
+        #: whatever was still held when the link was closed.
+        self.discarded = 0
+        #: Set by the owner once it has counted this link's losses.
+        self.accounted = False
+
+    # --- asyncio.Protocol ---------------------------------------------------------------
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        if self.transport is not None:  # called again by the transport's call_soon
+            return
         self.transport = cast(asyncio.WriteTransport, transport)
+        ser = transport.get_extra_info("serial")
+        if isinstance(ser, serial.Serial) and ser.fd is not None:
+            self._wfd = os.dup(ser.fd)
+        else:
+            # asyncio's socket transport: pause as soon as it holds a byte, so that
+            # from then on the link holds frames itself.
+            self.transport.set_write_buffer_limits(high=0, low=0)
 
     def data_received(self, data: bytes) -> None:
         now = time.monotonic()
@@ -103,47 +180,257 @@ class Link(asyncio.Protocol, Generic[M]):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.transport = None
+        self._drop_held()
+        self._release_wfd()
+        self._wake_flushed()
         if not self.closed.done():
             self.closed.set_result(None)
-        self._on_lost(exc)
+        self._on_lost(exc if exc is not None else self._write_error)
+
+    def pause_writing(self) -> None:
+        self._blocked = True
+
+    def resume_writing(self) -> None:
+        self._blocked = False
+        self._send_held()
+
+    # --- writing -----------------------------------------------------------------------
+
+    @property
+    def is_open(self) -> bool:
+        """True while frames can be handed to the port."""
+        transport = self.transport
+        return transport is not None and not transport.is_closing()
 
     def write(self, frame: bytes) -> bool:
-        """Write one frame; return False if the link is not open."""
-        transport = self.transport
-        if transport is None or transport.is_closing():
+        """Write a frame that is not a velocity command (a request, an e-stop, ...).
+
+        Frames keep their order. While the port cannot take bytes they wait, up to
+        :data:`QUEUE_LIMIT` bytes; past that the frame is discarded and counted.
+
+        Returns:
+            False if the link is not open or the frame had to be discarded.
+        """
+        if not self.is_open:
             return False
-        if self._log.isEnabledFor(logging.DEBUG):
-            self._log.debug("tx %s", frame.hex(" "))
-        transport.write(frame)
+        if self._blocked or self._queue or self._velocity is not None:
+            if self._queued_bytes + len(frame) > QUEUE_LIMIT:
+                self.discarded += 1
+                return False
+            self._queue.append(frame)
+            self._queued_bytes += len(frame)
+            return True
+        if not self._emit(frame):
+            self._queue.append(frame)
+            self._queued_bytes += len(frame)
         return True
 
-    async def drain(self, timeout: float) -> None:
-        """Wait (at most ``timeout`` s) until every written byte has left the buffer.
+    def write_velocity(self, frame: bytes, expires: float = math.inf) -> bool:
+        """Write a velocity frame: state, not a queue.
 
-        ``transport.flush()`` in pyserial-asyncio discards unsent bytes rather than
-        waiting for them, so the final zero-velocity frame is waited out this way.
+        While the port cannot take bytes only the newest velocity frame waits (the one
+        it replaces is discarded and counted), and it is dropped if ``expires``
+        (``time.monotonic()``) has passed by the time the port can take it.
+
+        Returns:
+            False if the link is not open or velocity frames are closed off.
         """
-        deadline = time.monotonic() + timeout
-        while (transport := self.transport) is not None and not transport.is_closing():
-            if transport.get_write_buffer_size() == 0 or time.monotonic() >= deadline:
+        if not self.is_open or self._velocity_closed:
+            return False
+        if self._blocked or self._queue or not self._emit(frame):
+            if self._velocity is not None:
+                self.discarded += 1
+            self._velocity = (frame, expires)
+        return True
+
+    def close_velocity(self, zero: bytes) -> bool:
+        """Write ``zero`` as the last velocity frame this link will ever carry.
+
+        It replaces any velocity frame still waiting ("zero wins"), and every later
+        :meth:`write_velocity` is refused, so nothing but zero can follow it.
+        """
+        sent = self.write_velocity(zero)
+        self._velocity_closed = True
+        return sent
+
+    def _emit(self, frame: bytes) -> bool:
+        """Hand ``frame`` to the port now; False if the port took none of it (the
+        caller holds it under its discipline). A frame partly taken is completed
+        first, whatever comes after it, so the device never sees half a frame."""
+        wfd = self._wfd
+        if wfd is None:  # asyncio's own socket transport: never blocks, never spins
+            cast(asyncio.WriteTransport, self.transport).write(frame)
+            n = len(frame)
+        else:
+            # Eagerly, so that a frame never waits for a later loop iteration.
+            n = self._write_fd(wfd, frame)
+            if 0 <= n < len(frame):
+                self._blocked = True
+                self._partial = frame[n:] if n else b""
+                self._loop.add_writer(wfd, self._writable)
+        if n > 0 and self._log.isEnabledFor(logging.DEBUG):
+            self._log.debug("tx %s", frame.hex(" "))
+        return n != 0
+
+    def _write_fd(self, wfd: int, data: bytes) -> int:
+        """One non-blocking write; -1 if the port failed (the link is then aborted)."""
+        try:
+            return os.write(wfd, data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError as exc:  # the device is gone; reading will notice it too
+            self._write_error = exc
+            self._partial = b""
+            self._release_wfd()
+            if self.transport is not None:
+                self.transport.abort()
+            return -1
+
+    def _writable(self) -> None:
+        wfd = self._wfd
+        if wfd is None:
+            return
+        if self._partial:
+            n = self._write_fd(wfd, self._partial)
+            if n < 0:
                 return
-            await asyncio.sleep(0.002)
+            self._partial = self._partial[n:]
+            if self._partial:
+                return
+        self._loop.remove_writer(wfd)
+        self._blocked = False
+        self._send_held()
+
+    def _send_held(self) -> None:
+        queue = self._queue
+        while queue and not self._blocked and self.is_open:
+            if not self._emit(queue[0]):
+                break
+            self._queued_bytes -= len(queue.popleft())
+        held = self._velocity
+        if held is not None and not queue and not self._blocked and self.is_open:
+            frame, expires = held
+            if time.monotonic() > expires:
+                self._velocity = None
+                self.discarded += 1  # its command ran out while it waited
+            elif self._emit(frame):
+                self._velocity = None
+        if self._is_flushed():
+            self._wake_flushed()
+
+    def _drop_held(self) -> None:
+        self.discarded += len(self._queue) + (self._velocity is not None) + bool(self._partial)
+        self._queue.clear()
+        self._queued_bytes = 0
+        self._velocity = None
+        self._partial = b""
+
+    def _release_wfd(self) -> None:
+        wfd, self._wfd = self._wfd, None
+        if wfd is not None:
+            self._loop.remove_writer(wfd)
+            os.close(wfd)
+
+    # --- draining and closing ---------------------------------------------------------
+
+    def _is_flushed(self) -> bool:
+        transport = self.transport
+        if transport is None:
+            return True
+        if self._blocked or self._queue or self._velocity is not None:
+            return False
+        return self._wfd is not None or transport.get_write_buffer_size() == 0
+
+    def _wake_flushed(self) -> None:
+        waiter = self._flushed
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    async def drain(self, timeout: float) -> bool:
+        """Wait (at most ``timeout`` s) until every written byte has left for the port.
+
+        Returns:
+            True if everything left; False if something is still held.
+        """
+        try:
+            async with asyncio.timeout(timeout):
+                while not self._is_flushed():
+                    self._flushed = waiter = self._loop.create_future()
+                    try:
+                        await waiter
+                    finally:
+                        self._flushed = None
+        except TimeoutError:
+            pass
+        return self._is_flushed()
 
     async def aclose(self, timeout: float) -> None:
-        """Close the transport and wait (bounded) until the port is really closed."""
+        """Close the port and wait (bounded) until it is really closed.
+
+        If bytes are still held (the device is not reading), they are discarded: the
+        transport is aborted and the kernel's output queue flushed, so nothing written
+        before the close can reach the device afterwards.
+        """
         transport = self.transport
-        if transport is not None:
-            transport.close()
+        if transport is not None and not transport.is_closing():
+            if self._is_flushed():
+                transport.close()
+            else:
+                before = self.discarded
+                self._drop_held()
+                if self._wfd is None and transport.get_write_buffer_size():
+                    self.discarded += 1  # what asyncio's transport still held
+                else:
+                    with contextlib.suppress(OSError, termios.error):
+                        termios.tcflush(cast(int, self._wfd), termios.TCOFLUSH)
+                self._log.warning(
+                    "the device is not reading; discarded %d unsent frame(s) on closing",
+                    self.discarded - before,
+                )
+                transport.abort()
         if not self.closed.done():
             try:
                 await asyncio.wait_for(asyncio.shield(self.closed), timeout)
             except TimeoutError:
                 self._log.warning("port did not report closing within %.1f s", timeout)
+        self._release_wfd()
+
+
+# --- opening ---------------------------------------------------------------------------
+
+
+def _lock_holder(path: str) -> str | None:
+    """Who holds the advisory lock on ``path`` (from ``/proc/locks``), if we can see it."""
+    try:
+        st = os.stat(path)
+        with open("/proc/locks") as f:
+            lines = f.readlines()
+    except OSError:
+        return None
+    wanted = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for line in lines:
+        parts = line.split()
+        if len(parts) > 5 and parts[1] == "FLOCK" and parts[5] == wanted:
+            pid = parts[4]
+            if pid == str(os.getpid()):
+                return f"this process (pid {pid})"
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as f:
+                    cmd = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
+            except OSError:
+                cmd = ""
+            return f"process {pid}" + (f" ({cmd[:80]})" if cmd else "")
+    return None
 
 
 def _describe_open_error(url: str, exc: BaseException) -> str:
     err = getattr(exc, "errno", None)
     text = str(exc)
+    if "exclusively lock" in text or err in (errno.EAGAIN, errno.EWOULDBLOCK):
+        holder = _lock_holder(url)
+        return f"could not open {url}: port busy, held by " + (
+            holder or "another program (close it, or check `fuser -v " + url + "`)"
+        )
     if (
         err == errno.ENOENT
         or "No such file" in text
@@ -160,25 +447,102 @@ def _describe_open_error(url: str, exc: BaseException) -> str:
     return f"could not open {url}: {text}"
 
 
+def _write_once(fd: int, data: bytes) -> int:
+    """``Serial.write`` for an asyncio transport: one non-blocking ``os.write``.
+
+    ``EAGAIN`` surfaces as ``BlockingIOError``, which both transports handle by waiting
+    for the descriptor; pyserial's own loop would spin on it.
+    """
+    return os.write(fd, data)
+
+
+def _open_serial(url: str, baudrate: int) -> serial.Serial:
+    ser = serial.serial_for_url(
+        url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, exclusive=True
+    )
+    fd = ser.fd
+    ser.write = lambda data: _write_once(fd, bytes(data))
+    ser.flush = lambda: None  # a blocking tcdrain; the link drains with a bound itself
+    return ser
+
+
+async def _open_serial_in_thread(url: str, baudrate: int) -> serial.Serial:
+    """Open in a daemon thread: a hung open can neither block the loop nor keep the
+    interpreter from exiting; if nobody is waiting any more, the port is closed."""
+    loop = asyncio.get_running_loop()
+    fut: asyncio.Future[serial.Serial] = loop.create_future()
+
+    def deliver(ser: serial.Serial | None, exc: BaseException | None) -> None:
+        if fut.done():  # cancelled or timed out meanwhile
+            if ser is not None:
+                ser.close()
+        elif exc is not None:
+            fut.set_exception(exc)
+        else:
+            fut.set_result(cast(serial.Serial, ser))
+
+    def work() -> None:
+        ser: serial.Serial | None = None
+        exc: BaseException | None = None
+        try:
+            ser = _open_serial(url, baudrate)
+        except BaseException as e:
+            exc = e
+        try:
+            loop.call_soon_threadsafe(deliver, ser, exc)
+        except RuntimeError:  # the loop is closed: nobody will ever take it
+            if ser is not None:
+                ser.close()
+
+    threading.Thread(target=work, name=f"chassis_sdk open {url}", daemon=True).start()
+    return await fut
+
+
 async def open_link(
     url: str,
     baudrate: int,
     link_factory: Callable[[], Link[Any]],
+    *,
+    timeout: float = 2.0,
 ) -> Link[Any]:
     """Open ``url`` (device path, pty path or ``socket://host:port``) at 8N1.
+
+    Bounded by ``timeout`` and cancellation-safe: whatever was opened is closed again
+    if the open does not complete.
 
     Raises:
         PortOpenError: The port cannot be opened; the message says why and what to do.
     """
     loop = asyncio.get_running_loop()
+    parsed = urllib.parse.urlsplit(url)
+    transport: asyncio.BaseTransport | None = None
     try:
-        transport, protocol = await _serial_asyncio.create_serial_connection(
-            loop, link_factory, url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1
-        )
+        async with asyncio.timeout(timeout):
+            if parsed.scheme == "socket":
+                if not parsed.hostname or parsed.port is None:
+                    raise ValueError("expected socket://host:port")
+                transport, protocol = await loop.create_connection(
+                    link_factory, parsed.hostname, parsed.port
+                )
+            elif "://" in url:
+                raise ValueError(
+                    f"unsupported URL scheme {parsed.scheme!r}: use a device path or "
+                    "socket://host:port"
+                )
+            else:
+                ser = await _open_serial_in_thread(url, baudrate)
+                transport, protocol = await _serial_asyncio.connection_for_serial(
+                    loop, link_factory, ser
+                )
+    except TimeoutError:
+        raise PortOpenError(
+            f"could not open {url}: no answer within {timeout:g} s (connect_timeout)"
+        ) from None
     except (OSError, ValueError) as exc:
         # serial.SerialException is an OSError subclass; bad URLs raise ValueError.
         raise PortOpenError(_describe_open_error(url, exc)) from exc
-    link = cast(Link[Any], protocol)
-    # connection_made() is only scheduled (call_soon); the link can write from now on.
+    link: Link[Any] = protocol
+    # pyserial's transports only schedule connection_made() (call_soon): the link can
+    # write from now on.
     link.connection_made(transport)
     return link

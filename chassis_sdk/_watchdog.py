@@ -131,7 +131,9 @@ class VelocityWatchdog:
     """Re-sends the active velocity command and zeroes it when it expires.
 
     Args:
-        write: Writes one frame; raises :class:`NotConnectedError` when there is no link.
+        write: Writes one velocity frame with the time (``clock()``) after which it is
+            stale and must not be sent late (``math.inf`` for a zero frame); raises
+            :class:`NotConnectedError` when there is no link.
         interval: Resend period (s).
         command_timeout: Deadman (s) for commands without ``duration``; ``None`` holds
             them until :meth:`stop`.
@@ -141,7 +143,7 @@ class VelocityWatchdog:
 
     def __init__(
         self,
-        write: Callable[[bytes], None],
+        write: Callable[[bytes, float], None],
         *,
         interval: float,
         command_timeout: float | None,
@@ -192,17 +194,18 @@ class VelocityWatchdog:
             axes: What ``target`` holds, for the limits.
         """
         now = self._clock()
-        cmd = MotionCommand(target, build, zero, 0.0, description, axes)
+        if duration is not None:
+            deadline = now + duration
+        elif self.command_timeout is not None:
+            deadline = now + self.command_timeout
+        else:
+            deadline = math.inf
+        cmd = MotionCommand(target, build, zero, deadline, description, axes)
         values = self._step(cmd, now)
-        self._write(build(*values))  # raises before any state changes if not connected
+        # Raises before any state changes if not connected.
+        self._write(build(*values), deadline)
         self.written = values
         self._last_write = now
-        if duration is not None:
-            cmd.deadline = now + duration
-        elif self.command_timeout is not None:
-            cmd.deadline = now + self.command_timeout
-        else:
-            cmd.deadline = math.inf
         self._active = cmd
         self._next = now + self.interval
         self._alarm.wake()
@@ -210,7 +213,7 @@ class VelocityWatchdog:
     def stop(self, zero: FrameFactory) -> None:
         """Drop the active command and write a zero frame now (never ramped)."""
         self.clear()
-        self._write(zero())
+        self._write(zero(), math.inf)
 
     def clear(self) -> None:
         """Drop the active command without writing anything (the link is gone)."""
@@ -249,20 +252,20 @@ class VelocityWatchdog:
                 self.clear()
                 self.expiries += 1
                 self._log.debug("velocity command %s expired; writing zero", active.description)
-                self._write_quietly(active.zero)
+                self._write_quietly(active.zero, math.inf)
                 continue
             self._next += self.interval
             if self._next <= now:  # the loop was blocked: skip the missed slots
                 self._next = now + self.interval
             self.resends += 1
             values = self._step(active, now)
-            if self._write_quietly(functools.partial(active.build, *values)):
+            if self._write_quietly(functools.partial(active.build, *values), active.deadline):
                 self.written = values
                 self._last_write = now
 
-    def _write_quietly(self, frame: FrameFactory) -> bool:
+    def _write_quietly(self, frame: FrameFactory, expires: float) -> bool:
         try:
-            self._write(frame())
+            self._write(frame(), expires)
         except NotConnectedError:
             # The link dropped between two resends: the supervisor clears us; never
             # resume this command later.

@@ -74,6 +74,8 @@ class Chassis(Device[ChassisMessage, ReplyId]):
             deceleration) applied to what the watchdog writes; stops are immediate.
         battery_low: Report ``BATTERY_LOW`` in :meth:`events` below this voltage
             (and ``BATTERY_OK`` 0.2 V above it); ``None`` (default) does not watch.
+        connect_timeout: Seconds each open (and reconnect attempt) may take; the port
+            is opened off the event loop, so nothing else waits for it.
         logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
 
     Raises:
