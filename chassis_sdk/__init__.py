@@ -8,7 +8,7 @@ Two devices are supported:
 
 Example::
 
-    import asyncio
+    import chassis_sdk
     from chassis_sdk import Chassis
 
     async def main() -> None:
@@ -18,7 +18,7 @@ Example::
             async for t in robot.telemetry():
                 print(t.linear, t.voltage)
 
-    asyncio.run(main())
+    chassis_sdk.run(main())  # asyncio.run, with SIGTERM/SIGHUP stopping the robot too
 
 The sans-IO codecs live in :mod:`chassis_sdk.protocol`; the simulators in
 :mod:`chassis_sdk.sim`.
@@ -28,6 +28,7 @@ import logging as _logging
 
 from ._device import ConnectionState, LinkStats
 from ._dispatch import Subscription
+from ._run import run
 from ._watchdog import MotionLimits
 from .board import Board
 from .chassis import Chassis
@@ -103,4 +104,5 @@ __all__ = [
     "WheelDriver",
     "WheelSpeeds",
     "__version__",
+    "run",
 ]

@@ -34,6 +34,7 @@ from . import (
     VelocityFeedback,
     __version__,
     capture,
+    run,
 )
 from .sim import BoardSimulator, ChassisSimulator, LineFaults
 
@@ -529,7 +530,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         job = _drive(args.port, args.protocol, args.linear, args.angular, args.duration)
     try:
-        asyncio.run(job)
+        run(job)  # SIGTERM and SIGHUP unwind like Ctrl-C: the robot is stopped first
     except KeyboardInterrupt:
         return 130
     except RequestTimeoutError as exc:

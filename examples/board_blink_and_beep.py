@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import sys
 
+import chassis_sdk
 from chassis_sdk import Board
 from chassis_sdk.sim import BoardSimulator
 
@@ -32,4 +33,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))

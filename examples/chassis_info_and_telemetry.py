@@ -8,10 +8,10 @@ example starts the built-in simulator.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import sys
 
+import chassis_sdk
 from chassis_sdk import Chassis
 from chassis_sdk.sim import ChassisSimulator
 
@@ -38,4 +38,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))

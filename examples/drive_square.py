@@ -15,6 +15,7 @@ import math
 import sys
 import time
 
+import chassis_sdk
 from chassis_sdk import Chassis
 from chassis_sdk.sim import ChassisSimulator
 
@@ -46,4 +47,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))

@@ -10,11 +10,11 @@ example also prints the simulator's true pose, so you can see how far odometry d
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import math
 import sys
 
+import chassis_sdk
 from chassis_sdk import Chassis, Odometry
 from chassis_sdk.odometry import wrap_angle
 from chassis_sdk.sim import ChassisSimulator
@@ -96,4 +96,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))

@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import sys
 
+import chassis_sdk
 from chassis_sdk import Chassis, ChassisStatus, Telemetry
 from chassis_sdk.sim import ChassisSimulator
 
@@ -50,4 +51,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))

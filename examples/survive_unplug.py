@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import sys
 
+import chassis_sdk
 from chassis_sdk import Chassis
 from chassis_sdk.sim import ChassisSimulator
 
@@ -64,4 +65,4 @@ async def main(port: str | None) -> None:
 
 if __name__ == "__main__":
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+        chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))

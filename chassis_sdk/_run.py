@@ -1,0 +1,91 @@
+"""``chassis_sdk.run``: ``asyncio.run`` for programs that drive a robot.
+
+Why it exists
+-------------
+Ctrl-C cancels the main task under ``asyncio.run``, so every ``async with Chassis(...)``
+unwinds and writes its zero-velocity frame. SIGTERM, what systemd, Docker and
+Kubernetes send to stop a service, and SIGHUP (the terminal went away) kill a plain
+Python process on the spot: nothing is written and only the firmware's own timeout
+stops the wheels. :func:`run` turns both into the same cancellation as Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+from collections.abc import Coroutine
+from typing import Any, TypeVar
+
+__all__ = ["run"]
+
+T = TypeVar("T")
+
+#: Signals that cancel the main task (SIGINT is asyncio.Runner's own).
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+
+def run(main: Coroutine[Any, Any, T], *, debug: bool | None = None) -> T:
+    """Run ``main`` to completion in a new event loop, like :func:`asyncio.run`, with
+    SIGTERM and SIGHUP cancelling it the way Ctrl-C does.
+
+    On the first such signal the main task is cancelled: every ``async with`` block
+    unwinds, so each device writes zero velocity and closes its port, and then this
+    function raises ``SystemExit(128 + signal number)`` (143 for SIGTERM), the exit
+    status a shell reports for a process ended by that signal. A second signal, while
+    the first is still unwinding, ends the process at once (the default action).
+    Ctrl-C raises :class:`KeyboardInterrupt` after the same unwinding, as under
+    :func:`asyncio.run`.
+
+    Example::
+
+        import chassis_sdk
+
+        async def main() -> None:
+            async with chassis_sdk.Chassis("/dev/ttyUSB0") as robot:
+                ...
+
+        chassis_sdk.run(main())
+
+    Args:
+        main: The program's main coroutine.
+        debug: asyncio debug mode, as for :func:`asyncio.run`.
+
+    Returns:
+        What ``main`` returned.
+
+    Raises:
+        SystemExit: ``main`` was cancelled by SIGTERM or SIGHUP.
+    """
+    received: list[int] = []
+
+    async def guarded() -> T:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None
+
+        def on_signal(signum: int) -> None:
+            received.append(signum)
+            for sig in installed:  # a second signal takes the default action
+                loop.remove_signal_handler(sig)
+            task.cancel(f"received {signal.Signals(signum).name}")
+
+        installed: list[signal.Signals] = []
+        for sig in STOP_SIGNALS:
+            try:
+                loop.add_signal_handler(sig, on_signal, sig)
+            except (NotImplementedError, RuntimeError, ValueError):
+                continue  # not the main thread, or a platform without signals
+            installed.append(sig)
+        try:
+            return await main
+        finally:
+            for sig in installed:
+                loop.remove_signal_handler(sig)
+
+    with asyncio.Runner(debug=debug) as runner:
+        try:
+            return runner.run(guarded())
+        except asyncio.CancelledError:
+            if not received:
+                raise
+    raise SystemExit(128 + received[0])
