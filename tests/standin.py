@@ -7,7 +7,9 @@ against the same error in the test double. Each stand-in serves a real pseudo-te
 that the SDK opens through its real transport; it puts noise on the line between
 frames, and records every frame the host writes with its arrival time so tests can
 wait on them as events. ``unplug()`` drops the line; over TCP, ``replug()`` listens on
-the same port again.
+the same port again. ``stop_reading()`` plays a device whose firmware stopped reading
+its UART (``fill_line()`` fills the kernel's buffer at once, as minutes of that
+would); ``release_line()`` lets the host's close reach the stand-in as ``eof``.
 """
 
 from __future__ import annotations
@@ -65,6 +67,13 @@ class PtyPeer:
         self.connections = 0
         #: ``time.monotonic()`` of the last unplug().
         self.unplugged_at: float | None = None
+        #: TCP connections open now.
+        self.live_connections = 0
+        #: Set when a TCP connection is accepted (clear it to wait for the next).
+        self.accepted = asyncio.Event()
+        #: Set when the host has closed the line and every byte it sent was read.
+        self.eof = asyncio.Event()
+        self._reading = True
 
     async def __aenter__(self) -> Any:
         self._cond = asyncio.Condition()
@@ -87,6 +96,43 @@ class PtyPeer:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self.unplug()
 
+    def stop_reading(self) -> None:
+        """Stop reading what the host sends, like a hung MCU (pty)."""
+        assert not self.tcp, "a TCP peer's buffers are too large to fill this way"
+        self._reading = False
+        asyncio.get_running_loop().remove_reader(self._master)
+
+    def resume_reading(self) -> None:
+        self._reading = True
+        asyncio.get_running_loop().add_reader(self._master, self._readable)
+
+    def fill_line(self) -> int:
+        """Fill the kernel's buffer between host and device with zero bytes (what a
+        device that stopped reading minutes ago leaves); return how many."""
+        fd = os.open(self.port, os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
+        total = 0
+        try:
+            # The kernel moves bytes on between its buffers a moment after a write, so
+            # room comes back: fill until a pause adds nothing, down to the last byte.
+            while True:
+                before = total
+                for size in (4096, 256, 16, 1):
+                    with contextlib.suppress(BlockingIOError):
+                        while True:
+                            total += os.write(fd, bytes(size))
+                if total == before:
+                    return total
+                time.sleep(0.02)
+        finally:
+            os.close(fd)
+
+    def release_line(self) -> None:
+        """Close the stand-in's own hold on the pty, so that once the host closes the
+        port the master reads end of file (and ``eof`` is set)."""
+        if self._slave >= 0:
+            os.close(self._slave)
+            self._slave = -1
+
     def unplug(self) -> None:
         """Close the pty, or stop listening and drop the TCP client: the host sees
         the device disappear."""
@@ -94,7 +140,8 @@ class PtyPeer:
         if self._master >= 0:
             asyncio.get_running_loop().remove_reader(self._master)
             os.close(self._master)
-            os.close(self._slave)
+            if self._slave >= 0:
+                os.close(self._slave)
             self._master = self._slave = -1
         if self._server is not None:
             self._server.close()
@@ -116,15 +163,21 @@ class PtyPeer:
         self._writer = writer
         self._buf.clear()  # a partial frame does not survive a new connection
         self.connections += 1
+        self.live_connections += 1
+        self.accepted.set()
+        self.eof.clear()
         try:
             while data := await reader.read(4096):
                 self._on_bytes(data)
         except ConnectionError:
             pass
         finally:
+            self.live_connections -= 1
+            self.eof.set()
             if self._writer is writer:
                 self._writer = None
             writer.close()
+            asyncio.get_running_loop().create_task(self._notify())
 
     async def run(self) -> None:
         """Periodic output; overridden."""
@@ -147,7 +200,12 @@ class PtyPeer:
     def _readable(self) -> None:
         try:
             data = os.read(self._master, 4096)
-        except OSError:
+        except BlockingIOError:
+            return
+        except OSError:  # EIO: every slave descriptor is closed and all was read
+            asyncio.get_running_loop().remove_reader(self._master)
+            self.eof.set()
+            asyncio.get_running_loop().create_task(self._notify())
             return
         self._on_bytes(data)
 
@@ -210,6 +268,9 @@ class ChassisStandIn(PtyPeer):
     reply_delay: float = 0.0
     status: int = 0
     seq: int = 0
+    #: Number frames with one counter per frame id instead of one for all frames.
+    per_id_seq: bool = False
+    _seqs: dict[int, int] = field(default_factory=dict)
 
     def parse(self, buf: bytearray, now: float) -> list[Received]:
         out = []
@@ -239,7 +300,11 @@ class ChassisStandIn(PtyPeer):
             seq = struct.unpack_from("<H", raw, 2)[0]
             out.append(Received(now, raw[4], raw[6 : n - 4], seq, raw))
 
-    def next_seq(self) -> int:
+    def next_seq(self, frame_id: int = 0x81) -> int:
+        if self.per_id_seq and frame_id != 0x81:
+            s = self._seqs.get(frame_id, 0)
+            self._seqs[frame_id] = (s + 1) & 0xFFFF
+            return s
         s = self.seq
         self.seq = (s + 1) & 0xFFFF
         return s
@@ -254,9 +319,9 @@ class ChassisStandIn(PtyPeer):
             return
         reply: bytes | None = None
         if kind == 0x07:
-            reply = frame_a(0x87, struct.pack("<H", self.firmware_version), self.next_seq())
+            reply = frame_a(0x87, struct.pack("<H", self.firmware_version), self.next_seq(0x87))
         elif kind == 0x08:
-            reply = frame_a(0x88, self.hardware, self.next_seq())
+            reply = frame_a(0x88, self.hardware, self.next_seq(0x88))
         elif kind == 0x09:
             reply = DOC_CHASSIS_INFO
         elif kind == 0x0A:
@@ -270,7 +335,7 @@ class ChassisStandIn(PtyPeer):
                 30, 30, 0, 0,
                 355, 341, 240, 239,
             )  # fmt: skip
-            reply = frame_a(0xB0, payload, self.next_seq())
+            reply = frame_a(0xB0, payload, self.next_seq(0xB0))
         if reply is not None:
             if self.reply_delay:
                 asyncio.get_running_loop().call_later(self.reply_delay, self.send, reply)
