@@ -358,6 +358,12 @@ def drive_frames(frames: list[Received]) -> list[Received]:
     return [f for f in frames if f.kind == 0x02]
 
 
+def last_drive_is_zero(frames: list[Received]) -> bool:
+    """True once a drive frame has arrived and the latest one is zero."""
+    drives = drive_frames(frames)
+    return bool(drives) and is_zero_drive(drives[-1])
+
+
 def is_zero_drive(rec: Received) -> bool:
     mode = struct.unpack_from("<H", rec.payload)[0]
     if mode == 0:

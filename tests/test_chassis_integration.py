@@ -26,7 +26,7 @@ from chassis_sdk import (
 )
 from chassis_sdk.sim import ChassisSimulator
 
-from .standin import ChassisStandIn, Received, drive_frames, is_zero_drive
+from .standin import ChassisStandIn, Received, drive_frames, is_zero_drive, last_drive_is_zero
 
 
 def host_seqs(frames: list[Received]) -> list[int]:
@@ -276,7 +276,7 @@ async def test_zero_velocity_is_written_on_exit(how: str) -> None:
             task.cancel()
             with pytest.raises(asyncio.CancelledError):
                 await task
-        await dev.wait_for(lambda fs: is_zero_drive(drive_frames(fs)[-1]))
+        await dev.wait_for(last_drive_is_zero)
     assert is_zero_drive(dev.frames[-1])
 
 

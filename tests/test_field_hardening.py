@@ -47,6 +47,7 @@ from .standin import (
     frame_a,
     frame_b,
     is_zero_drive,
+    last_drive_is_zero,
 )
 
 TRANSPORTS = [pytest.param(False, id="pty"), pytest.param(True, id="tcp")]
@@ -632,7 +633,7 @@ async def test_a_failing_background_task_writes_zero_before_giving_up() -> None:
             await robot.set_velocity(0.3, 0.0)
             await dev.wait_for(lambda fs: len(drive_frames(fs)) >= 3)
             trigger.set()
-            await dev.wait_for(lambda fs: is_zero_drive(drive_frames(fs)[-1]))
+            await dev.wait_for(last_drive_is_zero)
             await until(lambda: robot.connection_state is ConnectionState.LOST)
             with pytest.raises(NotConnectedError):
                 await robot.set_velocity(0.3, 0.0)
@@ -712,7 +713,7 @@ async def test_sigterm_and_sighup_write_zero_before_the_process_exits(
         proc.send_signal(sig)
         _, err = await asyncio.wait_for(proc.communicate(), 10)
         assert proc.returncode == 128 + sig, err.decode()
-        await dev.wait_for(lambda fs: is_zero_drive(drive_frames(fs)[-1]), timeout=2)
+        await dev.wait_for(last_drive_is_zero, timeout=2)
 
 
 # --- 11. break unsubscribes at once --------------------------------------------------------------

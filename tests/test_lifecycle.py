@@ -13,7 +13,7 @@ import pytest
 from chassis_sdk import Board, Chassis, ConnectionState, PortOpenError
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .standin import BoardStandIn, ChassisStandIn, drive_frames, is_zero_drive
+from .standin import BoardStandIn, ChassisStandIn, last_drive_is_zero
 
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 
@@ -195,7 +195,7 @@ async def test_cancelling_close_still_stops_the_robot_and_closes() -> None:
             await closing
         assert type(info.value) is asyncio.CancelledError
         assert robot.connection_state is ConnectionState.DISCONNECTED
-        await dev.wait_for(lambda fs: is_zero_drive(drive_frames(fs)[-1]))
+        await dev.wait_for(last_drive_is_zero)
 
 
 async def test_concurrent_closes_both_wait_until_closed() -> None:
