@@ -519,7 +519,12 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
         if msg is None:
             self.stats.malformed_frames += 1
             return INVALID
-        if self.check_alignment:
+        head = self._head
+        # The usual frame has no head byte pair inside and is not cut after an FE:
+        # one search, no call.
+        if self.check_alignment and (
+            buf.find(head, start + 1, stop + 1) >= 0 or (stop >= end and buf[stop - 1] == head[0])
+        ):
             swallowed = self._swallows_a_head(buf, start, stop, end)
             if swallowed is None:
                 return NEED_DATA
@@ -534,23 +539,25 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
     ) -> bool | None:
         """Whether a plausible frame starts inside ``buf[start:stop]``; ``None`` if a
         start within its last three bytes cannot be told until more bytes arrive."""
-        h0, h1 = self._head
+        head = self._head
         table = self._table
-        i = buf.find(h0, start + 1, stop)
+        # Whole heads starting inside (one search for the common case: none at all)...
+        i = buf.find(head, start + 1, stop + 1)
         while i >= 0:
-            if i + 1 >= end:
+            if i + 2 >= end:
                 return None
-            if buf[i + 1] == h1:
-                if i + 2 >= end:
+            entry = table.get(buf[i + 2])
+            if entry is not None:
+                if i + 3 >= end:
                     return None
-                entry = table.get(buf[i + 2])
-                if entry is not None:
-                    if i + 3 >= end:
-                        return None
-                    expected, length = entry[0], buf[i + 3]
-                    if length == expected if expected else length != 0:
-                        return True
-            i = buf.find(h0, i + 1, stop)
+                expected, length = entry[0], buf[i + 3]
+                if length == expected if expected else length != 0:
+                    return True
+            i = buf.find(head, i + 1, stop + 1)
+        # ...and a head whose first byte is the candidate's last, when the next byte
+        # has not arrived yet.
+        if stop >= end and buf[stop - 1] == head[0]:
+            return None
         return False
 
 

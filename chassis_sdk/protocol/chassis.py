@@ -751,12 +751,15 @@ class SequenceTracker:
     def update(self, frame_id: int, seq: int) -> None:
         """Check one frame's number."""
         last = self._last
-        previous = self._by_id.get(frame_id)
-        self._last = self._by_id[frame_id] = seq
+        by_id = self._by_id
+        previous = by_id.get(frame_id)
+        self._last = by_id[frame_id] = seq
         if last is None:
             return
         shared = seq == (last + 1) & 0xFFFF
         per_id = previous is None or seq == (previous + 1) & 0xFFFF
+        if shared and per_id:  # the usual frame: both schemes agree, nothing to learn
+            return
         scheme = self.scheme
         if scheme is None:
             if shared != per_id:
@@ -800,6 +803,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
         # loop comes back to that frame and it is counted then, once.
         table = self._table
         stats = self.stats
+        track = self.sequence.update
         first = start
         while True:
             if end - start < 6:
@@ -831,7 +835,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
                 return INVALID
             if claimed != size:
                 stats.length_mismatches += 1
-            self.sequence.update(buf[start + 4], buf[start + 2] | buf[start + 3] << 8)
+            track(buf[start + 4], buf[start + 2] | buf[start + 3] << 8)
             out.append(msg)
             start = stop
             if end - start < 2 or buf[start] != 0xED or buf[start + 1] != 0xDE:
