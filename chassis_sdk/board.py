@@ -201,10 +201,16 @@ class Board(Device[BoardMessage, _Key]):
             return encode(cls(action, rid)), (kind, rid)
 
         # Up to 256 requests are in flight; more wait for an id to come free.
-        with anyio.fail_after(self.request_timeout * (self.retries + 1)):
+        wait = self.request_timeout * (self.retries + 1)
+        with anyio.move_on_after(wait) as scope:
             while not any(map(self._id_free, range(256))):
                 self._ensure_connected()
                 await self._requests.released(self.request_timeout)
+        if scope.cancelled_caught:
+            raise RequestTimeoutError(
+                f"{self.port}: no request id came free within {wait:g} s (256 in flight "
+                "or retired after timeouts; is the board answering?)"
+            )
         reply: LedReply | BuzzerReply = await self._request(
             build, read_only=action is SwitchAction.READ, what=f"{kind.name} {action.name}"
         )

@@ -179,3 +179,18 @@ async def test_simulator_led_imu_follows_motion_and_logs() -> None:
                 break
         assert (await anext(board.battery())).voltage > 11
         assert line
+
+
+async def test_with_every_request_id_retired_a_request_times_out_cleanly() -> None:
+    async with (
+        BoardStandIn(silent=True) as dev,
+        Board(dev.port, request_timeout=0.05, retries=0) as board,
+    ):
+        # 256 unanswered requests retire every id (their replies are overdue).
+        results = await asyncio.gather(
+            *(board.get_led() for _ in range(256)), return_exceptions=True
+        )
+        assert all(isinstance(r, RequestTimeoutError) for r in results)
+        with pytest.raises(RequestTimeoutError, match="no request id came free"):
+            await board.get_led()
+        assert len(dev.of_kind(0x01)) == 256  # nothing was sent for the last one
