@@ -211,7 +211,8 @@ class Device(Generic[M, K]):
         # Set the moment close() starts (and by a failed runner): from then on nothing
         # is written but the zero frame, and every call gets NotConnectedError.
         self._fenced = False
-        self._connecting = False
+        # Set while connect() opens the port; a close() meanwhile waits for it.
+        self._connecting: asyncio.Future[None] | None = None
         self._watchdog = VelocityWatchdog(
             self._write_velocity,
             interval=float(resend_interval),
@@ -329,9 +330,9 @@ class Device(Generic[M, K]):
         """
         if self._shutdown is not None:  # a close() in progress: let it finish
             await asyncio.shield(self._shutdown)
-        if self._runner is not None or self._connecting:
+        if self._runner is not None or self._connecting is not None:
             raise ChassisError(f"{self.port} is already connected; close() it first")
-        self._connecting = True
+        connecting = self._connecting = asyncio.get_running_loop().create_future()
         self._fenced = False
         self._state_changed = asyncio.Event()
         self._lost = asyncio.Event()
@@ -345,10 +346,11 @@ class Device(Generic[M, K]):
             if self._link is None:  # close() was called while the port was opening
                 raise NotConnectedError(f"{self.port} was closed while connecting")
         except BaseException:
-            self._connecting = False
             self._set_state(ConnectionState.DISCONNECTED)
             raise
-        self._connecting = False
+        finally:
+            self._connecting = None
+            connecting.set_result(None)
         self._runner = asyncio.create_task(self._run(), name=f"chassis_sdk:{self.port}")
         self._set_state(ConnectionState.CONNECTED)
 
@@ -508,7 +510,12 @@ class Device(Generic[M, K]):
             self._watchdog.clear()
             runner = self._runner
             if runner is None:
-                return  # never connected, or a connect() in progress that will see the fence
+                connecting = self._connecting
+                if connecting is not None:
+                    # connect() sees the fence once the port is open and closes it
+                    # again; return only then (bounded by connect_timeout).
+                    await asyncio.shield(connecting)
+                return
             self._runner = None
             link = self._link
             if link is not None:

@@ -425,6 +425,24 @@ async def test_close_during_a_reconnect_leaves_no_connection(
     assert leaked == [], f"connections left open after close() in trials {leaked}"
 
 
+@pytest.mark.parametrize("tcp", TRANSPORTS)
+async def test_close_during_connect_returns_only_once_nothing_is_open(tcp: bool) -> None:
+    async with ChassisStandIn(noise=False, tcp=tcp) as dev:
+        robot = Chassis(dev.port)
+        connecting = asyncio.create_task(robot.connect())
+        await asyncio.sleep(0)  # connect() is opening the port
+        await robot.close()
+        if tcp:
+            await dev.wait_for(lambda fs: dev.live_connections == 0, timeout=2.0)
+        else:
+            assert open_fds_on(dev.port) == 1  # the stand-in's own, not the SDK's
+        with pytest.raises(NotConnectedError, match="closed while connecting"):
+            await connecting
+        assert robot.connection_state is ConnectionState.DISCONNECTED
+        await robot.connect()  # and it opens normally afterwards
+        await robot.close()
+
+
 # --- 6. exclusive ports --------------------------------------------------------------------------
 
 
