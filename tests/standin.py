@@ -273,7 +273,7 @@ class ChassisStandIn(PtyPeer):
     _seqs: dict[int, int] = field(default_factory=dict)
 
     def parse(self, buf: bytearray, now: float) -> list[Received]:
-        out = []
+        out: list[Received] = []
         while True:
             i = buf.find(b"\xed\xde")
             if i < 0:
@@ -368,9 +368,9 @@ def is_zero_drive(rec: Received) -> bool:
     mode = struct.unpack_from("<H", rec.payload)[0]
     if mode == 0:
         _, vx, wz = struct.unpack("<Hhf", rec.payload)
-        return vx == 0 and wz == 0.0
+        return bool(vx == 0 and wz == 0.0)
     _, left, right, _ = struct.unpack("<HhhH", rec.payload)
-    return left == 0 and right == 0
+    return bool(left == 0 and right == 0)
 
 
 # --- protocol B ---------------------------------------------------------------------------------
@@ -400,7 +400,7 @@ class BoardStandIn(PtyPeer):
     _held: list[bytes] = field(default_factory=list)
 
     def parse(self, buf: bytearray, now: float) -> list[Received]:
-        out = []
+        out: list[Received] = []
         while True:
             i = buf.find(b"\xab\xbc")
             if i < 0:

@@ -52,7 +52,7 @@ async def test_replies_in_reverse_order_reach_the_right_callers() -> None:
         )
     # The stand-in applied the commands in order and answered in reverse: each caller
     # still gets the state reported for its own request.
-    assert results == [True, True, True, True, False, True]
+    assert list(results) == [True, True, True, True, False, True]
     ids = [f.payload[1] for f in dev.frames if f.kind in (1, 2)]
     assert len(set(ids)) == len(ids) == 6
 

@@ -75,7 +75,7 @@ async def test_concurrent_requests_resolve_in_order() -> None:
         )
     assert results[:8] == [0x0103] * 8
     assert results[8:12] == ["ZKWL-brush-motor-chassis"] * 4
-    assert all(r.track_width == 0.725 for r in results[12:16])  # type: ignore[union-attr]
+    assert all(isinstance(r, ChassisInfo) and r.track_width == 0.725 for r in results[12:16])
     assert results[16] == datetime.date(2024, 1, 2)
     assert robot.stats.unmatched_replies == 0
 
@@ -162,7 +162,9 @@ async def test_watchdog_resends_at_the_configured_rate() -> None:
         assert wz == pytest.approx(0.2)
     # Every resend is a fresh frame: consecutive sequence numbers.
     seqs = [f.seq for f in frames]
-    assert seqs == list(range(seqs[0], seqs[0] + 21))
+    first = seqs[0]
+    assert first is not None
+    assert seqs == list(range(first, first + 21))
 
 
 async def test_deadman_writes_one_zero_and_stops_resending() -> None:
@@ -376,7 +378,7 @@ async def test_simulator_faults_docking_and_power() -> None:
                 break
         sim.firmware.spec.docking_step = 0.05
         await robot.start_docking()
-        seen = []
+        seen: list[DockingState] = []
         async for t in robot.telemetry():
             if not seen or seen[-1] != t.docking:
                 seen.append(t.docking)

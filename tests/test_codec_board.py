@@ -107,7 +107,7 @@ def test_si_builders_scale_and_check() -> None:
         pytest.param(lambda: motor_pwm_command(0, 10), "unknown motor", id="motor-0"),
         pytest.param(lambda: motor_pwm_command(5, 10), "unknown motor", id="motor-5"),
         pytest.param(lambda: motor_pwm_command(1, 40000), "out of range", id="pwm-overflow"),
-        pytest.param(lambda: motor_pwm_command(1, 1.5), "integer", id="pwm-float"),
+        pytest.param(lambda: motor_pwm_command(1, 1.5), "integer", id="pwm-float"),  # type: ignore[arg-type]
         pytest.param(lambda: servo_command(3, 10), "unknown servo", id="servo-3"),
         pytest.param(lambda: servo_command(1, 3276.8), "out of range", id="servo-overflow"),
         pytest.param(lambda: servo_command(1, math.nan), "finite", id="servo-nan"),

@@ -393,16 +393,15 @@ async def test_reconnect_attempts_never_stall_another_robot() -> None:
 async def test_close_during_a_reconnect_leaves_no_connection(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import chassis_sdk._device as device_module
+    from chassis_sdk._transport import open_link as real_open_link
 
     attempt = asyncio.Event()
-    real_open_link = device_module.open_link
 
     async def open_link(*args: Any, **kwargs: Any) -> Any:
         attempt.set()  # a (re)connect attempt starts now
         return await real_open_link(*args, **kwargs)
 
-    monkeypatch.setattr(device_module, "open_link", open_link)
+    monkeypatch.setattr("chassis_sdk._device.open_link", open_link)
     leaked = []
     for trial in range(36):
         async with ChassisStandIn(noise=False, tcp=True) as dev:

@@ -23,7 +23,8 @@ def open_fds() -> set[str]:
 
 
 def other_tasks() -> set[asyncio.Task[Any]]:
-    return asyncio.all_tasks() - {asyncio.current_task()}  # type: ignore[operator]
+    current = asyncio.current_task()
+    return {t for t in asyncio.all_tasks() if t is not current}
 
 
 async def wait_until(predicate: Callable[[], bool], timeout: float = 2.0) -> None:

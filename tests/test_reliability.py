@@ -25,7 +25,7 @@ from chassis_sdk import (
     RequestTimeoutError,
     Telemetry,
 )
-from chassis_sdk.protocol import CommandId, DriveVelocity
+from chassis_sdk.protocol import Command, CommandId, DriveVelocity
 from chassis_sdk.sim import BoardSimulator, BoardSpec, ChassisSimulator, ChassisSpec, LineFaults
 
 from .standin import ChassisStandIn, drive_frames
@@ -112,7 +112,9 @@ async def test_tcp_reconnect_fails_fast_resumes_telemetry_and_never_resumes_moti
         assert await robot.get_firmware_version() == 0x0103
         # Let the watchdog have several resend periods to (wrongly) resume the command.
         await telemetry_after(robot, time.monotonic() + 0.2)
-        after_drop = [f for f in dev.frames if f.time > dev.unplugged_at]  # type: ignore[operator]
+        unplugged_at = dev.unplugged_at
+        assert unplugged_at is not None
+        after_drop = [f for f in dev.frames if f.time > unplugged_at]
         assert [f.kind for f in after_drop] == [0x07]
         assert robot.stats.reconnects == 1
         assert dev.connections == 2
@@ -272,7 +274,11 @@ async def test_missing_replies_are_retried_then_time_out(tcp_port: int | None) -
         with pytest.raises(RequestTimeoutError, match="3 attempts"):
             await robot.get_hardware_version()
         assert 0.3 <= time.monotonic() - t0 < 1.0
-        asked = [c for _, c in sim.firmware.received if c.id is CommandId.HARDWARE_VERSION]
+        asked = [
+            c
+            for _, c in sim.firmware.received
+            if isinstance(c, Command) and c.id is CommandId.HARDWARE_VERSION
+        ]
         assert len(asked) == 3
         assert sim.fault_counts.lost_replies == 3
         sim.faults.reply_loss = 0.0
@@ -294,10 +300,10 @@ async def test_firmware_reset_goes_stale_then_restarts_sequence(tcp_port: int | 
         sim.reset_firmware(downtime=0.5)
         assert await next_state(states) is S.STALE
         assert await next_state(states) is S.CONNECTED
-        t = robot.latest_telemetry
-        assert t is not None
-        assert t.seq < 5
-        assert ChassisStatus.SOFTWARE_ESTOP not in t.status  # power-up state
+        latest = robot.latest_telemetry
+        assert latest is not None
+        assert latest.seq < 5
+        assert ChassisStatus.SOFTWARE_ESTOP not in latest.status  # power-up state
         assert robot.stats.sequence_gaps == gaps + 1
         assert sim.firmware.resets == 1
         assert await robot.get_firmware_version() == 103
