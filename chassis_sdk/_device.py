@@ -444,12 +444,7 @@ class Device(Generic[M, K]):
             self._log.exception("%s: background task failed", self.port)
             error = ChassisError(f"background task failed: {exc!r}")
             # Nothing will resend or expire a command from here on: zero goes out first.
-            self._fenced = True
-            self._watchdog.clear()
-            link = self._link
-            zero = self._zero_frame()
-            if link is not None and link.close_velocity(zero):
-                self._count_sent(len(zero))
+            self._fence()
             self._requests.fail_all(error)
             for stream in self._streams:
                 stream.fail(error)
@@ -503,11 +498,8 @@ class Device(Generic[M, K]):
         """
         shutdown = self._shutdown
         if shutdown is None:
-            # Fence off every writer first, synchronously: from here on a racing
-            # set_velocity() gets NotConnectedError and the link refuses any velocity
-            # frame after this zero, so zero is the last one on the wire.
-            self._fenced = True
-            self._watchdog.clear()
+            # First, synchronously, before anything that can be interrupted.
+            self._fence()
             runner = self._runner
             if runner is None:
                 connecting = self._connecting
@@ -517,12 +509,7 @@ class Device(Generic[M, K]):
                     await asyncio.shield(connecting)
                 return
             self._runner = None
-            link = self._link
-            if link is not None:
-                zero = self._zero_frame()
-                if link.close_velocity(zero):
-                    self._count_sent(len(zero))
-            shutdown = self._shutdown = asyncio.ensure_future(self._shut_down(link, runner))
+            shutdown = self._shutdown = asyncio.ensure_future(self._shut_down(self._link, runner))
         try:
             await asyncio.shield(shutdown)
         except asyncio.CancelledError:
@@ -532,6 +519,19 @@ class Device(Generic[M, K]):
                 with contextlib.suppress(asyncio.CancelledError):
                     await asyncio.shield(shutdown)
             raise
+
+    def _fence(self) -> None:
+        """Fence off every writer: from here on every call that would write gets
+        NotConnectedError, the active command is forgotten, and the link takes one
+        last velocity frame, zero, and refuses any after it, so zero is the last one
+        on the wire (a racing set_velocity() included)."""
+        self._fenced = True
+        self._watchdog.clear()
+        link = self._link
+        if link is not None:
+            zero = self._zero_frame()
+            if link.close_velocity(zero):
+                self._count_sent(len(zero))
 
     async def _shut_down(self, link: Link[M] | None, runner: asyncio.Task[None]) -> None:
         try:

@@ -447,21 +447,14 @@ def _describe_open_error(url: str, exc: BaseException) -> str:
     return f"could not open {url}: {text}"
 
 
-def _write_once(fd: int, data: bytes) -> int:
-    """``Serial.write`` for an asyncio transport: one non-blocking ``os.write``.
-
-    ``EAGAIN`` surfaces as ``BlockingIOError``, which both transports handle by waiting
-    for the descriptor; pyserial's own loop would spin on it.
-    """
-    return os.write(fd, data)
-
-
 def _open_serial(url: str, baudrate: int) -> serial.Serial:
     ser = serial.serial_for_url(
         url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, exclusive=True
     )
     fd = ser.fd
-    ser.write = lambda data: _write_once(fd, bytes(data))
+    # One non-blocking os.write: EAGAIN surfaces as BlockingIOError, which both
+    # transports handle by waiting; pyserial's own loop would spin on it.
+    ser.write = lambda data: os.write(fd, bytes(data))
     ser.flush = lambda: None  # a blocking tcdrain; the link drains with a bound itself
     return ser
 
