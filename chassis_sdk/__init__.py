@@ -21,18 +21,22 @@ Example::
     chassis_sdk.run(main())  # asyncio.run, with SIGTERM/SIGHUP stopping the robot too
 
 The sans-IO codecs live in :mod:`chassis_sdk.protocol`; the simulators in
-:mod:`chassis_sdk.sim`.
+:mod:`chassis_sdk.sim`. Underneath, :mod:`chassis_sdk.core` knows no protocol and each
+device is a package in :mod:`chassis_sdk.devices`, found through a registry
+(:func:`chassis_sdk.devices.profiles`) that installed packages can extend.
 """
 
 import logging as _logging
 
-from ._device import ConnectionState, LinkStats
-from ._dispatch import Subscription
-from ._run import run
-from ._watchdog import MotionLimits
-from .board import Board
-from .chassis import Chassis
-from .diagnostics import Diagnosis
+from .core.device import ConnectionState, LinkStats
+from .core.diagnosis import Diagnosis
+from .core.dispatch import Subscription
+from .core.events import EventKind, RobotEvent
+from .core.odometry import Odometry
+from .core.run import run
+from .core.watchdog import MotionLimits
+from .devices.board import Board
+from .devices.chassis import Chassis
 from .errors import (
     ChassisError,
     ConnectionLostError,
@@ -41,8 +45,6 @@ from .errors import (
     ProtocolError,
     RequestTimeoutError,
 )
-from .events import EventKind, RobotEvent
-from .odometry import Odometry
 from .protocol import (
     BatteryReading,
     ChassisInfo,

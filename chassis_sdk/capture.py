@@ -16,14 +16,13 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-from ._transport import Link, open_link
-from .protocol import BoardDecoder, ChassisDecoder
+from .core.transport import Link, open_link
+from .devices import profile, profiles
 
 __all__ = ["Capture", "decode_capture", "detect_protocol", "read_capture", "record"]
 
-Protocol = Literal["chassis", "board"]
 _log = logging.getLogger("chassis_sdk.capture")
 
 
@@ -139,33 +138,41 @@ def read_capture(path: str | Path) -> Iterator[tuple[float, bytes]]:
                 raise ValueError(f"{path}:{n}: not a capture line") from None
 
 
-def decode_capture(path: str | Path, protocol: Protocol) -> Iterator[tuple[float, object]]:
-    """Decode a capture: yield ``(seconds since start, message)`` in order."""
-    decoder: ChassisDecoder | BoardDecoder = (
-        ChassisDecoder() if protocol == "chassis" else BoardDecoder()
-    )
+def decode_capture(path: str | Path, protocol: str) -> Iterator[tuple[float, object]]:
+    """Decode a capture: yield ``(seconds since start, message)`` in order.
+
+    Args:
+        path: The capture file.
+        protocol: The device's name (see :func:`chassis_sdk.devices.profiles`).
+
+    Raises:
+        ValueError: An unknown device, or a file that is not a capture.
+    """
+    decoder = profile(protocol).decoder()
     for t, data in read_capture(path):
         for msg in decoder.feed(data, t):
             yield t, msg
 
 
-def detect_in(data: bytes) -> Protocol | None:
-    """Which protocol ``data`` is in, by which decoder finds frames in it (or None)."""
-    a, b = ChassisDecoder(), BoardDecoder()
-    a.feed(data)
-    b.feed(data)
-    if a.stats.frames == b.stats.frames == 0:
-        return None
-    return "chassis" if a.stats.frames >= b.stats.frames else "board"
+def detect_in(data: bytes) -> str | None:
+    """Which device's protocol ``data`` is in: the one whose decoder finds the most
+    frames in it (the first registered wins a tie), or ``None`` if none finds any."""
+    best, most = None, 0
+    for name, device in profiles().items():
+        decoder = device.decoder()
+        decoder.feed(data)
+        if decoder.stats.frames > most:
+            best, most = name, decoder.stats.frames
+    return best
 
 
-async def detect_protocol(
-    port: str, *, seconds: float = 1.0, baudrate: int = 115200
-) -> Protocol | None:
-    """Listen to ``port`` for ``seconds`` and say which protocol the device speaks.
+async def detect_protocol(port: str, *, seconds: float = 1.0, baudrate: int = 115200) -> str | None:
+    """Listen to ``port`` for ``seconds`` and say which device's protocol it speaks
+    (a name from :func:`chassis_sdk.devices.profiles`).
 
-    Both devices send telemetry unprompted (0x81 at 50 Hz, IMU at 100 Hz), so a second
-    of listening is plenty. Returns ``None`` if nothing recognisable arrived.
+    Devices send telemetry unprompted (the chassis 0x81 at 50 Hz, the board its IMU
+    at 100 Hz), so a second of listening is plenty. Returns ``None`` if nothing
+    recognisable arrived.
     """
     received = bytearray()
     done = asyncio.get_running_loop().create_future()

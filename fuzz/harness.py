@@ -1,4 +1,4 @@
-"""Checks run on every fuzz input, for each of the four decoders.
+"""Checks run on every fuzz input, for both decoders of every registered device.
 
 Kept free of atheris so the test suite can run the same checks on a seeded corpus
 (``tests/test_fuzz_harness.py``); ``fuzz/run.py`` drives them with atheris.
@@ -18,18 +18,18 @@ import random
 from collections.abc import Callable
 from typing import Any
 
-from chassis_sdk.protocol import board as b
-from chassis_sdk.protocol import chassis as a
-from chassis_sdk.sim import BoardFirmware, ChassisFirmware
+from chassis_sdk.devices import profiles
 
-#: name -> (decoder factory, largest possible frame, i.e. buffer bound)
-TARGETS: dict[str, tuple[Callable[[], Any], int]] = {
-    "chassis": (a.ChassisDecoder, 256),
-    "chassis-commands": (a.ChassisCommandDecoder, 256),
-    # Protocol B holds up to three bytes past a frame whose end could start a head.
-    "board": (b.BoardDecoder, 262),
-    "board-commands": (b.BoardCommandDecoder, 262),
-}
+
+def targets() -> dict[str, tuple[Callable[[], Any], int]]:
+    """Every registered device's two decoders: name -> (decoder factory, the most bytes
+    it may hold after ``feed``). ``NAME`` decodes what the device sends,
+    ``NAME-commands`` what the host sends."""
+    found: dict[str, tuple[Callable[[], Any], int]] = {}
+    for name, device in profiles().items():
+        found[name] = (device.decoder, device.max_buffered)
+        found[f"{name}-commands"] = (device.command_decoder, device.max_buffered)
+    return found
 
 
 def _decode(factory: Callable[[], Any], data: bytes, sizes: list[int]) -> tuple[list[Any], Any]:
@@ -45,7 +45,7 @@ def _decode(factory: Callable[[], Any], data: bytes, sizes: list[int]) -> tuple[
 
 def check(target: str, blob: bytes) -> None:
     """Run every check of ``target`` on one input."""
-    factory, bound = TARGETS[target]
+    factory, bound = targets()[target]
     if not blob:
         return
     rng = random.Random(blob[0])
@@ -64,46 +64,11 @@ def check(target: str, blob: bytes) -> None:
 
 
 def seeds(target: str) -> list[bytes]:
-    """Valid frames of every kind the target decodes (each behind a chunk-seed byte),
-    and all of them in one stream, so mutation starts past the checksums."""
-    reads = [
-        a.CommandId.FIRMWARE_VERSION,
-        a.CommandId.HARDWARE_VERSION,
-        a.CommandId.CHASSIS_INFO,
-        a.CommandId.SHIP_DATE,
-        a.CommandId.DRIVER_STATUS,
-    ]
-    enc = a.ChassisEncoder(7)
-    benc = b.BoardEncoder()
-    if target == "chassis":
-        fw = ChassisFirmware()
-        frames = [enc.encode(m) for m in (fw.telemetry(), fw.power(), fw.driver_status())]
-        frames += [fw.receive(enc.read(c), 0.0) for c in reads]
-        # The vendor document's 0x89 example, wrong length byte and all.
-        frames.append(bytes.fromhex("EDDE000089 12 D502F401AA001E00E803 E505BDBC"))
-    elif target == "chassis-commands":
-        frames = [
-            enc.encode(a.velocity_command(0.3, -0.2)),
-            enc.encode(a.wheel_speeds_command(0.1, 0.2)),
-            enc.set_telemetry(True),
-            enc.emergency_stop(True),
-            enc.clear_faults(a.FaultClear.DRIVER | a.FaultClear.FRONT_BUMPER),
-            enc.docking(True),
-            enc.set_power_telemetry(False),
-            *(enc.read(c) for c in reads),
-        ]
-    elif target == "board":
-        bfw = BoardFirmware()
-        bfw.on_connect(0.0)
-        frames = [bfw.poll(0.0)]  # a log line, IMU, velocity and battery
-        frames.append(bfw.receive(benc.encode(b.LedCommand(b.SwitchAction.READ, 9)), 0.0))
-        frames.append(bfw.receive(benc.encode(b.BuzzerCommand(b.SwitchAction.ON, 8)), 0.0))
-    else:
-        frames = [
-            benc.encode(b.LedCommand(b.SwitchAction.ON, 1)),
-            benc.encode(b.BuzzerCommand(b.SwitchAction.READ, 2)),
-            benc.encode(b.velocity_command(0.2, 0.5)),
-            benc.encode(b.motor_pwm_command(b.Motor.REAR_LEFT, -300)),
-            benc.encode(b.servo_command(b.Servo(2), 45.0)),
-        ]
+    """Valid frames of every kind the target decodes (the device profile's examples),
+    each behind a chunk-seed byte, and all of them in one stream, so mutation starts
+    past the checksums."""
+    name, _, direction = target.partition("-")
+    device = profiles()[name]
+    examples = device.command_examples if direction else device.examples
+    frames = [frame for frame, _ in examples]
     return [bytes((i,)) + f for i, f in enumerate(frames)] + [b"\x00" + b"".join(frames)]

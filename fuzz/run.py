@@ -1,11 +1,12 @@
-"""Coverage-guided fuzzing of the four decoders with atheris.
+"""Coverage-guided fuzzing of every device's decoders with atheris.
 
 Usage (after ``pip install -e ".[fuzz]"``)::
 
     python fuzz/run.py chassis -atheris_runs=200000
     python fuzz/run.py board -max_total_time=60 my-corpus/
 
-Targets: chassis, chassis-commands, board, board-commands. Flags after the target go
+Targets: every registered device and its commands (chassis, chassis-commands, board,
+board-commands, and any installed device's). Flags after the target go
 to libFuzzer. Without a corpus directory, one is made in a temporary directory from
 valid frames of every kind (``harness.seeds``). A failing input is written to
 ``crash-*`` and the run exits non-zero; replay it with ``python fuzz/run.py TARGET
@@ -27,8 +28,9 @@ atheris.instrument_all()
 
 
 def main() -> None:
-    if len(sys.argv) < 2 or sys.argv[1] not in harness.TARGETS:
-        sys.exit(f"usage: {sys.argv[0]} {{{','.join(harness.TARGETS)}}} [libFuzzer flags] [corpus]")
+    targets = harness.targets()
+    if len(sys.argv) < 2 or sys.argv[1] not in targets:
+        sys.exit(f"usage: {sys.argv[0]} {{{','.join(targets)}}} [libFuzzer flags] [corpus]")
     target = sys.argv.pop(1)
     args = sys.argv
     if not any(not a.startswith("-") for a in args[1:]):

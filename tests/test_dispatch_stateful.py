@@ -19,7 +19,7 @@ from hypothesis.stateful import (
     rule,
 )
 
-from chassis_sdk._dispatch import Broadcast, Reply, RequestTable, Subscription
+from chassis_sdk.core.dispatch import Broadcast, Reply, RequestTable, Subscription
 
 T = TypeVar("T")
 KEYS = st.sampled_from([0x87, 0x88, 0x89, ("led", 1), ("led", 2)])

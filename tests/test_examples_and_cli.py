@@ -184,7 +184,7 @@ async def test_help_on_every_command(command: str) -> None:
 
 
 def test_permission_denied_names_the_group_to_join() -> None:
-    from chassis_sdk._transport import _describe_open_error
+    from chassis_sdk.core.transport import _describe_open_error
 
     exc = PermissionError(13, "Permission denied", "/dev/ttyUSB0")
     text = _describe_open_error("/dev/ttyUSB0", exc)

@@ -6,6 +6,7 @@ import dataclasses
 
 import pytest
 
+from chassis_sdk.core.construct import MemberCache, frozen_builder
 from chassis_sdk.protocol import (
     ChassisStatus,
     DockingState,
@@ -14,7 +15,6 @@ from chassis_sdk.protocol import (
     Vector3,
     WheelSpeeds,
 )
-from chassis_sdk.protocol._fast import MemberCache, frozen_builder
 
 
 def test_builder_equals_the_dataclass_constructor_and_stays_frozen() -> None:
@@ -53,7 +53,7 @@ def test_member_cache_returns_members_and_stays_bounded() -> None:
 def test_byte_sum_is_the_plain_byte_sum_for_any_frame_size() -> None:
     import random
 
-    from chassis_sdk.protocol._framing import byte_sum
+    from chassis_sdk.core.framing import byte_sum
 
     rng = random.Random(5)
     for size in (0, 1, 24, 250, 255, 256):

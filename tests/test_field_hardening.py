@@ -393,7 +393,7 @@ async def test_reconnect_attempts_never_stall_another_robot() -> None:
 async def test_close_during_a_reconnect_leaves_no_connection(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from chassis_sdk._transport import open_link as real_open_link
+    from chassis_sdk.core.transport import open_link as real_open_link
 
     attempt = asyncio.Event()
 
@@ -401,7 +401,7 @@ async def test_close_during_a_reconnect_leaves_no_connection(
         attempt.set()  # a (re)connect attempt starts now
         return await real_open_link(*args, **kwargs)
 
-    monkeypatch.setattr("chassis_sdk._device.open_link", open_link)
+    monkeypatch.setattr("chassis_sdk.core.supervisor.open_link", open_link)
     leaked = []
     for trial in range(36):
         async with ChassisStandIn(noise=False, tcp=True) as dev:
@@ -645,7 +645,7 @@ async def test_a_failing_background_task_writes_zero_before_giving_up() -> None:
             await trigger.wait()
             raise RuntimeError("a bug in a background task")
 
-        robot._monitor_link = broken_monitor  # type: ignore[method-assign]
+        robot._link._monitor_link = broken_monitor  # type: ignore[method-assign]
         async with robot:
             await robot.set_velocity(0.3, 0.0)
             await dev.wait_for(lambda fs: len(drive_frames(fs)) >= 3)

@@ -10,10 +10,14 @@ run inside a simulator, or be tested with plain bytes::
         for message in decoder.feed(chunk):
             print(message)
     print(decoder.stats)
+
+The codecs live with their devices (:mod:`chassis_sdk.devices`); this package gathers
+them under the paths code was written against (``chassis_sdk.protocol.chassis`` and
+``.board`` included).
 """
 
-from ._framing import DecoderStats, FrameDecoder
-from .board import (
+from ..core.framing import DecoderStats, FrameDecoder
+from ..devices.board.protocol import (
     BatteryReading,
     BoardCommand,
     BoardCommandDecoder,
@@ -36,7 +40,7 @@ from .board import (
     VelocityCommand,
     VelocityFeedback,
 )
-from .chassis import (
+from ..devices.chassis.protocol import (
     ChassisCommandDecoder,
     ChassisDecoder,
     ChassisEncoder,

@@ -13,11 +13,15 @@ against when no hardware is attached::
 ``socket://127.0.0.1:PORT`` URL. ``sim.firmware`` is the model, for device faults
 (bumper, driver faults, e-stop, ``reset``); ``sim.faults`` (:class:`LineFaults`) damages
 the line; ``sim.unplug()`` / ``await sim.replug()`` pull and restore the cable.
+
+The server lives in :mod:`chassis_sdk.core.simulator`, each firmware model with its
+device (:mod:`chassis_sdk.devices`); every device's simulator is
+``chassis_sdk.devices.profile(name).simulator``.
 """
 
-from ._server import FaultCounts, LineFaults, SimulatorServer
-from .board import BoardFirmware, BoardSimulator, BoardSpec
-from .chassis import ChassisFirmware, ChassisSimulator, ChassisSpec
+from ..core.simulator import FaultCounts, LineFaults, SimulatorServer
+from ..devices.board.firmware import BoardFirmware, BoardSimulator, BoardSpec
+from ..devices.chassis.firmware import ChassisFirmware, ChassisSimulator, ChassisSpec
 
 __all__ = [
     "BoardFirmware",

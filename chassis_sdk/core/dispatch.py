@@ -18,7 +18,7 @@ from collections.abc import Callable, Coroutine, Hashable
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
-__all__ = ["Broadcast", "Reply", "RequestTable", "Subscription"]
+__all__ = ["Broadcast", "Reply", "RequestTable", "Streams", "Subscription"]
 
 T = TypeVar("T")
 K = TypeVar("K", bound=Hashable)
@@ -127,7 +127,8 @@ class _Iteration(Generic[T]):
 
 
 class Broadcast(Generic[T]):
-    """A stream with any number of subscribers; each gets every message.
+    """A stream with any number of subscribers, each of which gets every message, and
+    the latest message (``latest``: kept across reconnects, ``None`` before the first).
 
     Args:
         maxlen: Per-subscriber buffer size (``queue_size`` of the device).
@@ -137,7 +138,7 @@ class Broadcast(Generic[T]):
     # tuple of weak references rebuilt when one comes or goes: publishing, which runs
     # for every frame, is then one loop over a tuple, with nothing allocated. (A
     # WeakSet's iterator costs more than the whole decode at 50 Hz on an idle core.)
-    __slots__ = ("__weakref__", "_closed", "_error", "_refs", "dropped", "maxlen")
+    __slots__ = ("__weakref__", "_closed", "_error", "_refs", "dropped", "latest", "maxlen")
 
     def __init__(self, maxlen: int) -> None:
         self.maxlen = maxlen
@@ -146,6 +147,8 @@ class Broadcast(Generic[T]):
         self._error: BaseException | None = None
         #: Messages dropped across all subscribers because one fell behind.
         self.dropped = 0
+        #: The latest message published, or ``None``.
+        self.latest: T | None = None
 
     def __len__(self) -> int:
         return sum(1 for ref in self._refs if ref() is not None)
@@ -172,6 +175,7 @@ class Broadcast(Generic[T]):
 
     def publish(self, item: T) -> None:
         """Deliver ``item`` to every subscriber (synchronous, never blocks)."""
+        self.latest = item
         for ref in self._refs:
             sub = ref()
             if sub is not None:
@@ -197,6 +201,37 @@ class Broadcast(Generic[T]):
 
     def _discard(self, sub: Subscription[T]) -> None:
         self._refs = tuple(ref for ref in self._refs if ref() is not sub)
+
+
+class Streams:
+    """Every stream of one device: made alike, reopened on connect, ended together."""
+
+    __slots__ = ("_all", "maxlen")
+
+    def __init__(self, maxlen: int) -> None:
+        self.maxlen = maxlen
+        self._all: list[Broadcast[Any]] = []
+
+    def new(self) -> Broadcast[Any]:
+        """A new stream of this device."""
+        stream: Broadcast[Any] = Broadcast(self.maxlen)
+        self._all.append(stream)
+        return stream
+
+    def reopen(self) -> None:
+        """Accept subscribers again (on connect)."""
+        for stream in self._all:
+            stream.reopen()
+
+    def fail(self, error: BaseException | None) -> None:
+        """End every subscription of every stream (see :meth:`Broadcast.fail`)."""
+        for stream in self._all:
+            stream.fail(error)
+
+    @property
+    def dropped(self) -> int:
+        """Messages dropped by subscribers that fell behind, over every stream."""
+        return sum(stream.dropped for stream in self._all)
 
 
 class Reply(enum.Enum):

@@ -27,12 +27,19 @@ Nothing here does I/O or reads a clock: the caller passes a timestamp in.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
-__all__ = ["INVALID", "NEED_DATA", "DecoderStats", "FrameDecoder", "byte_sum"]
+__all__ = ["INVALID", "NEED_DATA", "DecoderStats", "FrameDecoder", "Parser", "byte_sum"]
 
 T = TypeVar("T")
+
+#: What every codec's per-frame-type parser looks like: it gets (buffer, offset of the
+#: frame's *data*, data length, timestamp) and returns a message, or ``None`` if the
+#: content is invalid although the frame checked out (counted as malformed). Header
+#: fields a parser needs sit at fixed negative offsets from the data.
+Parser = Callable[[bytes | bytearray, int, int, float], Any]
 
 #: ``_try_frame`` result: the candidate at this offset is incomplete; wait for more bytes.
 NEED_DATA = 0

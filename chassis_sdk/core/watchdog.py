@@ -34,9 +34,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Literal
 
-from ._alarm import Alarm
-from .errors import NotConnectedError
-from .protocol._scale import check_real
+from ..errors import NotConnectedError
+from .alarm import Alarm
+from .validation import check_real
 
 __all__ = ["MotionCommand", "MotionLimits", "VelocityWatchdog"]
 

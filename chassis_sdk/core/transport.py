@@ -62,7 +62,7 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 
 import serial
 
-from .errors import PortOpenError
+from ..errors import PortOpenError
 
 _BACKENDS = {
     "pyserial-asyncio-fast": "serial_asyncio_fast",

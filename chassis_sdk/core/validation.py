@@ -1,10 +1,31 @@
-"""Checked conversion of SI values to wire integers, shared by both protocols."""
+"""The one place numbers from a caller are checked, and SI values scaled to wire integers.
+
+Every public argument that is a number goes through :func:`check_real` or
+:func:`check_int`, so every device and option refuses the same things with the same
+words: ``bool`` is not a number, NaN and infinities are refused, an ``int`` too large
+for a float is out of range, and the message names the argument and the range.
+"""
 
 from __future__ import annotations
 
+import enum
 import math
+from typing import TypeVar
 
-__all__ = ["INT16", "UINT8", "UINT16", "check_duration", "check_real", "scale_to_int"]
+E = TypeVar("E", bound=enum.Enum)
+
+__all__ = [
+    "INT16",
+    "UINT8",
+    "UINT16",
+    "check_duration",
+    "check_int",
+    "check_member",
+    "check_optional",
+    "check_probability",
+    "check_real",
+    "scale_to_int",
+]
 
 INT16 = (-32768, 32767)
 UINT16 = (0, 65535)
@@ -84,3 +105,48 @@ def check_duration(duration: float | None) -> float | None:
     if duration is None:
         return None
     return check_real(duration, "duration", low=0, low_open=True, unit="s")
+
+
+def check_optional(value: float | None, name: str, **bounds: float | bool | str) -> float | None:
+    """:func:`check_real` for an option where ``None`` means "off"."""
+    if value is None:
+        return None
+    return check_real(value, name, **bounds)  # type: ignore[arg-type]
+
+
+def check_probability(value: object, name: str) -> float:
+    """A chance per event: a finite number from 0 to 1."""
+    return check_real(value, name, low=0.0, high=1.0)
+
+
+def check_int(value: object, name: str, *, low: int | None = None, high: int | None = None) -> int:
+    """Return ``value`` if it is an ``int`` (not a ``bool``) within the inclusive bounds.
+
+    Raises:
+        ValueError: Not an integer, or out of range; the message names the argument.
+    """
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        if high is None:
+            rule = f">= {low}"
+        elif low is None:
+            rule = f"<= {high}"
+        else:
+            rule = f"{low} to {high}"
+        raise ValueError(f"{name}={value!r} is out of range: it must be an integer {rule}")
+    return value
+
+
+def check_member(cls: type[E], value: object, name: str, hint: str) -> E:
+    """Return the member of ``cls`` whose value is ``value`` (an ``int``, not a ``bool``).
+
+    Raises:
+        ValueError: ``unknown {name} {value!r}: {hint}``.
+    """
+    if not isinstance(value, bool) and isinstance(value, int):
+        try:
+            return cls(value)
+        except ValueError:
+            pass
+    raise ValueError(f"unknown {name} {value!r}: {hint}")

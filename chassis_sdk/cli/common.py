@@ -1,0 +1,104 @@
+"""What every device's commands share: printing, waiting for a first message, keeping
+a velocity command alive, explaining silence, and turning messages into JSON."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import datetime
+import enum
+import time
+from collections.abc import AsyncIterator, Callable
+from typing import Any
+
+from ..core.device import Device
+from ..errors import ChassisError, RequestTimeoutError
+
+__all__ = [
+    "DEMO_PATTERN",
+    "WrongProtocolError",
+    "drive_for",
+    "explain_silence",
+    "first",
+    "jsonable",
+    "out",
+]
+
+#: (what, linear m/s, angular rad/s, seconds) of the demos' drive.
+DEMO_PATTERN: list[tuple[str, float, float, float]] = [
+    ("forward", 0.4, 0.0, 1.5),
+    ("turn left", 0.2, 0.8, 1.5),
+    ("backward", -0.3, 0.0, 1.0),
+    ("spin right", 0.0, -1.0, 1.0),
+]
+
+
+class WrongProtocolError(ChassisError):
+    """Bytes arrive, but none of them forms a frame of the expected protocol."""
+
+
+def out(text: str = "") -> None:
+    """Print one line of the command's output at once."""
+    print(text, flush=True)
+
+
+async def first(stream: AsyncIterator[Any], timeout: float, what: str) -> Any:
+    """The first item of ``stream``, or :class:`RequestTimeoutError` naming ``what``."""
+    try:
+        async with asyncio.timeout(timeout):
+            return await anext(stream)
+    except TimeoutError:
+        raise RequestTimeoutError(f"no {what} within {timeout:g} s") from None
+
+
+async def drive_for(
+    device: Device[Any, Any],
+    linear: float,
+    angular: float,
+    seconds: float,
+    show: Callable[[], None],
+) -> None:
+    """Keep a velocity command alive for ``seconds`` (as a control loop would), showing
+    live data at 5 Hz."""
+    end = time.monotonic() + seconds
+    next_show = 0.0
+    while (now := time.monotonic()) < end:
+        await device.set_velocity(linear, angular)
+        if now >= next_show:
+            show()
+            next_show = now + 0.2
+        await asyncio.sleep(0.1)
+
+
+def explain_silence(device: Device[Any, Any], exc: RequestTimeoutError) -> None:
+    """Re-raise a request's timeout, as :class:`WrongProtocolError` if bytes arrived
+    but none formed a frame of this device's protocol."""
+    from ..devices import profiles
+
+    stats = device.stats
+    if stats.bytes_received and not stats.frames:
+        others = [name for name in profiles() if name != device.kind] or ["different device"]
+        raise WrongProtocolError(
+            f"{stats.bytes_received} bytes arrived on {device.port} but none is a "
+            f"{device.kind} frame: is it a {' or a '.join(others)}? Try --protocol "
+            f"{others[0]}, or `chassis-sdk detect`"
+        ) from exc
+    raise exc
+
+
+def jsonable(msg: object) -> dict[str, Any]:
+    """A message as a JSON-ready ``dict`` (enums by name, dates as ISO text)."""
+
+    def convert(value: object) -> Any:
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return {f.name: convert(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        if isinstance(value, enum.Enum):
+            return value.name if value.name else int(value.value)
+        if isinstance(value, tuple) and hasattr(value, "_asdict"):
+            return {k: convert(v) for k, v in value._asdict().items()}
+        if isinstance(value, datetime.date):
+            return value.isoformat()
+        return value
+
+    result = convert(msg)
+    return result if isinstance(result, dict) else {"value": result}

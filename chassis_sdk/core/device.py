@@ -1,0 +1,330 @@
+"""``Device``: what every device shares, composed of small collaborators.
+
+A device is its protocol plus these, each in its own module and testable alone:
+
+* :class:`~chassis_sdk.core.supervisor.LinkSupervisor`: lifetime, the link and its
+  writes, the close fence, reconnect with backoff, link health;
+* :class:`~chassis_sdk.core.requests.Requester`: requests in flight, retries, and
+  which reply answers which call;
+* :class:`~chassis_sdk.core.dispatch.Streams`: every stream with its latest value;
+* :class:`~chassis_sdk.core.watchdog.VelocityWatchdog`: the active velocity command,
+  its resends, deadman, limits and ramps;
+* :class:`~chassis_sdk.core.odometry.OdometryIntegrator`, and the events of
+  :mod:`~chassis_sdk.core.events`.
+
+A device package subclasses :class:`Device` and implements its abstract methods (the
+"hooks" below); everything else is here, once.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import time
+from collections.abc import Callable, Hashable
+from types import TracebackType
+from typing import Any, ClassVar, Generic, Self, TypeVar
+
+import anyio
+import anyio.lowlevel
+
+from ..errors import NotConnectedError
+from .dispatch import Broadcast, Streams, Subscription
+from .events import BatteryMonitor, EventKind, RobotEvent
+from .framing import FrameDecoder
+from .motion import Motion
+from .observation import Observation
+from .odometry import Odometry, OdometryIntegrator
+from .requests import Requester
+from .stats import LinkStats
+from .supervisor import ConnectionState, LinkSupervisor
+from .transport import BACKEND, Decoder
+from .validation import check_int, check_optional, check_real
+from .watchdog import MotionLimits, VelocityWatchdog
+
+__all__ = ["ConnectionState", "Device", "LinkStats"]
+
+M = TypeVar("M")
+K = TypeVar("K", bound=Hashable)
+
+_POSITIVE: dict[str, Any] = {"low": 0, "low_open": True}
+_CONNECTING = ConnectionState.CONNECTING
+#: State -> the event entering it makes (CONNECTED only when coming back).
+_LINK_EVENTS = {
+    ConnectionState.STALE: EventKind.LINK_STALE,
+    ConnectionState.RECONNECTING: EventKind.LINK_LOST,
+    ConnectionState.LOST: EventKind.LINK_LOST,
+    ConnectionState.CONNECTED: EventKind.LINK_RESTORED,
+}
+
+
+class Device(Motion, Observation, Generic[M, K]):
+    """Base of every device (:class:`~chassis_sdk.Chassis`, :class:`~chassis_sdk.Board`,
+    and any a device package adds). See those classes for the arguments.
+
+    ``M`` is the device's message type, ``K`` the key a reply is matched by.
+
+    A subclass implements the hooks: :meth:`_make_decoder`, :meth:`_init_protocol`
+    (its encoder, streams and :attr:`_handlers`), :meth:`_zero_frame` and
+    :meth:`_velocity_builder`; it may override :meth:`_on_link_up`,
+    :meth:`_sequence_gaps`, :meth:`_reply_quarantine` and :meth:`_on_odometry_reset`.
+    From the base it uses :meth:`_stream`, :meth:`_send`, :meth:`_request`,
+    :meth:`_reply`, :meth:`_drive`, :meth:`_emit`, :meth:`_battery`, :meth:`_integrate`
+    and :meth:`_findings`.
+    """
+
+    #: The device's profile name, as ``Diagnosis.device`` and the CLI say it.
+    kind: ClassVar[str] = "device"
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 115200,
+        request_timeout: float = 1.0,
+        retries: int = 2,
+        resend_interval: float = 0.05,
+        command_timeout: float | None = 0.5,
+        reconnect: bool = False,
+        queue_size: int = 64,
+        link_timeout: float | None = 1.0,
+        limits: MotionLimits | None = None,
+        battery_low: float | None = None,
+        connect_timeout: float = 2.0,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        if not isinstance(port, str) or not port:
+            raise ValueError(f"port must be a device path or URL string, got {port!r}")
+        check_int(baudrate, "baudrate", low=1)
+        request_timeout = check_real(request_timeout, "request_timeout", **_POSITIVE)
+        check_int(retries, "retries", low=0)
+        resend_interval = check_real(resend_interval, "resend_interval", **_POSITIVE)
+        command_timeout = check_optional(command_timeout, "command_timeout", **_POSITIVE)
+        self.queue_size = check_int(queue_size, "queue_size", low=1)
+        link_timeout = check_optional(link_timeout, "link_timeout", **_POSITIVE)
+        connect_timeout = check_real(connect_timeout, "connect_timeout", **_POSITIVE)
+        self.port = port
+        self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
+        self._decoder = self._make_decoder()
+        self._streams = Streams(queue_size)
+        self._watchdog = VelocityWatchdog(
+            self._write_velocity,
+            interval=resend_interval,
+            command_timeout=command_timeout,
+            logger=self._log,
+        )
+        self._link: LinkSupervisor[M] = LinkSupervisor(
+            self,
+            port,
+            baudrate=baudrate,
+            connect_timeout=connect_timeout,
+            link_timeout=link_timeout,
+            reconnect=bool(reconnect),
+            queue_size=queue_size,
+            log=self._log,
+            background=[("watchdog", self._watchdog.run)],
+        )
+        self._requests: Requester[K] = Requester(
+            port,
+            self._link.writer.write,
+            self._link.writer.ensure_open,
+            timeout=request_timeout,
+            retries=retries,
+            log=self._log,
+        )
+        self.limits = limits
+        #: Message type -> what to do with it (set up by ``_init_protocol``); called
+        #: synchronously from the link's ``data_received``, in wire order.
+        self._handlers: dict[type, Callable[[Any], None]] = {}
+        self._pose = OdometryIntegrator()
+        self._odometry: Broadcast[Odometry] = self._stream()
+        self._events: Broadcast[RobotEvent] = self._stream()
+        self._battery_monitor = BatteryMonitor(battery_low)
+        self._init_protocol()
+
+    # --- the hooks a device implements -----------------------------------------------------
+
+    @abc.abstractmethod
+    def _make_decoder(self) -> FrameDecoder[M]:
+        """The device's incremental decoder (one per device, reset per connection)."""
+
+    @abc.abstractmethod
+    def _init_protocol(self) -> None:
+        """Set up the encoder, streams and :attr:`_handlers` (end of ``__init__``)."""
+
+    def _on_link_up(self) -> None:
+        """Reset per-connection state (called on connect and each reconnect)."""
+
+    def _reply_quarantine(self) -> float:
+        """How long a key whose reply is overdue stays out of use (see RequestTable):
+        one more ``request_timeout``, so a reply up to twice that late is still
+        recognised as late; a later one is taken as lost."""
+        return self.request_timeout
+
+    # --- what the link supervisor needs (core.supervisor.Supervised) -------------------------
+
+    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
+        self._decoder.reset()
+        self._on_link_up()
+        return self._decoder, self._received
+
+    def zero_frame(self) -> bytes:
+        return self._zero_frame()
+
+    def fenced(self) -> None:
+        self._watchdog.clear()
+
+    def state_changed(self, old: ConnectionState, new: ConnectionState) -> None:
+        kind = _LINK_EVENTS.get(new)
+        if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
+            self._emit(RobotEvent(kind, "", time.monotonic()))
+
+    def link_down(self, error: BaseException | None, final: bool) -> None:
+        self._watchdog.clear()  # never resume motion after an outage
+        self._requests.fail_all(error)
+        if final:
+            self._streams.fail(error)
+
+    def _received(self, messages: list[M], now: float) -> None:
+        handlers = self._handlers
+        for msg in messages:
+            try:
+                handlers[type(msg)](msg)
+            except Exception:  # a bug must not stop the frames after it, nor the link
+                self._log.exception("%s: error handling %r", self.port, msg)
+
+    # --- lifetime -------------------------------------------------------------------------
+
+    @property
+    def connection_state(self) -> ConnectionState:
+        """The current :class:`ConnectionState`."""
+        return self._link.state
+
+    @property
+    def is_connected(self) -> bool:
+        """True while the port is open (``CONNECTED`` or ``STALE``)."""
+        return self._link.is_open
+
+    @property
+    def transport_backend(self) -> str:
+        """Which pyserial asyncio package carries the link."""
+        return BACKEND
+
+    @property
+    def baudrate(self) -> int:
+        """The serial speed."""
+        return self._link.baudrate
+
+    @property
+    def reconnect(self) -> bool:
+        """Whether the port is reopened when the link drops."""
+        return self._link.reconnect
+
+    @property
+    def request_timeout(self) -> float:
+        """Seconds each attempt of a request waits for its reply (may be changed)."""
+        return self._requests.timeout
+
+    @request_timeout.setter
+    def request_timeout(self, value: float) -> None:
+        self._requests.timeout = check_real(value, "request_timeout", **_POSITIVE)
+
+    @property
+    def retries(self) -> int:
+        """Extra attempts of a read-only request after a timeout (may be changed)."""
+        return self._requests.retries
+
+    @retries.setter
+    def retries(self, value: int) -> None:
+        self._requests.retries = check_int(value, "retries", low=0)
+
+    def connection_states(self) -> Subscription[ConnectionState]:
+        """An async iterator of :class:`ConnectionState` changes, from the next one on.
+
+        It ends after ``DISCONNECTED`` when the device is closed. Example::
+
+            async for state in robot.connection_states():
+                print("link is", state.value)
+        """
+        return self._link.states.subscribe()
+
+    async def wait_connected(self, timeout: float | None = None) -> None:
+        """Wait until the port is open (``CONNECTED`` or ``STALE``), e.g. after a
+        reconnect. Returns at once if it already is.
+
+        Raises:
+            TimeoutError: ``timeout`` elapsed first.
+            NotConnectedError: The device is closed or lost and will not reconnect.
+        """
+        await self._link.states.wait_open(timeout)
+
+    async def connect(self) -> None:
+        """Open the port and start the background tasks.
+
+        Raises:
+            PortOpenError: The port cannot be opened (the message says why).
+            ChassisError: Already connected.
+        """
+
+        def connecting() -> None:
+            self._requests.table.quarantine = self._reply_quarantine()
+            self._streams.reopen()
+
+        await self._link.connect(connecting)
+
+    async def close(self) -> None:
+        """Stop the robot, close the port and stop the background tasks.
+
+        A zero-velocity frame is written and given a bounded time to leave before the
+        port closes. Safe to call more than once, and from any task; a second call
+        waits for the first to finish. Cancelling it does not interrupt it: the port is
+        closed (within about a second) before the cancellation goes on.
+        """
+        await self._link.close()
+
+    async def __aenter__(self) -> Self:
+        await self.connect()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    # --- for the subclasses: writing, requests, streams ---------------------------------------
+
+    def _ensure_connected(self) -> None:
+        self._link.writer.ensure_open()
+
+    async def _send(self, frame: bytes) -> None:
+        """Write a command that has no reply; return once it is handed to the port."""
+        self._link.writer.write(frame)
+        await anyio.lowlevel.checkpoint()
+
+    async def _request(
+        self, build: Callable[[], tuple[bytes, K]], *, read_only: bool, name: str
+    ) -> Any:
+        """Write a request and wait for its reply (see :meth:`Requester.call`)."""
+        return await self._requests.call(build, read_only=read_only, name=name)
+
+    def _reply(self, key: K, msg: Any) -> None:
+        """A reply arrived for ``key``: answer its call, or count it late or unmatched."""
+        self._requests.reply(key, msg)
+
+    def _stream(self) -> Broadcast[Any]:
+        """A new stream (with its latest value) of this device."""
+        return self._streams.new()
+
+    def _subscribe(self, stream: Broadcast[Any]) -> Subscription[Any]:
+        if self._link.state is ConnectionState.DISCONNECTED:
+            raise NotConnectedError(f"{self.port} is not connected; use `async with` first")
+        return stream.subscribe()
+
+    def _write_velocity(self, frame: bytes, expires: float) -> None:
+        self._link.writer.write_velocity(frame, expires)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.port!r} {self._link.state.value}>"

@@ -1,0 +1,151 @@
+"""Robot events: edges decoded from what the device reports, as typed values.
+
+A status word is a level ("the bumper is pressed"); an application usually wants the
+edge ("the bumper was just hit"). :class:`EdgeDetector` turns successive status words
+into :class:`RobotEvent` values from a table that the device supplies (which bit means
+what), and reports a device state (docking, say) when it changes;
+:class:`BatteryMonitor` does the same for a voltage against a threshold (with
+hysteresis, so a sagging battery does not chatter), and the device base adds the link's
+own edges (stale, lost, restored). Every edge is reported once; a level that holds
+produces nothing more.
+
+:class:`EventKind` is the shared vocabulary of a mobile base (e-stops, bumpers, drivers,
+docking, battery, link); which of a device's status bits means which kind, and from
+which ``source``, is the device's own table.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from .validation import check_real
+
+__all__ = ["BatteryMonitor", "Edge", "EdgeDetector", "EventKind", "RobotEvent"]
+
+
+class EventKind(enum.Enum):
+    """What happened. ``source`` on the event says which one (see each member)."""
+
+    ESTOP_ENGAGED = "estop_engaged"  #: source: "hardware", "remote" or "software"
+    ESTOP_RELEASED = "estop_released"  #: source: "hardware", "remote" or "software"
+    BUMPER_HIT = "bumper_hit"  #: source: "front" or "rear"
+    BUMPER_CLEARED = "bumper_cleared"  #: source: "front" or "rear"
+    DRIVER_OFFLINE = "driver_offline"  #: source: "front" or "rear" driver board
+    DRIVER_ONLINE = "driver_online"  #: source: "front" or "rear" driver board
+    DRIVER_ERROR = "driver_error"  #: source: the wheel, e.g. "front_left"
+    DRIVER_ERROR_CLEARED = "driver_error_cleared"  #: source: the wheel
+    DOCKING_CHANGED = "docking_changed"  #: ``state`` (alias ``docking``) holds the new state
+    BATTERY_LOW = "battery_low"  #: ``voltage`` fell below the threshold
+    BATTERY_OK = "battery_ok"  #: ``voltage`` rose back above threshold + hysteresis
+    LINK_STALE = "link_stale"  #: no valid frame for ``link_timeout``
+    LINK_LOST = "link_lost"  #: the port dropped
+    LINK_RESTORED = "link_restored"  #: frames (or the port) are back
+
+
+@dataclass(frozen=True, slots=True)
+class RobotEvent:
+    """One edge.
+
+    Attributes:
+        kind: What happened.
+        source: Which e-stop, bumper, driver or wheel; empty when there is one only.
+        timestamp: ``time.monotonic()`` of the frame (or state change) that showed it.
+        state: The new state, for a state change such as ``DOCKING_CHANGED``.
+        voltage: The battery voltage, for ``BATTERY_LOW`` and ``BATTERY_OK``.
+    """
+
+    kind: EventKind
+    source: str = ""
+    timestamp: float = 0.0
+    state: enum.Enum | None = None
+    voltage: float | None = None
+
+    @property
+    def docking(self) -> enum.Enum | None:
+        """The new docking state of ``DOCKING_CHANGED`` (the same as :attr:`state`)."""
+        return self.state
+
+    def __str__(self) -> str:
+        text = str(self.kind.value).replace("_", " ")
+        if self.source:
+            text += f" ({self.source})"
+        if self.state is not None:
+            text += f": {self.state.name}"
+        if self.voltage is not None:
+            text += f": {self.voltage:.1f} V"
+        return text
+
+
+#: One row of a device's edge table: (status bits, kind when they set, kind when they
+#: clear, source).
+Edge = tuple[int, EventKind, EventKind, str]
+
+
+class EdgeDetector:
+    """Turns successive (status word, state) levels into edge events, from a table.
+
+    The first word is compared with an all-clear status, so a fault present at connect
+    time is reported; the state is reported on changes only (not the first one).
+
+    Args:
+        table: Which bits mean what; the device's own.
+        state_changed: The kind of event a change of state makes, if the device has a
+            state worth reporting.
+    """
+
+    def __init__(self, table: Sequence[Edge], state_changed: EventKind | None = None) -> None:
+        self._table = tuple((int(bits), on, off, source) for bits, on, off, source in table)
+        self._watched = 0
+        for bits, *_ in self._table:
+            self._watched |= bits
+        self._state_changed = state_changed
+        self._bits = 0  # plain int: IntFlag arithmetic costs a microsecond per operation
+        self._state: enum.Enum | None = None
+
+    def update(self, status: int, state: enum.Enum | None, ts: float) -> list[RobotEvent]:
+        """The edges between the previous levels and these (usually none)."""
+        bits = int(status)
+        events: list[RobotEvent] = []
+        changed = (bits ^ self._bits) & self._watched
+        if changed:
+            for mask, on, off, source in self._table:
+                if mask & changed:
+                    events.append(RobotEvent(on if mask & bits else off, source, ts))
+            self._bits = bits
+        if state is not self._state:
+            if self._state is not None and self._state_changed is not None:
+                events.append(RobotEvent(self._state_changed, "", ts, state=state))
+            self._state = state
+        return events
+
+
+class BatteryMonitor:
+    """``BATTERY_LOW`` below ``threshold``, ``BATTERY_OK`` at ``threshold + hysteresis``
+    or above, each once per crossing.
+
+    Args:
+        threshold: Volts, or ``None`` to watch nothing.
+        hysteresis: Volts above the threshold needed to call it OK again.
+    """
+
+    def __init__(self, threshold: float | None, hysteresis: float = 0.2) -> None:
+        for name, value in (("battery_low", threshold), ("hysteresis", hysteresis)):
+            if value is not None:
+                check_real(value, name, low=0, unit="V")
+        self.threshold = threshold
+        self.hysteresis = hysteresis
+        self.low = False
+
+    def update(self, voltage: float, ts: float) -> RobotEvent | None:
+        """The event this reading makes, if any."""
+        if self.threshold is None:
+            return None
+        if not self.low and voltage < self.threshold:
+            self.low = True
+            return RobotEvent(EventKind.BATTERY_LOW, "", ts, voltage=voltage)
+        if self.low and voltage >= self.threshold + self.hysteresis:
+            self.low = False
+            return RobotEvent(EventKind.BATTERY_OK, "", ts, voltage=voltage)
+        return None

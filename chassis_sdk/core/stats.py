@@ -1,0 +1,61 @@
+"""``LinkStats``: a device's link counters, as one snapshot value."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+__all__ = ["LinkStats"]
+
+
+@dataclass(frozen=True, slots=True)
+class LinkStats:
+    """A snapshot of a device's link counters (cumulative over reconnects).
+
+    Attributes:
+        bytes_received: Bytes read from the port.
+        bytes_sent: Bytes written to the port.
+        frames: Frames decoded.
+        frames_sent: Frames written.
+        bytes_dropped: Received bytes skipped as noise.
+        checksum_errors: Received candidate frames with a bad check.
+        malformed_frames: Frames that checked out but carried invalid content.
+        length_mismatches: Frames accepted despite a wrong length byte.
+        misaligned_frames: Frames that passed the check but were refused because the
+            bytes after them showed them shifted by line noise (protocol B).
+        unmatched_replies: Replies nobody was waiting for.
+        late_replies: Replies to requests that had already timed out: dropped, never
+            given to a later call (see "Requests" in the README).
+        frames_discarded: Frames not sent because the device was not reading: velocity
+            frames replaced by newer ones or expired while they waited, frames over the
+            bound of what may wait, and what was still waiting at close.
+        queue_drops: Messages dropped because a subscriber fell behind.
+        sequence_gaps: Breaks in the device's frame numbers (protocol A), whether it
+            keeps one counter for every frame or one per frame id (detected; see
+            ``Chassis.sequence_scheme``). Counted within each connection: the break
+            a reconnect makes is not a gap.
+        reconnects: Successful reconnects.
+        resends: Velocity frames re-sent by the watchdog.
+        command_expiries: Velocity commands zeroed by the deadman or ``duration``.
+    """
+
+    bytes_received: int = 0
+    bytes_sent: int = 0
+    frames: int = 0
+    frames_sent: int = 0
+    bytes_dropped: int = 0
+    checksum_errors: int = 0
+    malformed_frames: int = 0
+    length_mismatches: int = 0
+    misaligned_frames: int = 0
+    unmatched_replies: int = 0
+    late_replies: int = 0
+    frames_discarded: int = 0
+    queue_drops: int = 0
+    sequence_gaps: int = 0
+    reconnects: int = 0
+    resends: int = 0
+    command_expiries: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Return the counters as a plain ``dict``."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}

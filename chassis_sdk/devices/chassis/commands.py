@@ -1,0 +1,163 @@
+"""The chassis's commands that act on its state, each optionally confirmed by the
+telemetry that shows the effect: e-stop, clearing faults, docking, switching streams."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from ...core.device import Device
+from ...core.dispatch import Broadcast
+from ...errors import RequestTimeoutError
+from .messages import ChassisStatus, FaultClear, ReplyId, Telemetry
+from .protocol import ChassisEncoder
+
+__all__ = ["ChassisCommands"]
+
+
+class ChassisCommands(Device[Any, ReplyId]):
+    """E-stop, fault clearing, docking and stream switches of :class:`Chassis`."""
+
+    _encoder: ChassisEncoder
+    _telemetry: Broadcast[Telemetry]
+
+    async def emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
+        """Engage the software emergency stop (0x03) and end any velocity command.
+
+        The chassis reports it in ``Telemetry.status`` (``SOFTWARE_ESTOP``).
+
+        Args:
+            confirm: Return only once telemetry shows ``SOFTWARE_ESTOP``.
+            timeout: Seconds to wait for that (with ``confirm``).
+
+        Raises:
+            RequestTimeoutError: ``confirm`` and the bit did not show in time.
+        """
+        self._ensure_connected()
+        self._watchdog.clear()
+        self._link.writer.write(self._encoder.emergency_stop(True))
+        await self.stop()
+        if confirm:
+            await self._confirm_bit(ChassisStatus.SOFTWARE_ESTOP, True, timeout)
+
+    async def release_emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
+        """Release the software emergency stop (0x03, 0). The robot does not move until
+        the next velocity command.
+
+        Args:
+            confirm: Return only once telemetry shows ``SOFTWARE_ESTOP`` cleared.
+            timeout: Seconds to wait for that (with ``confirm``).
+        """
+        await self._send(self._encoder.emergency_stop(False))
+        if confirm:
+            await self._confirm_bit(ChassisStatus.SOFTWARE_ESTOP, False, timeout)
+
+    async def clear_faults(
+        self,
+        *,
+        driver: bool = True,
+        front_bumper: bool = True,
+        rear_bumper: bool = True,
+        confirm: bool = False,
+        timeout: float = 1.0,
+    ) -> None:
+        """Clear latched faults (0x05).
+
+        Args:
+            driver, front_bumper, rear_bumper: What to clear.
+            confirm: Return only once telemetry shows the selected faults clear (a
+                bumper still pressed, or a driver still failing, makes this time out).
+            timeout: Seconds to wait for that (with ``confirm``).
+
+        Raises:
+            ValueError: Nothing selected to clear.
+            RequestTimeoutError: ``confirm`` and a selected fault is still set.
+        """
+        what = FaultClear(0)
+        bits = ChassisStatus(0)
+        if driver:
+            what |= FaultClear.DRIVER
+            bits |= ChassisStatus.DRIVER_FAULT
+        if front_bumper:
+            what |= FaultClear.FRONT_BUMPER
+            bits |= ChassisStatus.FRONT_BUMPER
+        if rear_bumper:
+            what |= FaultClear.REAR_BUMPER
+            bits |= ChassisStatus.REAR_BUMPER
+        if not what:
+            raise ValueError("clear_faults() with nothing to clear: select at least one")
+        await self._send(self._encoder.clear_faults(what))
+        if confirm:
+            await self._confirm(lambda t: not t.status & bits, timeout, f"{bits!r} clear")
+
+    async def start_docking(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
+        """Start automatic docking (0x06, 1); follow ``Telemetry.docking``, or
+        ``await robot.wait_for(lambda t: t.docking is DockingState.DOCKED, 60)``.
+
+        Args:
+            confirm: Return only once telemetry shows ``DOCKING_ENABLED``.
+            timeout: Seconds to wait for that (with ``confirm``).
+        """
+        await self._send(self._encoder.docking(True))
+        if confirm:
+            await self._confirm_bit(ChassisStatus.DOCKING_ENABLED, True, timeout)
+
+    async def stop_docking(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
+        """Stop automatic docking (0x06, 0).
+
+        Args:
+            confirm: Return only once telemetry shows ``DOCKING_ENABLED`` cleared.
+            timeout: Seconds to wait for that (with ``confirm``).
+        """
+        await self._send(self._encoder.docking(False))
+        if confirm:
+            await self._confirm_bit(ChassisStatus.DOCKING_ENABLED, False, timeout)
+
+    async def _confirm_bit(self, bit: ChassisStatus, present: bool, timeout: float) -> None:
+        name = bit.name or repr(bit)
+        await self._confirm(
+            lambda t: (bit in t.status) is present,
+            timeout,
+            f"{name} set" if present else f"{name} cleared",
+        )
+
+    async def _confirm(
+        self, predicate: Callable[[Telemetry], bool], timeout: float, what: str
+    ) -> None:
+        """Wait for a frame that arrived after the command and shows its effect."""
+        sent = time.monotonic()
+        try:
+            await self.wait_for(lambda t: t.timestamp >= sent and predicate(t), timeout)
+        except TimeoutError:
+            raise RequestTimeoutError(
+                f"{self.port}: telemetry did not show {what} within {timeout:g} s"
+            ) from None
+
+    async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float) -> Telemetry:
+        """Wait for telemetry that satisfies ``predicate`` and return it.
+
+        The latest frame counts, so a condition that already holds returns at once.
+        Example: ``await robot.wait_for(lambda t: t.docking is DockingState.DOCKED, 60)``.
+
+        Args:
+            predicate: Called with each :class:`Telemetry`.
+            timeout: Seconds (finite); the wait always ends.
+
+        Raises:
+            TimeoutError: No frame satisfied ``predicate`` in time.
+            ValueError: ``timeout`` is not a finite number > 0.
+            ConnectionLostError: The link dropped (without ``reconnect``).
+        """
+        telemetry: Telemetry = await self._first_match(
+            self._telemetry, predicate, timeout, "telemetry"
+        )
+        return telemetry
+
+    async def enable_telemetry(self, enabled: bool = True) -> None:
+        """Switch the 50 Hz telemetry stream on or off (0x01). On at power-up."""
+        await self._send(self._encoder.set_telemetry(enabled))
+
+    async def enable_power_telemetry(self, enabled: bool = True) -> None:
+        """Switch the 20 Hz driver current/voltage stream on or off (0xB1)."""
+        await self._send(self._encoder.set_power_telemetry(enabled))

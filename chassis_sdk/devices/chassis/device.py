@@ -1,0 +1,322 @@
+"""``Chassis``: the protocol A robot base, with SI units at the API."""
+
+from __future__ import annotations
+
+import datetime
+import time
+from typing import Any
+
+import anyio
+import anyio.lowlevel
+
+from ...core.dispatch import Broadcast, Subscription
+from ...core.validation import check_duration, check_real
+from ...core.watchdog import FrameBuilder
+from ...errors import ProtocolError, RequestTimeoutError
+from .commands import ChassisCommands
+from .health import ChassisDiagnosis, StatusEdges, driver_findings, status_findings
+from .protocol import (
+    REPLY_TO,
+    ChassisDecoder,
+    ChassisEncoder,
+    ChassisInfo,
+    CommandId,
+    DriverStatus,
+    DriveVelocity,
+    FirmwareVersion,
+    HardwareVersion,
+    PowerTelemetry,
+    ReplyId,
+    ShipDate,
+    Telemetry,
+    velocity_command,
+    wheel_speeds_command,
+)
+
+__all__ = ["Chassis"]
+
+_ZERO = DriveVelocity(0, 0.0)
+
+
+class Chassis(ChassisCommands):
+    """A robot chassis speaking protocol A, over a serial port, pty or TCP socket.
+
+    Constructing does no I/O. ``async with`` (or :meth:`connect`) opens the port and
+    starts the background tasks; leaving it writes zero velocity, waits for it to leave,
+    and closes the port, also on an exception or cancellation.
+
+    Example:
+        >>> async def main() -> None:  # doctest: +SKIP
+        ...     async with Chassis("/dev/ttyUSB0") as robot:
+        ...         print(await robot.get_chassis_info())
+        ...         async for t in robot.telemetry():
+        ...             print(t.voltage, t.linear, t.status)
+
+    Args:
+        port: Device path (``/dev/ttyUSB0``), pty path, or ``socket://host:port``.
+        baudrate: Serial speed.
+        request_timeout: Seconds to wait for each attempt of a request.
+        retries: Extra attempts for read-only requests after a timeout.
+        resend_interval: Watchdog period: the active velocity command is re-sent this
+            often (s); the firmware stops the wheels after 0.5 s without one.
+        command_timeout: Deadman (s): a velocity command without ``duration`` expires
+            this long after the last call. ``None`` disables it (hold until stop()).
+        reconnect: Reopen the port with backoff when the link drops, instead of failing.
+        queue_size: Buffer per stream subscriber; on overflow the oldest is dropped.
+        link_timeout: Seconds without a valid frame before the link is reported
+            ``STALE`` (a state change, logged once); ``None`` disables the check.
+        limits: Optional :class:`MotionLimits` (maximum speeds, acceleration and
+            deceleration) applied to what the watchdog writes; stops are immediate.
+        battery_low: Report ``BATTERY_LOW`` in :meth:`events` below this voltage
+            (and ``BATTERY_OK`` 0.2 V above it); ``None`` (default) does not watch.
+        connect_timeout: Seconds each open (and reconnect attempt) may take; the port
+            is opened off the event loop, so nothing else waits for it.
+        logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
+
+    Raises:
+        ValueError: An option is out of range.
+    """
+
+    kind = "chassis"
+    _decoder: ChassisDecoder
+
+    def _init_protocol(self) -> None:
+        self._encoder = ChassisEncoder()
+        self._telemetry: Broadcast[Telemetry] = self._stream()
+        self._power: Broadcast[PowerTelemetry] = self._stream()
+        self._edges = StatusEdges()
+        self._wheel_track: float | None = None  # effective track, when odometry uses wheels
+        self._handlers = {
+            Telemetry: self._on_telemetry,
+            PowerTelemetry: self._power.publish,
+            DriverStatus: lambda m: self._reply(ReplyId.DRIVER_STATUS, m),
+            FirmwareVersion: lambda m: self._reply(ReplyId.FIRMWARE_VERSION, m),
+            HardwareVersion: lambda m: self._reply(ReplyId.HARDWARE_VERSION, m),
+            ChassisInfo: lambda m: self._reply(ReplyId.CHASSIS_INFO, m),
+            ShipDate: lambda m: self._reply(ReplyId.SHIP_DATE, m),
+        }
+
+    # --- Device hooks -----------------------------------------------------------------------
+
+    def _make_decoder(self) -> ChassisDecoder:
+        return ChassisDecoder()
+
+    def _sequence_gaps(self) -> int:
+        return self._decoder.sequence.gaps
+
+    @property
+    def sequence_scheme(self) -> str | None:
+        """How this chassis numbers its frames, as detected from them: ``"shared"``
+        (one counter for every frame), ``"per-id"`` (one per frame id), or ``None``
+        until enough frames have shown which (see ``LinkStats.sequence_gaps``)."""
+        return self._decoder.sequence.scheme
+
+    def _on_telemetry(self, t: Telemetry) -> None:
+        self._telemetry.publish(t)
+        for event in self._edges.update(t.status, t.docking, t.timestamp):
+            self._emit(event)
+        self._battery(t.voltage, t.timestamp)
+        if self._wheel_track is None:
+            self._integrate(t.linear, t.angular, t.timestamp)
+        else:
+            w = t.wheels
+            left, right = (w.front_left + w.rear_left) / 2, (w.front_right + w.rear_right) / 2
+            self._integrate((left + right) / 2, (right - left) / self._wheel_track, t.timestamp)
+
+    def _on_link_up(self) -> None:
+        self._decoder.sequence.reset()
+
+    def _zero_frame(self) -> bytes:
+        return self._encoder.encode(_ZERO)
+
+    def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
+        velocity_command(linear, angular)  # raises ValueError before anything is written
+        encode = self._encoder.encode
+        return lambda v, w: encode(velocity_command(v, w))
+
+    async def configure_odometry(
+        self,
+        source: str = "velocity",
+        *,
+        track_width: float | None = None,
+        slip_factor: float = 1.0,
+        max_gap: float = 0.5,
+    ) -> None:
+        """Choose what :meth:`odometry` integrates.
+
+        Args:
+            source: ``"velocity"`` (default): the chassis's own linear and angular
+                velocity from 0x81. ``"wheels"``: the four wheel speeds, with the
+                angular velocity from the left/right difference over the effective
+                track, ``track_width * slip_factor``.
+            track_width: Metres; ``None`` reads it from the chassis (0x09).
+            slip_factor: Skid-steer slip (>= 1): how much wider the effective track is
+                than the geometric one, because the wheels skid in a turn. Calibrate by
+                turning in place a measured angle.
+            max_gap: Longest interval between samples that is integrated (s).
+
+        Raises:
+            ValueError: An unknown source, or a value out of range.
+            RequestTimeoutError: ``track_width`` was not given and 0x09 went unanswered.
+        """
+        if source not in ("velocity", "wheels"):
+            raise ValueError(f"source must be 'velocity' or 'wheels', got {source!r}")
+        slip_factor = check_real(slip_factor, "slip_factor", low=1)
+        if track_width is not None:
+            track_width = check_real(track_width, "track_width", low=0, low_open=True, unit="m")
+        max_gap = check_real(max_gap, "max_gap", low=0, low_open=True, unit="s")
+        track: float | None = None
+        if source == "wheels":
+            if track_width is None:
+                track_width = (await self.get_chassis_info()).track_width
+            track = track_width * slip_factor
+        self._pose.max_gap = max_gap
+        self._wheel_track = track
+
+    # --- motion (set_velocity and stop come from Device) ---------------------------------------
+
+    async def set_wheel_speeds(
+        self, left: float, right: float, *, duration: float | None = None
+    ) -> None:
+        """Drive in wheel mode: left and right side speeds in m/s.
+
+        The front and rear wheel of a side turn alike. Watchdog, deadman and ``duration``
+        behave as for :meth:`set_velocity`.
+
+        Raises:
+            ValueError: NaN, infinity, out of int16 mm/s range, or a bad ``duration``.
+            NotConnectedError: The port is not open.
+        """
+        wheel_speeds_command(left, right)  # raises ValueError before anything is written
+        encode = self._encoder.encode
+        self._drive(
+            (left, right),
+            lambda a, b: encode(wheel_speeds_command(a, b)),
+            check_duration(duration),
+            f"wheels ({left}, {right})",
+            "wheels",
+        )
+        await anyio.lowlevel.checkpoint()
+
+    # --- requests -------------------------------------------------------------------------------
+
+    async def _read(self, what: CommandId) -> Any:
+        reply = REPLY_TO[what]
+        encoder = self._encoder
+        return await self._request(
+            lambda: (encoder.read(what), reply), read_only=True, name=f"{what.name} (0x{what:02X})"
+        )
+
+    async def get_firmware_version(self) -> int:
+        """Read the firmware version number (0x07 → 0x87).
+
+        Raises:
+            RequestTimeoutError: No reply within ``request_timeout`` on any attempt.
+            ConnectionLostError: The link dropped while waiting.
+            NotConnectedError: The port is not open.
+        """
+        reply: FirmwareVersion = await self._read(CommandId.FIRMWARE_VERSION)
+        return reply.version
+
+    async def get_hardware_version(self) -> str:
+        """Read the hardware version string (0x08 → 0x88). Raises as
+        :meth:`get_firmware_version`."""
+        reply: HardwareVersion = await self._read(CommandId.HARDWARE_VERSION)
+        return reply.text
+
+    async def get_chassis_info(self) -> ChassisInfo:
+        """Read the geometry (0x09 → 0x89), lengths in metres. Raises as
+        :meth:`get_firmware_version`."""
+        reply: ChassisInfo = await self._read(CommandId.CHASSIS_INFO)
+        return reply
+
+    async def get_ship_date(self) -> datetime.date:
+        """Read the ship date (0x0A → 0x8A).
+
+        Raises:
+            ProtocolError: The device sent an impossible date.
+            RequestTimeoutError, ConnectionLostError, NotConnectedError: As for
+                :meth:`get_firmware_version`.
+        """
+        reply: ShipDate = await self._read(CommandId.SHIP_DATE)
+        try:
+            return reply.to_date()
+        except ValueError as exc:
+            raise ProtocolError(f"device sent an invalid ship date {reply}: {exc}") from None
+
+    async def get_driver_status(self) -> DriverStatus:
+        """Read the four motor drivers' status (0xB0 → 0xB0). Raises as
+        :meth:`get_firmware_version`."""
+        reply: DriverStatus = await self._read(CommandId.DRIVER_STATUS)
+        return reply
+
+    async def diagnose(self) -> ChassisDiagnosis:
+        """Gather the robot's health into one report: connection and link counters, every
+        set status bit of the latest telemetry, and every error bit of each wheel's
+        driver (read now with 0xB0, if connected). ``print()`` it for a readable report.
+
+        Example:
+            >>> report = await robot.diagnose()  # doctest: +SKIP
+            >>> if not report.ok:  # doctest: +SKIP
+            ...     print(report)
+        """
+        found = self._findings()
+        latest = self._telemetry.latest
+        if latest is None:
+            found.fault("no telemetry received")
+        else:
+            status_findings(latest.status, found)
+            found.note(f"battery {latest.voltage:.1f} V, docking {latest.docking.name}")
+        scheme = {"shared": "one counter for every frame", "per-id": "one counter per frame id"}
+        found.note(f"frame numbering: {scheme.get(self.sequence_scheme or '', 'not yet known')}")
+        drivers = None
+        if self.is_connected:
+            try:
+                drivers = await self.get_driver_status()
+            except RequestTimeoutError:
+                found.fault("driver status (0xB0) unanswered")
+            else:
+                driver_findings(drivers, found)
+        return ChassisDiagnosis(
+            self.kind,
+            self.port,
+            self.connection_state,
+            self.stats,
+            tuple(found.faults),
+            tuple(found.notes),
+            None if latest is None else latest.status,
+            drivers,
+        )
+
+    # --- streams --------------------------------------------------------------------------------
+
+    def telemetry(self) -> Subscription[Telemetry]:
+        """Subscribe to the 50 Hz telemetry: an async iterator of :class:`Telemetry`.
+
+        Every subscriber gets every frame from the moment of the call; one that falls
+        ``queue_size`` frames behind loses the oldest (counted in ``stats.queue_drops``).
+        Breaking out of the loop unsubscribes. Without ``reconnect`` the iterator raises
+        :class:`ConnectionLostError` when the link drops; it ends when the device closes.
+        """
+        return self._subscribe(self._telemetry)
+
+    def power(self) -> Subscription[PowerTelemetry]:
+        """Subscribe to the 20 Hz 0xB1 stream (after :meth:`enable_power_telemetry`)."""
+        return self._subscribe(self._power)
+
+    @property
+    def latest_telemetry(self) -> Telemetry | None:
+        """The most recent :class:`Telemetry`, or ``None`` before the first."""
+        return self._telemetry.latest
+
+    @property
+    def telemetry_age(self) -> float | None:
+        """Seconds since the latest :class:`Telemetry` arrived, or ``None`` before the
+        first. It keeps growing through an outage and a stale link."""
+        latest = self._telemetry.latest
+        return None if latest is None else time.monotonic() - latest.timestamp
+
+    @property
+    def latest_power(self) -> PowerTelemetry | None:
+        """The most recent :class:`PowerTelemetry`, or ``None``."""
+        return self._power.latest

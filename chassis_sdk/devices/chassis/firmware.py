@@ -1,0 +1,409 @@
+"""A sans-IO model of the protocol A chassis firmware, and its simulator.
+
+The model behaves like the device as far as a host can tell: 0x81 telemetry at 50 Hz
+(switchable), 0xB1 at 20 Hz when enabled, replies to every read request, skid-steer
+kinematics with an acceleration ramp, the software e-stop, the docking state machine,
+a battery that sags under load, bumpers and driver faults that tests can trigger and
+0x05 clears, and the firmware's own command timeout: the wheels stop if no 0x02 arrives
+for 0.5 s, which is why the SDK's watchdog exists.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from ...core.simulator import FirmwareModel, LineFaults, SimulatorServer, next_slot
+from .protocol import (
+    ChassisCommandDecoder,
+    ChassisEncoder,
+    ChassisInfo,
+    ChassisMessage,
+    ChassisStatus,
+    CommandId,
+    DockingState,
+    DriverError,
+    DriverStatus,
+    DriveVelocity,
+    DriveWheels,
+    FaultClear,
+    FirmwareVersion,
+    HardwareVersion,
+    HostCommand,
+    MotorStatus,
+    PowerTelemetry,
+    ShipDate,
+    Telemetry,
+    WheelCurrents,
+    WheelDriver,
+    WheelSpeeds,
+)
+
+__all__ = ["ChassisFirmware", "ChassisSimulator", "ChassisSpec"]
+
+_WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
+_DRIVER_ERROR_BITS = (
+    ChassisStatus.FRONT_LEFT_DRIVER_ERROR,
+    ChassisStatus.FRONT_RIGHT_DRIVER_ERROR,
+    ChassisStatus.REAR_LEFT_DRIVER_ERROR,
+    ChassisStatus.REAR_RIGHT_DRIVER_ERROR,
+)
+#: The docking walk after 0x06 start: each state holds ``docking_step`` seconds.
+_DOCKING_WALK = (DockingState.SEARCHING, DockingState.CENTER_FOUND, DockingState.CONTACT)
+
+
+@dataclass(slots=True)
+class ChassisSpec:
+    """What the simulated chassis reports and how it moves.
+
+    The geometry is the vendor document's example (725/500/170/30/1000 mm).
+    """
+
+    firmware_version: int = 103
+    hardware_version: str = "ZKWL-brush-motor-chassis"
+    ship_date: tuple[int, int, int] = (2024, 1, 2)
+    info: ChassisInfo = field(default_factory=lambda: ChassisInfo(0.725, 0.5, 0.17, 30, 1000))
+    telemetry_period: float = 0.02
+    power_period: float = 0.05
+    command_timeout: float = 0.5
+    max_acceleration: float = 1.5  #: m/s² per wheel
+    max_wheel_speed: float = 2.0  #: m/s
+    battery_full: float = 25.6  #: V, open-circuit
+    battery_resistance: float = 0.03  #: Ω: sag per ampere drawn
+    battery_drain: float = 0.0005  #: V per second of driving
+    docking_step: float = 1.0  #: s per docking state
+    #: How FRAME-NUMS count (the document leaves it open): ``"per-id"``, one counter
+    #: per frame id, or ``"shared"``, one counter for every frame the chassis sends.
+    sequence: Literal["per-id", "shared"] = "per-id"
+
+
+#: The status bit of each level ``ChassisFirmware.status`` lists, in its order.
+_STATUS_BITS = (
+    ChassisStatus.HARDWARE_ESTOP,
+    ChassisStatus.SOFTWARE_ESTOP,
+    ChassisStatus.REMOTE_ESTOP,
+    ChassisStatus.REMOTE_OFFLINE,
+    ChassisStatus.FRONT_DRIVER_OFFLINE,
+    ChassisStatus.REAR_DRIVER_OFFLINE,
+    *_DRIVER_ERROR_BITS,
+    ChassisStatus.FRONT_BUMPER,
+    ChassisStatus.REAR_BUMPER,
+    ChassisStatus.DOCKING_ENABLED,
+)
+
+
+def _advance(
+    pose: tuple[float, float, float], wheels: list[float], track: float, dt: float
+) -> tuple[float, float, float]:
+    """The true pose after ``dt`` at these wheel speeds (midpoint rule), for tests to
+    hold odometry against."""
+    left, right = (wheels[0] + wheels[2]) / 2, (wheels[1] + wheels[3]) / 2
+    v, w = (left + right) / 2, (right - left) / track
+    x, y, heading = pose
+    mid = heading + w * dt / 2
+    return (x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), heading + w * dt)
+
+
+class ChassisFirmware(FirmwareModel[HostCommand]):
+    """The firmware model: ``receive(bytes, now)`` and ``poll(now)`` return bytes to send.
+
+    Tests and the CLI reach into it to trigger faults: :meth:`press_bumper`,
+    :meth:`set_driver_fault`, :meth:`set_driver_offline`, :meth:`set_hardware_estop`,
+    :meth:`set_remote_estop`, :meth:`set_battery`, :meth:`reset`.
+    """
+
+    def __init__(self, spec: ChassisSpec | None = None) -> None:
+        super().__init__()
+        self.spec = spec or ChassisSpec()
+        self.hardware_estop = False
+        self.remote_estop = False
+        self.remote_online = False
+        self.drivers_offline = [False, False]
+        self._battery_open = self.spec.battery_full  # the battery outlives a reset
+        #: The true pose (x m, y m, heading rad unwrapped) from the simulated wheels.
+        self.pose = (0.0, 0.0, 0.0)
+        self._power_on()
+
+    def _power_on(self) -> None:
+        """The state after power-up (the hardware e-stop button is physical: it stays)."""
+        self._decoder = ChassisCommandDecoder()
+        self._encoders: dict[type, ChassisEncoder] = {}  # sequence numbers from 0
+        self.telemetry_enabled = True
+        self.power_enabled = False
+        self.software_estop = False
+        self.front_bumper = False
+        self.rear_bumper = False
+        self.driver_errors = [DriverError(0)] * 4
+        self.docking_enabled = False
+        self.docking_state = DockingState.SEARCHING
+        self._docking_since = 0.0
+        self.target = [0.0, 0.0, 0.0, 0.0]  # wheel speed targets, m/s (FL, FR, RL, RR)
+        self.wheels = [0.0, 0.0, 0.0, 0.0]
+        self._accel = [0.0, 0.0, 0.0, 0.0]
+        self._peak = [0.0, 0.0, 0.0, 0.0]
+        self._last_drive = -math.inf
+        self._last_step: float | None = None
+        self._next_telemetry = 0.0
+        self._next_power = 0.0
+
+    # --- fault injection ------------------------------------------------------------------
+
+    def press_bumper(self, front: bool = True) -> None:
+        """Trigger (latch) a bumper: the wheels stop until 0x05 clears it."""
+        if front:
+            self.front_bumper = True
+        else:
+            self.rear_bumper = True
+
+    def set_driver_fault(self, wheel: int, errors: DriverError) -> None:
+        """Latch driver error bits on wheel 0..3 (FL, FR, RL, RR); 0x05 clears them."""
+        self.driver_errors[wheel] = DriverError(errors)
+
+    def set_hardware_estop(self, pressed: bool) -> None:
+        """Press or release the hardware emergency-stop button."""
+        self.hardware_estop = pressed
+
+    def set_remote_estop(self, pressed: bool) -> None:
+        """Press or release the remote control's emergency stop (the remote comes
+        online for it)."""
+        self.remote_estop = pressed
+        self.remote_online = True
+
+    def set_driver_offline(self, front: bool, offline: bool = True) -> None:
+        """Take the front or rear motor-driver board off the bus (or put it back)."""
+        self.drivers_offline[0 if front else 1] = offline
+
+    def set_battery(self, voltage: float) -> None:
+        """Set the battery's open-circuit voltage (it keeps draining from there)."""
+        self._battery_open = voltage
+
+    # --- sans-IO interface --------------------------------------------------------------------
+
+    def on_connect(self, now: float) -> None:
+        """Start the clocks (called when the simulator starts or a client connects)."""
+        self._last_step = now
+        self._next_telemetry = now
+        self._next_power = now
+
+    def poll(self, now: float) -> bytes:
+        """Advance the model to ``now``; return the periodic frames that fell due."""
+        if self.booting(now):
+            return b""
+        self._step(now)
+        out = bytearray()
+        if self.telemetry_enabled and now >= self._next_telemetry:
+            out += self._encode(self.telemetry())
+            self._next_telemetry = next_slot(self._next_telemetry, self.spec.telemetry_period, now)
+        if self.power_enabled and now >= self._next_power:
+            out += self._encode(self.power())
+            self._next_power = next_slot(self._next_power, self.spec.power_period, now)
+        return bytes(out)
+
+    def next_deadline(self) -> float:
+        """When :meth:`poll` next has a frame to send (or the physics a step to take)."""
+        due = [self._next_telemetry if self.telemetry_enabled else math.inf]
+        if self.power_enabled:
+            due.append(self._next_power)
+        step = (self._last_step or 0.0) + 0.02
+        return min(*due, step)
+
+    # --- commands ---------------------------------------------------------------------------------
+
+    def _execute(self, cmd: HostCommand, now: float) -> bytes:
+        if isinstance(cmd, DriveVelocity | DriveWheels):
+            self._drive(cmd, now)
+            return b""
+        cid, value = cmd.id, cmd.value
+        if cid is CommandId.TELEMETRY:
+            self.telemetry_enabled = bool(value)
+            if self.telemetry_enabled:
+                self._next_telemetry = now
+        elif cid is CommandId.POWER_TELEMETRY:
+            self.power_enabled = bool(value)
+            if self.power_enabled:
+                self._next_power = now
+        elif cid is CommandId.EMERGENCY_STOP:
+            self.software_estop = bool(value)
+        elif cid is CommandId.CLEAR_FAULTS:
+            what = FaultClear(value & 0x7)
+            if FaultClear.DRIVER in what:
+                self.driver_errors = [DriverError(0)] * 4
+            if FaultClear.FRONT_BUMPER in what:
+                self.front_bumper = False
+            if FaultClear.REAR_BUMPER in what:
+                self.rear_bumper = False
+        elif cid is CommandId.DOCKING:
+            if value:
+                self.docking_enabled = True
+                self.docking_state = DockingState.SEARCHING
+                self._docking_since = now
+            elif self.docking_enabled:
+                self.docking_enabled = False
+                self.docking_state = DockingState.EXITED
+        elif cid is CommandId.FIRMWARE_VERSION:
+            return self._encode(FirmwareVersion(self.spec.firmware_version))
+        elif cid is CommandId.HARDWARE_VERSION:
+            return self._encode(HardwareVersion(self.spec.hardware_version))
+        elif cid is CommandId.CHASSIS_INFO:
+            return self._encode(self.spec.info)
+        elif cid is CommandId.SHIP_DATE:
+            return self._encode(ShipDate(*self.spec.ship_date))
+        elif cid is CommandId.DRIVER_STATUS:
+            return self._encode(self.driver_status())
+        return b""
+
+    def _encode(self, msg: ChassisMessage) -> bytes:
+        """A frame numbered as ``spec.sequence`` says (each message type is one id)."""
+        key = object if self.spec.sequence == "shared" else type(msg)
+        encoder = self._encoders.get(key)
+        if encoder is None:
+            encoder = self._encoders[key] = ChassisEncoder()
+        return encoder.encode(msg)
+
+    def _drive(self, cmd: DriveVelocity | DriveWheels, now: float) -> None:
+        self._last_drive = now
+        if isinstance(cmd, DriveVelocity):
+            v = cmd.linear_mm / 1000
+            half = cmd.angular * self.spec.info.track_width / 2
+            left, right = v - half, v + half
+        else:
+            left, right = cmd.left_mm / 1000, cmd.right_mm / 1000
+        cap = self.spec.max_wheel_speed
+        left = max(-cap, min(cap, left))
+        right = max(-cap, min(cap, right))
+        self.target = [left, right, left, right]
+
+    # --- physics ----------------------------------------------------------------------------------
+
+    @property
+    def status(self) -> ChassisStatus:
+        """The status bits as the next telemetry frame will report them."""
+        levels = (
+            self.hardware_estop,
+            self.software_estop,
+            self.remote_estop,
+            not self.remote_online,
+            *self.drivers_offline,
+            *(bool(err) for err in self.driver_errors),
+            self.front_bumper,
+            self.rear_bumper,
+            self.docking_enabled,
+        )
+        bits = 0
+        for bit, level in zip(_STATUS_BITS, levels, strict=True):
+            if level:
+                bits |= bit
+        return ChassisStatus(bits)
+
+    def _may_move(self, now: float) -> bool:
+        return (
+            now - self._last_drive <= self.spec.command_timeout
+            and not (self.software_estop or self.hardware_estop or self.remote_estop)
+            and not any(self.drivers_offline)
+            and not (self.front_bumper or self.rear_bumper)
+            and not any(self.driver_errors)
+        )
+
+    def _step(self, now: float) -> None:
+        last = self._last_step
+        self._last_step = now
+        if last is None or now <= last:
+            return
+        dt = min(now - last, 0.1)
+        may_move = self._may_move(now)
+        if not may_move:
+            self.target = [0.0, 0.0, 0.0, 0.0]
+        max_dv = self.spec.max_acceleration * dt
+        for i in range(4):
+            goal = self.target[i] if may_move else 0.0
+            dv = max(-max_dv, min(max_dv, goal - self.wheels[i]))
+            if not may_move and (self.software_estop or self.hardware_estop or self.remote_estop):
+                dv = goal - self.wheels[i]  # an emergency stop brakes at once
+            self.wheels[i] += dv
+            self._accel[i] = dv / dt
+            self._peak[i] = max(self._peak[i], abs(self._current(i)))
+        self.pose = _advance(self.pose, self.wheels, self.spec.info.track_width, dt)
+        moving = any(abs(w) > 1e-6 for w in self.wheels)
+        if moving:
+            self._battery_open -= self.spec.battery_drain * dt
+        if self.docking_enabled:
+            step = int((now - self._docking_since) / self.spec.docking_step)
+            walk = _DOCKING_WALK
+            self.docking_state = walk[step] if step < len(walk) else DockingState.DOCKED
+
+    def _current(self, i: int) -> float:
+        return 0.3 + 3.0 * abs(self.wheels[i]) + 4.0 * abs(self._accel[i])
+
+    @property
+    def battery_voltage(self) -> float:
+        """Terminal voltage: open-circuit voltage minus the sag under the current drawn."""
+        total = sum(self._current(i) for i in range(4))
+        return self._battery_open - self.spec.battery_resistance * total
+
+    def telemetry(self) -> Telemetry:
+        """The telemetry frame the model would send now."""
+        fl, fr, rl, rr = self.wheels
+        track = self.spec.info.track_width
+        left, right = (fl + rl) / 2, (fr + rr) / 2
+        return Telemetry(
+            voltage=round(self.battery_voltage, 1),
+            status=self.status,
+            docking=self.docking_state,
+            linear=(left + right) / 2,
+            angular=(right - left) / track,
+            wheels=WheelSpeeds(fl, fr, rl, rr),
+        )
+
+    def power(self) -> PowerTelemetry:
+        """The 0xB1 frame the model would send now."""
+        v = self.battery_voltage
+        return PowerTelemetry(WheelCurrents(*(self._current(i) for i in range(4))), v, v)
+
+    def driver_status(self) -> DriverStatus:
+        """The 0xB0 reply the model would send now."""
+        drivers = []
+        for i in range(4):
+            motor = MotorStatus.SERVO_STARTED
+            if abs(self.wheels[i]) < 1e-3:
+                motor |= MotorStatus.ZERO_SPEED
+            else:
+                motor |= MotorStatus.SERVO_RUNNING
+            if abs(self.wheels[i] - self.target[i]) < 1e-3:
+                motor |= MotorStatus.TARGET_SPEED_REACHED
+            if self.driver_errors[i]:
+                motor |= MotorStatus.ERROR_WARNING
+            sign = 1.0 if self.wheels[i] >= 0 else -1.0
+            drivers.append(
+                WheelDriver(self.driver_errors[i], motor, sign * self._current(i), self._peak[i])
+            )
+        v = self.battery_voltage
+        fl, fr, rl, rr = drivers
+        return DriverStatus(fl, fr, rl, rr, 35.5, 34.0, v, v)
+
+
+class ChassisSimulator(SimulatorServer):
+    """The chassis firmware model served on a pseudo-terminal (default) or TCP.
+
+    Example:
+        >>> async def main() -> None:  # doctest: +SKIP
+        ...     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        ...         print(await robot.get_firmware_version())
+
+    Args:
+        spec: Device parameters (versions, geometry, rates).
+        tcp_port: Serve on ``socket://127.0.0.1:PORT`` instead of a pty (0: any port).
+        faults: Line faults to start with (noise, bit flips, lost bytes, late or lost
+            replies); ``sim.faults`` can be changed while it runs.
+    """
+
+    firmware: ChassisFirmware
+
+    def __init__(
+        self,
+        spec: ChassisSpec | None = None,
+        *,
+        tcp_port: int | None = None,
+        faults: LineFaults | None = None,
+    ) -> None:
+        super().__init__(ChassisFirmware(spec), tcp_port=tcp_port, faults=faults)
