@@ -1,0 +1,233 @@
+"""A third device defined in one file (tests/toy_device.py), registered at run time or
+installed through an entry point, works end to end with no edit to the SDK: lifetime,
+watchdog and deadman, requests with timeouts, streams, events, the simulator server,
+detect, record/replay/plot, sim and drive."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import os
+import random
+import signal
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+import chassis_sdk.devices as registry
+from chassis_sdk import ConnectionState, EventKind, NotConnectedError, RequestTimeoutError, capture
+from chassis_sdk.cli import main as cli_main
+from chassis_sdk.devices import DeviceProfile, profile, profiles, register, unregister
+
+from .toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
+
+REPO = Path(__file__).resolve().parent.parent
+TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
+
+
+@pytest.fixture
+def toy() -> Iterator[DeviceProfile]:
+    register(PROFILE)
+    try:
+        yield PROFILE
+    finally:
+        unregister("toy")
+
+
+async def wait_until(predicate: Callable[[], bool], timeout: float = 3.0) -> None:
+    async with asyncio.timeout(timeout):
+        while not predicate():
+            await asyncio.sleep(0.005)
+
+
+def drives(firmware: ToyFirmware) -> list[Drive]:
+    return [c for _, c in firmware.received if isinstance(c, Drive)]
+
+
+@pytest.mark.usefixtures("toy")
+@pytest.mark.parametrize("tcp_port", TRANSPORTS)
+async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | None) -> None:
+    async with ToySimulator(tcp_port=tcp_port) as sim:
+        robot = Toy(sim.port, battery_low=13.0)
+        async with robot:
+            assert robot.connection_state is ConnectionState.CONNECTED
+            events = robot.events()
+            t = await anext(robot.telemetry())
+            assert isinstance(t, ToyTelemetry)
+            assert t.battery == pytest.approx(12.6)
+            assert robot.latest_telemetry is not None
+            assert await robot.ping() >= 0
+            low = await anext(events)
+            assert low.kind is EventKind.BATTERY_LOW
+            assert low.voltage == pytest.approx(12.6)
+            assert robot.latest_odometry is not None
+            frames = robot.telemetry()
+        assert not robot.is_connected
+        assert robot.connection_state.value == "disconnected"
+        assert [t async for t in frames] == []  # the stream ended with the device
+        assert robot.stats.frames > 0
+        with pytest.raises(NotConnectedError):
+            await robot.ping()
+
+
+@pytest.mark.usefixtures("toy")
+async def test_watchdog_resends_and_the_deadman_writes_one_zero() -> None:
+    async with ToySimulator() as sim, Toy(sim.port, command_timeout=0.3) as robot:
+        await robot.set_velocity(0.4, 0.0)
+        await wait_until(lambda: robot.stats.command_expiries == 1)
+        sent = drives(sim.firmware)
+        await wait_until(
+            lambda: bool(drives(sim.firmware)) and drives(sim.firmware)[-1].linear_mm == 0
+        )
+        assert sum(d.linear_mm == 400 for d in sent) >= 4  # resent every 50 ms
+        async for t in robot.telemetry():  # the toy stops, and nothing more is sent
+            if t.speed == 0.0:
+                break
+        count = len(drives(sim.firmware))
+        for _ in range(5):
+            await anext(robot.telemetry())
+        assert len(drives(sim.firmware)) == count
+        assert drives(sim.firmware)[-1] == Drive(0, 0)
+
+
+@pytest.mark.usefixtures("toy")
+@pytest.mark.parametrize("tcp_port", TRANSPORTS)
+async def test_leaving_the_block_writes_zero_last(tcp_port: int | None) -> None:
+    async with ToySimulator(tcp_port=tcp_port) as sim:
+        async with Toy(sim.port) as robot:
+            await robot.set_velocity(0.5, 0.2)
+        await wait_until(
+            lambda: bool(drives(sim.firmware)) and drives(sim.firmware)[-1] == Drive(0, 0)
+        )
+        assert drives(sim.firmware)[0] == Drive(500, 200)
+
+
+@pytest.mark.usefixtures("toy")
+async def test_requests_retry_time_out_and_drop_late_replies() -> None:
+    async with ToySimulator() as sim, Toy(sim.port, request_timeout=0.1, retries=1) as robot:
+        sim.faults.reply_loss = 1.0
+        with pytest.raises(RequestTimeoutError, match="ping"):
+            await robot.ping()
+        assert sum(isinstance(c, Ping) for _, c in sim.firmware.received) == 2
+        sim.faults.reply_loss = 0.0
+        sim.faults.reply_delay = 0.15
+        robot.retries = 0
+        with pytest.raises(RequestTimeoutError):
+            await robot.ping()
+        await wait_until(lambda: robot.stats.late_replies == 1)
+        sim.faults.reply_delay = 0.0
+        assert await robot.ping() >= 0
+
+
+@pytest.mark.usefixtures("toy")
+async def test_a_bad_velocity_is_a_value_error_before_a_byte_is_written() -> None:
+    async with ToySimulator() as sim, Toy(sim.port) as robot:
+        for bad in (math.nan, math.inf, 40.0, True):
+            with pytest.raises(ValueError, match="linear"):
+                await robot.set_velocity(bad, 0.0)
+        await robot.ping()  # everything written before it has arrived
+        assert drives(sim.firmware) == []
+
+
+@pytest.mark.usefixtures("toy")
+async def test_detect_record_replay_and_plot(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "toy.capture"
+    async with ToySimulator() as sim:
+        assert await capture.detect_protocol(sim.port, seconds=2.0) == "toy"
+        cap = await capture.record(sim.port, path, seconds=0.3)
+    assert cap.bytes > 0
+    messages = [m for _, m in capture.decode_capture(path, "toy")]
+    assert messages
+    assert all(isinstance(m, ToyTelemetry) for m in messages)
+    assert cli_main(["replay", str(path), "--json"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert rows[0]["type"] == "ToyTelemetry"
+    assert rows[0]["battery"] == pytest.approx(12.6)
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "toy.png"
+    assert cli_main(["plot", str(path), "-o", str(png)]) == 0  # the generic plot
+    assert png.stat().st_size > 1000
+
+
+def test_the_fuzz_harness_and_the_registry_see_it(toy: DeviceProfile) -> None:
+    from .test_fuzz_harness import _mutate, harness
+
+    rng = random.Random(5)
+    for target in ("toy", "toy-commands"):
+        seeds = harness.seeds(target)
+        for blob in seeds + [_mutate(rng, rng.choice(seeds)) for _ in range(300)]:
+            harness.check(target, blob)
+    assert profile("toy") is toy
+    assert list(profiles())[-1] == "toy"
+    with pytest.raises(ValueError, match="already registered"):
+        register(toy)
+    with pytest.raises(ValueError, match="unknown device 'nope'; known: chassis, board, toy"):
+        profile("nope")
+
+
+def _install_entry_point(site: Path, value: str) -> None:
+    """Make ``site`` hold a distribution that declares ``toy = value`` in the group."""
+    info = site / "toy_device-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-device\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[chassis_sdk.devices]\ntoy = {value}\n")
+
+
+def test_an_installed_entry_point_adds_the_device(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _install_entry_point(tmp_path, "tests.toy_device:PROFILE")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_installed", None)
+    assert profiles()["toy"] is PROFILE
+    assert "toy" not in registry._registered
+
+
+def test_a_broken_entry_point_is_reported_and_skipped(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    _install_entry_point(tmp_path, "tests.no_such_module:PROFILE")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_installed", None)
+    assert list(profiles()) == ["chassis", "board"]
+    assert "device entry point toy = tests.no_such_module:PROFILE failed" in caplog.text
+
+
+async def _cli(env: dict[str, str], *args: str) -> tuple[int, str, str]:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "chassis_sdk.cli", *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, env=env, cwd=REPO,
+    )  # fmt: skip
+    out, err = await asyncio.wait_for(proc.communicate(), 20)
+    assert proc.returncode is not None
+    return proc.returncode, out.decode(), err.decode()
+
+
+async def test_sim_detect_and_drive_from_the_command_line(tmp_path: Path) -> None:
+    _install_entry_point(tmp_path, "tests.toy_device:PROFILE")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path), str(REPO)))}
+    sim = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "chassis_sdk.cli", "sim", "toy", "--tcp", "0",
+        stdout=asyncio.subprocess.PIPE, env=env, cwd=REPO,
+    )  # fmt: skip
+    try:
+        assert sim.stdout is not None
+        port = (await asyncio.wait_for(sim.stdout.readline(), 20)).decode().strip()
+        assert port.startswith("socket://127.0.0.1:")
+        code, out, err = await _cli(env, "detect", port)
+        assert (code, out.strip()) == (0, "toy"), err
+        code, out, err = await _cli(
+            env, "drive", port, "--protocol", "toy", "--linear", "0.2", "--duration", "0.3"
+        )
+        assert (code, out.splitlines()[-1]) == (0, "stopped"), err
+        code, out, err = await _cli(env, "info", port, "--protocol", "toy")
+        assert code == 0, err
+        assert "toy: a toy differential base" in out
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        assert await asyncio.wait_for(sim.wait(), 10) == 128 + signal.SIGTERM
