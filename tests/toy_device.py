@@ -37,7 +37,7 @@ from chassis_sdk.core import (
     SimulatorServer,
     Subscription,
 )
-from chassis_sdk.core.framing import Parser
+from chassis_sdk.core.framing import FrameTable
 from chassis_sdk.core.simulator import FirmwareModel, next_slot
 from chassis_sdk.core.validation import INT16, check_int, scale_to_int
 from chassis_sdk.devices import DeviceProfile
@@ -137,7 +137,7 @@ class _ToyFraming(FrameDecoder[_M]):
     """The toy's framing over the SDK's scanner: only ``_try_frame`` is the toy's."""
 
     _head = HEAD
-    _table: ClassVar[dict[int, tuple[int, Parser]]] = {}
+    _table: ClassVar[FrameTable] = {}
 
     def _try_frame(
         self, buf: bytes | bytearray, start: int, end: int, out: list[_M], ts: float
@@ -160,13 +160,13 @@ class _ToyFraming(FrameDecoder[_M]):
 class ToyDecoder(_ToyFraming[ToyMessage]):
     """What the toy sends."""
 
-    _table: ClassVar[dict[int, tuple[int, Parser]]] = {0x01: (4, _telemetry), 0x82: (3, _pong)}
+    _table: ClassVar[FrameTable] = {0x01: (4, _telemetry), 0x82: (3, _pong)}
 
 
 class ToyCommandDecoder(_ToyFraming[ToyCommand]):
     """What the host sends (the firmware model's decoder)."""
 
-    _table: ClassVar[dict[int, tuple[int, Parser]]] = {0x02: (1, _ping), 0x03: (4, _drive)}
+    _table: ClassVar[FrameTable] = {0x02: (1, _ping), 0x03: (4, _drive)}
 
 
 # --- the device -------------------------------------------------------------------------

@@ -4,15 +4,18 @@ a velocity command alive, explaining silence, and turning messages into JSON."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import datetime
 import enum
 import time
 from collections.abc import AsyncIterator, Callable
-from typing import Any
+from typing import Any, TypeVar
 
 from ..core.device import Device
 from ..errors import ChassisError, RequestTimeoutError
+
+D = TypeVar("D", bound=Device[Any, Any])
 
 __all__ = [
     "DEMO_PATTERN",
@@ -22,6 +25,7 @@ __all__ = [
     "first",
     "jsonable",
     "out",
+    "simulated",
 ]
 
 #: (what, linear m/s, angular rad/s, seconds) of the demos' drive.
@@ -68,6 +72,20 @@ async def drive_for(
             show()
             next_show = now + 0.2
         await asyncio.sleep(0.1)
+
+
+@contextlib.asynccontextmanager
+async def simulated(name: str, device: type[D]) -> AsyncIterator[D]:
+    """A demo's stage: device ``name``'s simulator on a pty and ``device`` connected to
+    it through the real serial stack, narrated."""
+    from ..devices import profile
+
+    out(f"Starting the {name} simulator on a pseudo-terminal ...")
+    async with profile(name).simulator() as sim:
+        out(f"simulator    {sim.port}")
+        async with device(sim.port) as connected:
+            out(f"connected    via {connected.transport_backend}")
+            yield connected
 
 
 def explain_silence(device: Device[Any, Any], exc: RequestTimeoutError) -> None:

@@ -31,7 +31,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Any, Generic, TypeVar
 
-__all__ = ["INVALID", "NEED_DATA", "DecoderStats", "FrameDecoder", "Parser", "byte_sum"]
+__all__ = [
+    "INVALID",
+    "NEED_DATA",
+    "DecoderStats",
+    "FrameDecoder",
+    "FrameTable",
+    "Parser",
+    "byte_sum",
+]
 
 T = TypeVar("T")
 
@@ -40,6 +48,9 @@ T = TypeVar("T")
 #: content is invalid although the frame checked out (counted as malformed). Header
 #: fields a parser needs sit at fixed negative offsets from the data.
 Parser = Callable[[bytes | bytearray, int, int, float], Any]
+#: What a codec knows of each frame type it accepts: type (or id) -> (its size, or 0 if
+#: the frame says its own; its parser). What "size" counts is the codec's own.
+FrameTable = dict[int, tuple[int, Parser]]
 
 #: ``_try_frame`` result: the candidate at this offset is incomplete; wait for more bytes.
 NEED_DATA = 0

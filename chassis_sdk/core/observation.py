@@ -6,12 +6,12 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import anyio
 
 from ..errors import NotConnectedError
-from .diagnosis import Findings
+from .diagnosis import Diagnosis, Findings
 from .dispatch import Broadcast, Streams, Subscription
 from .events import BatteryMonitor, RobotEvent
 from .framing import FrameDecoder
@@ -26,6 +26,7 @@ from .watchdog import VelocityWatchdog
 __all__ = ["Observation"]
 
 T = TypeVar("T")
+D = TypeVar("D", bound=Diagnosis)
 
 
 class Observation:
@@ -36,6 +37,7 @@ class Observation:
     """
 
     port: str
+    kind: ClassVar[str]
     _log: logging.Logger
     _decoder: FrameDecoder[Any]
     _link: LinkSupervisor[Any]
@@ -101,6 +103,19 @@ class Observation:
     def battery_low(self) -> float | None:
         """Voltage below which ``BATTERY_LOW`` is reported (``None``: not watched)."""
         return self._battery_monitor.threshold
+
+    def _report(self, found: Findings, cls: type[D], **read: Any) -> D:
+        """A :class:`Diagnosis` (``cls``: it or a device's subclass, with what was
+        ``read`` for it) of these findings, now."""
+        return cls(
+            self.kind,
+            self.port,
+            self._link.state,
+            self.stats,
+            tuple(found.faults),
+            tuple(found.notes),
+            **read,
+        )
 
     def _findings(self) -> Findings:
         """The link's and the battery's findings, for ``diagnose()`` to add to."""

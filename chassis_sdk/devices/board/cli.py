@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out
+from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
 from ...errors import RequestTimeoutError
 from .device import Board
-from .firmware import BoardSimulator
 from .messages import BatteryReading, ImuSample, VelocityFeedback
 
 __all__ = ["demo", "info", "plot"]
@@ -15,31 +14,27 @@ __all__ = ["demo", "info", "plot"]
 
 async def demo() -> None:
     """Drive the board simulator through the real serial stack, narrating."""
-    out("Starting the board simulator on a pseudo-terminal ...")
-    async with BoardSimulator() as sim:
-        out(f"simulator    {sim.port}")
-        async with Board(sim.port) as board:
-            out(f"connected    via {board.transport_backend}")
-            out(f"led          {await board.set_led(True)} (reported by the board)")
-            out(f"buzzer       {await board.set_buzzer(True)} then {await board.set_buzzer(False)}")
-            await board.set_servo(1, 45.0)
-            battery = await anext(board.battery())
-            out(f"battery      {battery.voltage:.2f} V")
+    async with simulated("board", Board) as board:
+        out(f"led          {await board.set_led(True)} (reported by the board)")
+        out(f"buzzer       {await board.set_buzzer(True)} then {await board.set_buzzer(False)}")
+        await board.set_servo(1, 45.0)
+        battery = await anext(board.battery())
+        out(f"battery      {battery.voltage:.2f} V")
 
-            def show() -> None:
-                imu, vel = board.latest_imu, board.latest_velocity
-                if imu is not None and vel is not None:
-                    out(
-                        f"  v={vel.linear:+.3f} m/s  w={vel.angular:+.3f} rad/s  "
-                        f"accel=({imu.accel.x:+.2f}, {imu.accel.y:+.2f}, {imu.accel.z:+.2f}) g  "
-                        f"gyro z={imu.gyro.z:+6.1f} deg/s"
-                    )
+        def show() -> None:
+            imu, vel = board.latest_imu, board.latest_velocity
+            if imu is not None and vel is not None:
+                out(
+                    f"  v={vel.linear:+.3f} m/s  w={vel.angular:+.3f} rad/s  "
+                    f"accel=({imu.accel.x:+.2f}, {imu.accel.y:+.2f}, {imu.accel.z:+.2f}) g  "
+                    f"gyro z={imu.gyro.z:+6.1f} deg/s"
+                )
 
-            for name, v, w, seconds in DEMO_PATTERN[:2]:
-                out(f"drive: {name} (v={v} m/s, w={w} rad/s) for {seconds} s")
-                await drive_for(board, v, w, seconds, show)
-            await board.stop()
-            await board.set_led(False)
+        for name, v, w, seconds in DEMO_PATTERN[:2]:
+            out(f"drive: {name} (v={v} m/s, w={w} rad/s) for {seconds} s")
+            await drive_for(board, v, w, seconds, show)
+        await board.stop()
+        await board.set_led(False)
     out("done: the board stopped and the port is closed.")
 
 

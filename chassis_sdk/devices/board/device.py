@@ -254,14 +254,7 @@ class Board(Device[BoardMessage, _Key]):
                     found.note(f"{name} {'on' if await read() else 'off'}")
                 except RequestTimeoutError:
                     found.fault(f"{name} request unanswered")
-        return Diagnosis(
-            self.kind,
-            self.port,
-            self.connection_state,
-            self.stats,
-            tuple(found.faults),
-            tuple(found.notes),
-        )
+        return self._report(found, Diagnosis)
 
     # --- streams --------------------------------------------------------------------------------
 

@@ -24,7 +24,7 @@ import struct
 from typing import ClassVar, TypeVar
 
 from ...core.construct import frozen_builder
-from ...core.framing import INVALID, NEED_DATA, FrameDecoder, Parser, byte_sum
+from ...core.framing import INVALID, NEED_DATA, FrameDecoder, FrameTable, byte_sum
 from ...core.validation import INT16, UINT8, check_int, check_member, scale_to_int
 from .messages import (
     BatteryReading,
@@ -289,10 +289,9 @@ def _parse_servo(b: bytes | bytearray, o: int, n: int, ts: float) -> ServoComman
     return ServoCommand(Servo(servo), angle)
 
 
-#: type -> (len byte, or 0 if variable; parser)
-_FrameTable = dict[int, tuple[int, Parser]]
+# FrameTable sizes: the length byte (or 0 if variable).
 
-_DEVICE_FRAMES: _FrameTable = {
+_DEVICE_FRAMES: FrameTable = {
     BoardType.IMU: (0x13, _parse_imu),
     BoardType.VELOCITY_FEEDBACK: (0x05, _parse_velocity),
     BoardType.BATTERY: (0x03, _parse_battery),
@@ -301,7 +300,7 @@ _DEVICE_FRAMES: _FrameTable = {
     BoardType.LOG: (0, _parse_log),
 }
 
-_HOST_FRAMES: _FrameTable = {
+_HOST_FRAMES: FrameTable = {
     BoardType.LED: (0x03, _parse_switch_cmd),
     BoardType.BUZZER: (0x03, _parse_switch_cmd),
     BoardType.MOTOR_PWM: (0x04, _parse_pwm),
@@ -341,7 +340,7 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
     proportion to the noise (0.3 % to 1.9 % at 2 % noise), so it is not done.
     """
 
-    _table: ClassVar[_FrameTable] = {}
+    _table: ClassVar[FrameTable] = {}
     #: Refuse checked-out candidates that what follows shows to be misaligned.
     check_alignment: ClassVar[bool] = True
 

@@ -8,11 +8,10 @@ from typing import Any
 
 import anyio
 
-from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out
+from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
 from ...core.diagnosis import Diagnosis
 from ...errors import RequestTimeoutError
 from .device import Chassis
-from .firmware import ChassisSimulator
 from .messages import Telemetry
 
 __all__ = ["demo", "format_telemetry", "info", "monitor", "plot"]
@@ -53,40 +52,36 @@ async def _print_info(robot: Chassis) -> None:
 
 async def demo() -> None:
     """Drive the chassis simulator through the real serial stack, narrating."""
-    out("Starting the chassis simulator on a pseudo-terminal ...")
-    async with ChassisSimulator() as sim:
-        out(f"simulator    {sim.port}")
-        async with Chassis(sim.port) as robot:
-            out(f"connected    via {robot.transport_backend}")
-            await _print_info(robot)
-            await anext(robot.telemetry())
+    async with simulated("chassis", Chassis) as robot:
+        await _print_info(robot)
+        await anext(robot.telemetry())
 
-            def show() -> None:
-                t = robot.latest_telemetry
-                if t is not None:
-                    out(format_telemetry(t))
+        def show() -> None:
+            t = robot.latest_telemetry
+            if t is not None:
+                out(format_telemetry(t))
 
-            for name, v, w, seconds in DEMO_PATTERN:
-                out(f"drive: {name} (v={v} m/s, w={w} rad/s) for {seconds} s")
-                await drive_for(robot, v, w, seconds, show)
-            out("stop")
-            await robot.stop()
-            async for t in robot.telemetry():
-                if t.linear == 0 and t.angular == 0:
-                    out(format_telemetry(t))
-                    break
-            out("software e-stop on, then off")
-            await robot.emergency_stop()
-            async for t in robot.telemetry():
-                if t.emergency_stopped:
-                    out(format_telemetry(t))
-                    break
-            await robot.release_emergency_stop()
-            stats = robot.stats
-            out(
-                f"link         {stats.frames} frames in, {stats.frames_sent} out, "
-                f"{stats.resends} watchdog resends, {stats.bytes_dropped} bytes dropped"
-            )
+        for name, v, w, seconds in DEMO_PATTERN:
+            out(f"drive: {name} (v={v} m/s, w={w} rad/s) for {seconds} s")
+            await drive_for(robot, v, w, seconds, show)
+        out("stop")
+        await robot.stop()
+        async for t in robot.telemetry():
+            if t.linear == 0 and t.angular == 0:
+                out(format_telemetry(t))
+                break
+        out("software e-stop on, then off")
+        await robot.emergency_stop()
+        async for t in robot.telemetry():
+            if t.emergency_stopped:
+                out(format_telemetry(t))
+                break
+        await robot.release_emergency_stop()
+        stats = robot.stats
+        out(
+            f"link         {stats.frames} frames in, {stats.frames_sent} out, "
+            f"{stats.resends} watchdog resends, {stats.bytes_dropped} bytes dropped"
+        )
     out("done: the robot stopped and the port is closed.")
 
 

@@ -49,9 +49,13 @@ class ChassisCommands(Device[Any, ReplyId]):
             confirm: Return only once telemetry shows ``SOFTWARE_ESTOP`` cleared.
             timeout: Seconds to wait for that (with ``confirm``).
         """
-        await self._send(self._encoder.emergency_stop(False))
-        if confirm:
-            await self._confirm_bit(ChassisStatus.SOFTWARE_ESTOP, False, timeout)
+        await self._send_confirmed(
+            self._encoder.emergency_stop(False),
+            ChassisStatus.SOFTWARE_ESTOP,
+            False,
+            confirm,
+            timeout,
+        )
 
     async def clear_faults(
         self,
@@ -99,9 +103,9 @@ class ChassisCommands(Device[Any, ReplyId]):
             confirm: Return only once telemetry shows ``DOCKING_ENABLED``.
             timeout: Seconds to wait for that (with ``confirm``).
         """
-        await self._send(self._encoder.docking(True))
-        if confirm:
-            await self._confirm_bit(ChassisStatus.DOCKING_ENABLED, True, timeout)
+        await self._send_confirmed(
+            self._encoder.docking(True), ChassisStatus.DOCKING_ENABLED, True, confirm, timeout
+        )
 
     async def stop_docking(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
         """Stop automatic docking (0x06, 0).
@@ -110,9 +114,18 @@ class ChassisCommands(Device[Any, ReplyId]):
             confirm: Return only once telemetry shows ``DOCKING_ENABLED`` cleared.
             timeout: Seconds to wait for that (with ``confirm``).
         """
-        await self._send(self._encoder.docking(False))
+        await self._send_confirmed(
+            self._encoder.docking(False), ChassisStatus.DOCKING_ENABLED, False, confirm, timeout
+        )
+
+    async def _send_confirmed(
+        self, frame: bytes, bit: ChassisStatus, present: bool, confirm: bool, timeout: float
+    ) -> None:
+        """Send a command; with ``confirm``, wait for telemetry to show ``bit`` as
+        ``present`` (set) or not."""
+        await self._send(frame)
         if confirm:
-            await self._confirm_bit(ChassisStatus.DOCKING_ENABLED, False, timeout)
+            await self._confirm_bit(bit, present, timeout)
 
     async def _confirm_bit(self, bit: ChassisStatus, present: bool, timeout: float) -> None:
         name = bit.name or repr(bit)

@@ -277,16 +277,8 @@ class Chassis(ChassisCommands):
                 found.fault("driver status (0xB0) unanswered")
             else:
                 driver_findings(drivers, found)
-        return ChassisDiagnosis(
-            self.kind,
-            self.port,
-            self.connection_state,
-            self.stats,
-            tuple(found.faults),
-            tuple(found.notes),
-            None if latest is None else latest.status,
-            drivers,
-        )
+        status = None if latest is None else latest.status
+        return self._report(found, ChassisDiagnosis, status=status, drivers=drivers)
 
     # --- streams --------------------------------------------------------------------------------
 

@@ -16,7 +16,7 @@ import struct
 from typing import ClassVar, TypeVar
 
 from ...core.construct import MemberCache, frozen_builder
-from ...core.framing import INVALID, NEED_DATA, FrameDecoder, Parser, byte_sum
+from ...core.framing import INVALID, NEED_DATA, FrameDecoder, FrameTable, byte_sum
 from ...core.validation import INT16, check_int, check_real, scale_to_int
 from .messages import (
     ChassisInfo,
@@ -379,10 +379,9 @@ def _parse_drive(b: bytes | bytearray, o: int, n: int, ts: float) -> HostCommand
     return None
 
 
-#: frame id -> (total frame length, or 0 if variable; parser)
-_FrameTable = dict[int, tuple[int, Parser]]
+# FrameTable sizes: the total frame length (or 0 if variable).
 
-_DEVICE_FRAMES: _FrameTable = {
+_DEVICE_FRAMES: FrameTable = {
     ReplyId.TELEMETRY: (28, _parse_telemetry),
     ReplyId.DRIVER_STATUS: (50, _parse_driver),
     ReplyId.POWER: (22, _parse_power),
@@ -392,7 +391,7 @@ _DEVICE_FRAMES: _FrameTable = {
     ReplyId.SHIP_DATE: (13, _parse_date),
 }
 
-_HOST_FRAMES: _FrameTable = {
+_HOST_FRAMES: FrameTable = {
     int(cid): ((18, _parse_drive) if cid == CommandId.DRIVE else (12, _parse_command))
     for cid in CommandId
 }
@@ -474,7 +473,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
     """
 
     _head = HEAD
-    _table: ClassVar[_FrameTable] = {}
+    _table: ClassVar[FrameTable] = {}
 
     __slots__ = ("sequence",)
 
