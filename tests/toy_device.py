@@ -47,6 +47,7 @@ __all__ = ["PROFILE", "Toy", "ToyDecoder", "ToyFirmware", "ToySimulator", "ToyTe
 HEAD = b"\xa5\x5a"
 
 # --- messages ---------------------------------------------------------------------------
+# --8<-- [start:messages]
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,7 +85,10 @@ class Drive:
 ToyMessage = ToyTelemetry | Pong
 ToyCommand = Ping | Drive
 
+# --8<-- [end:messages]
+
 # --- codec ------------------------------------------------------------------------------
+# --8<-- [start:codec]
 
 _TELEMETRY = struct.Struct("<hH")
 _PONG = struct.Struct("<BH")
@@ -169,7 +173,10 @@ class ToyCommandDecoder(_ToyFraming[ToyCommand]):
     _table: ClassVar[FrameTable] = {0x02: (1, _ping), 0x03: (4, _drive)}
 
 
+# --8<-- [end:codec]
+
 # --- the device -------------------------------------------------------------------------
+# --8<-- [start:device]
 
 
 class Toy(Device[ToyMessage, int]):
@@ -226,7 +233,10 @@ class Toy(Device[ToyMessage, int]):
         return self._telemetry.latest
 
 
+# --8<-- [end:device]
+
 # --- the firmware model -----------------------------------------------------------------
+# --8<-- [start:firmware]
 
 
 class ToyFirmware(FirmwareModel[ToyCommand]):
@@ -280,7 +290,10 @@ class ToySimulator(SimulatorServer):
         super().__init__(ToyFirmware(), tcp_port=tcp_port, faults=faults)
 
 
+# --8<-- [end:firmware]
+
 # --- the registry entry -----------------------------------------------------------------
+# --8<-- [start:profile]
 
 PROFILE = DeviceProfile(
     name="toy",
@@ -301,3 +314,5 @@ PROFILE = DeviceProfile(
     max_buffered=8,
     recognised_by="toy telemetry (0x01)",
 )
+
+# --8<-- [end:profile]

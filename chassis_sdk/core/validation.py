@@ -50,7 +50,9 @@ def check_real(
     Args:
         value: What the caller passed.
         name: Argument name, for the error message.
-        low, high: Inclusive bounds (``low`` exclusive with ``low_open``), if any.
+        low: Inclusive lower bound (exclusive with ``low_open``), if any.
+        high: Inclusive upper bound, if any.
+        low_open: Make ``low`` exclusive.
         unit: For the error message.
 
     Raises:
