@@ -170,9 +170,14 @@ def _parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demo", help="drive the built-in simulator through the real serial stack")
     d.add_argument("--device", choices=names, default=names[0], help="which device to demo")
-    d.add_argument(
-        "--board", action="store_const", dest="device", const="board", help="= --device board"
-    )
+    for other in names[1:]:
+        d.add_argument(
+            f"--{other}",
+            action="store_const",
+            dest="device",
+            const=other,
+            help=f"= --device {other}",
+        )
 
     s = sub.add_parser("sim", help="run a simulator until Ctrl-C; prints the port to use")
     s.add_argument("kind", choices=names)
@@ -202,12 +207,12 @@ def _parser() -> argparse.ArgumentParser:
         help="hold every reply back this long",
     )
 
-    i = sub.add_parser("info", help="print versions and geometry (chassis) or a self-check (board)")
+    i = sub.add_parser("info", help="what the device says about itself, and a diagnosis")
     i.add_argument("port", help="device path, pty path or socket://host:port")
     i.add_argument("--protocol", choices=names, default=names[0])
     i.add_argument("--timeout", type=float, default=1.0, help="seconds per request")
 
-    m = sub.add_parser("monitor", help="live view of the telemetry (chassis)")
+    m = sub.add_parser("monitor", help="live view of the telemetry, faults and events")
     m.add_argument("port")
     m.add_argument("--protocol", choices=names, default=names[0])
     m.add_argument("--seconds", type=float, help="stop after this long")
@@ -228,7 +233,7 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument("--protocol", choices=names, help="default: detected")
     rp.add_argument("--json", action="store_true", help="one JSON object per line")
 
-    pl = sub.add_parser("plot", help="plot velocities, wheel speeds and voltage from a capture")
+    pl = sub.add_parser("plot", help="plot a capture: velocities, wheel speeds, voltage, ...")
     pl.add_argument("file")
     pl.add_argument("-o", "--output", default="capture.png")
     pl.add_argument("--protocol", choices=names, help="default: detected")
@@ -300,4 +305,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _kind(args: argparse.Namespace) -> str:
-    return str(getattr(args, "protocol", None) or "chassis")
+    return str(getattr(args, "protocol", None) or next(iter(profiles())))

@@ -78,20 +78,20 @@ class ChassisCommands(Device[Any, ReplyId]):
             ValueError: Nothing selected to clear.
             RequestTimeoutError: ``confirm`` and a selected fault is still set.
         """
-        what = FaultClear(0)
+        selected = FaultClear(0)
         bits = ChassisStatus(0)
         if driver:
-            what |= FaultClear.DRIVER
+            selected |= FaultClear.DRIVER
             bits |= ChassisStatus.DRIVER_FAULT
         if front_bumper:
-            what |= FaultClear.FRONT_BUMPER
+            selected |= FaultClear.FRONT_BUMPER
             bits |= ChassisStatus.FRONT_BUMPER
         if rear_bumper:
-            what |= FaultClear.REAR_BUMPER
+            selected |= FaultClear.REAR_BUMPER
             bits |= ChassisStatus.REAR_BUMPER
-        if not what:
+        if not selected:
             raise ValueError("clear_faults() with nothing to clear: select at least one")
-        await self._send(self._encoder.clear_faults(what))
+        await self._send(self._encoder.clear_faults(selected))
         if confirm:
             await self._confirm(lambda t: not t.status & bits, timeout, f"{bits!r} clear")
 

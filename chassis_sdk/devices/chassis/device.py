@@ -200,11 +200,13 @@ class Chassis(ChassisCommands):
 
     # --- requests -------------------------------------------------------------------------------
 
-    async def _read(self, what: CommandId) -> Any:
-        reply = REPLY_TO[what]
+    async def _read(self, request: CommandId) -> Any:
+        reply = REPLY_TO[request]
         encoder = self._encoder
         return await self._request(
-            lambda: (encoder.read(what), reply), read_only=True, name=f"{what.name} (0x{what:02X})"
+            lambda: (encoder.read(request), reply),
+            read_only=True,
+            name=f"{request.name} (0x{request:02X})",
         )
 
     async def get_firmware_version(self) -> int:

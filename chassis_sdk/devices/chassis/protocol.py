@@ -263,26 +263,26 @@ class ChassisEncoder:
         """0x03: engage (True) or release (False) the software emergency stop."""
         return self.encode(Command(CommandId.EMERGENCY_STOP, int(active)))
 
-    def clear_faults(self, what: FaultClear) -> bytes:
-        """0x05: clear the faults named by ``what``."""
-        return self.encode(Command(CommandId.CLEAR_FAULTS, int(what)))
+    def clear_faults(self, faults: FaultClear) -> bytes:
+        """0x05: clear the latched ``faults``."""
+        return self.encode(Command(CommandId.CLEAR_FAULTS, int(faults)))
 
     def docking(self, enabled: bool) -> bytes:
         """0x06: start (True) or stop (False) automatic docking."""
         return self.encode(Command(CommandId.DOCKING, int(enabled)))
 
-    def read(self, what: CommandId) -> bytes:
+    def read(self, request: CommandId) -> bytes:
         """0x07, 0x08, 0x09, 0x0A or 0xB0: a read request."""
-        if what not in _READ_REQUESTS:
-            raise ValueError(f"{what!r} is not a read request")
-        return self.encode(Command(what, _READ_REQUESTS[what]))
+        if request not in _READ_REQUESTS:
+            raise ValueError(f"{request!r} is not a read request")
+        return self.encode(Command(request, _READ_REQUESTS[request]))
 
     def set_power_telemetry(self, enabled: bool) -> bytes:
         """0xB1: switch the 20 Hz current/voltage upload on or off."""
         return self.encode(Command(CommandId.POWER_TELEMETRY, int(enabled)))
 
 
-#: Read requests, the data word each carries, and the id of the reply.
+#: Read requests and the data word each carries (REPLY_TO gives the id of each reply).
 _READ_REQUESTS: dict[CommandId, int] = {
     CommandId.FIRMWARE_VERSION: 0,
     CommandId.HARDWARE_VERSION: 0,
