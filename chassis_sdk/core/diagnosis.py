@@ -56,9 +56,11 @@ class Findings:
     def flags(self, prefix: str, value: enum.IntFlag, faulty: enum.IntFlag | int) -> None:
         """Every set bit of ``value`` by name: those in ``faulty`` as faults, the rest
         as notes (``"{prefix} {NAME}"``)."""
-        cls = type(value)
-        self.faults += [f"{prefix} {name}" for name in flag_names(cls(value & faulty))]
-        self.notes += [f"{prefix} {name}" for name in flag_names(cls(value & ~faulty))]
+        # Plain ints: an IntFlag's ~ keeps only its named bits, and would lose the
+        # undocumented ones, which are notes worth reading.
+        cls, bits, mask = type(value), int(value), int(faulty)
+        self.faults += [f"{prefix} {name}" for name in flag_names(cls(bits & mask))]
+        self.notes += [f"{prefix} {name}" for name in flag_names(cls(bits & ~mask))]
 
 
 @dataclass(frozen=True, slots=True)

@@ -74,13 +74,8 @@ class ConnectionState(enum.Enum):
 OPEN = frozenset({ConnectionState.CONNECTED, ConnectionState.STALE})
 
 
-class Supervised(Protocol[M]):
-    """What the supervisor needs of the device it serves."""
-
-    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
-        """A link is about to open: reset per-connection state and return the decoder
-        and the sink of its messages."""
-        ...
+class Fenced(Protocol):
+    """What the writer needs of the device it writes for."""
 
     def zero_frame(self) -> bytes:
         """A zero-velocity frame: the last velocity frame on every path."""
@@ -88,6 +83,15 @@ class Supervised(Protocol[M]):
 
     def fenced(self) -> None:
         """Writers are fenced off: forget any active command."""
+        ...
+
+
+class Supervised(Fenced, Protocol[M]):
+    """What the supervisor needs of the device it serves."""
+
+    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
+        """A link is about to open: reset per-connection state and return the decoder
+        and the sink of its messages."""
         ...
 
     def state_changed(self, old: ConnectionState, new: ConnectionState) -> None:
@@ -170,7 +174,7 @@ class Writer(Generic[M]):
         states: The device's connection state.
     """
 
-    def __init__(self, owner: Supervised[M], states: ConnectionStates) -> None:
+    def __init__(self, owner: Fenced, states: ConnectionStates) -> None:
         self._owner = owner
         self._states = states
         self.port = states.port
