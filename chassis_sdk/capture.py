@@ -2,13 +2,16 @@
 protocol on a port.
 
 A capture is a JSON-lines file: a header line ``{"capture": 1, "port": ..., "started":
-...}``, then one line per chunk read, ``{"t": seconds since the start, "data": hex}``.
+...}``, then one line per chunk read, ``{"t": seconds since the start, "data": hex}``,
+and a line ``{"t": ..., "event": "disconnected"}`` (or ``"reconnected"``) where the link
+dropped or came back.
 Plain text, so captures can be diffed, trimmed and attached to bug reports.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import datetime
 import json
 import logging
@@ -20,10 +23,22 @@ from typing import Any
 
 from .core.transport import Link, open_link
 from .devices import profile, profiles
+from .errors import PortOpenError
 
-__all__ = ["Capture", "decode_capture", "detect_protocol", "read_capture", "record"]
+__all__ = [
+    "Capture",
+    "Progress",
+    "decode_capture",
+    "detect_in",
+    "detect_protocol",
+    "read_capture",
+    "record",
+]
 
 _log = logging.getLogger("chassis_sdk.capture")
+#: Reopening after a drop while recording: first delay, cap (seconds).
+_REOPEN_START = 0.1
+_REOPEN_CAP = 1.0
 
 
 class _RawDecoder:
@@ -38,24 +53,46 @@ class _RawDecoder:
 
 @dataclass(frozen=True, slots=True)
 class Capture:
-    """Summary of a finished recording."""
+    """Summary of a finished recording.
+
+    Attributes:
+        path: The capture file.
+        chunks: Chunks recorded (one line each).
+        bytes: Bytes recorded.
+        seconds: How long the recording ran.
+        disconnects: Times the link dropped during the recording (each is a line
+            ``{"t": ..., "event": "disconnected"}`` in the file, and a reopen that
+            worked is ``"reconnected"``).
+        connected: Whether the link was up when the recording ended.
+    """
 
     path: Path
     chunks: int
     bytes: int
     seconds: float
+    disconnects: int = 0
+    connected: bool = True
+
+
+#: What a recording's progress callback gets: (bytes so far, seconds so far, link up).
+Progress = Callable[[int, float, bool], None]
 
 
 async def _open_raw(
-    port: str, baudrate: int, on_chunk: Callable[[tuple[float, bytes]], None]
+    port: str,
+    baudrate: int,
+    on_chunk: Callable[[tuple[float, bytes]], None],
+    on_lost: Callable[[Exception | None], None] = lambda exc: None,
 ) -> Link[Any]:
     def on_chunks(chunks: list[tuple[float, bytes]], now: float) -> None:
         for chunk in chunks:
             on_chunk(chunk)
 
-    return await open_link(
-        port, baudrate, lambda: Link(_RawDecoder(), on_chunks, lambda exc: None, _log)
-    )
+    return await open_link(port, baudrate, lambda: Link(_RawDecoder(), on_chunks, on_lost, _log))
+
+
+def _setter(event: asyncio.Event) -> Callable[[Exception | None], None]:
+    return lambda exc: event.set()
 
 
 async def record(
@@ -64,36 +101,43 @@ async def record(
     *,
     seconds: float,
     baudrate: int = 115200,
-    progress: Callable[[int, float], None] | None = None,
+    progress: Progress | None = None,
 ) -> Capture:
     """Record what the device sends for ``seconds`` into a capture file.
+
+    If the link drops (the cable is pulled), the recording goes on: the drop is written
+    to the file, the port is reopened with backoff until ``seconds`` are up, and a
+    reopen is written too; :attr:`Capture.connected` says how it ended.
 
     Args:
         port: Device path, pty path or ``socket://host:port``.
         path: The capture file to write.
         seconds: How long to listen.
         baudrate: Serial speed.
-        progress: Called about twice a second with (bytes so far, seconds so far).
+        progress: Called about twice a second, and at once when the link drops or
+            comes back, with (bytes so far, seconds so far, link up).
 
     Raises:
-        PortOpenError: The port cannot be opened.
+        PortOpenError: The port cannot be opened at the start.
     """
     path = Path(path)
     start = time.monotonic()
-    total = 0
-    chunks = 0
+    end = start + seconds
+    total = chunks = disconnects = 0
+    lost = asyncio.Event()
     # Local file writes are small and buffered; a thread per chunk would cost more.
     with path.open("w", encoding="utf-8") as f:  # noqa: ASYNC230
-        f.write(
-            json.dumps(
-                {
-                    "capture": 1,
-                    "port": port,
-                    "baudrate": baudrate,
-                    "started": datetime.datetime.now(datetime.UTC).isoformat(),
-                }
-            )
-            + "\n"
+
+        def line(item: dict[str, object]) -> None:
+            f.write(json.dumps(item) + "\n")
+
+        line(
+            {
+                "capture": 1,
+                "port": port,
+                "baudrate": baudrate,
+                "started": datetime.datetime.now(datetime.UTC).isoformat(),
+            }
         )
 
         def on_chunk(item: tuple[float, bytes]) -> None:
@@ -101,18 +145,43 @@ async def record(
             t, data = item
             total += len(data)
             chunks += 1
-            f.write(json.dumps({"t": round(t - start, 6), "data": data.hex()}) + "\n")
+            line({"t": round(t - start, 6), "data": data.hex()})
 
-        link = await _open_raw(port, baudrate, on_chunk)
+        def report() -> None:
+            if progress is not None:
+                progress(total, time.monotonic() - start, link is not None)
+
+        link: Link[Any] | None = await _open_raw(port, baudrate, on_chunk, _setter(lost))
         try:
-            end = start + seconds
+            delay = _REOPEN_START
             while (now := time.monotonic()) < end:
-                if progress is not None:
-                    progress(total, now - start)
-                await asyncio.sleep(min(0.5, end - now))
+                report()
+                if link is not None:
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(lost.wait(), min(0.5, end - now))
+                    if lost.is_set():
+                        disconnects += 1
+                        line({"t": round(time.monotonic() - start, 6), "event": "disconnected"})
+                        await link.aclose(0.0)
+                        link = None
+                        delay = _REOPEN_START
+                    continue
+                await asyncio.sleep(min(delay, end - now))
+                try:
+                    # A fresh event per link: a late word from the old one cannot count.
+                    lost = asyncio.Event()
+                    link = await _open_raw(port, baudrate, on_chunk, _setter(lost))
+                except PortOpenError:
+                    delay = min(delay * 2, _REOPEN_CAP)
+                    continue
+                line({"t": round(time.monotonic() - start, 6), "event": "reconnected"})
         finally:
-            await link.aclose(1.0)
-    return Capture(path, chunks, total, time.monotonic() - start)
+            if link is not None:
+                await link.aclose(1.0)
+        report()
+    return Capture(
+        path, chunks, total, time.monotonic() - start, disconnects, connected=link is not None
+    )
 
 
 def read_capture(path: str | Path) -> Iterator[tuple[float, bytes]]:
@@ -133,6 +202,8 @@ def read_capture(path: str | Path) -> Iterator[tuple[float, bytes]]:
                 continue
             try:
                 item = json.loads(line)
+                if "event" in item:  # the link dropped or came back: no bytes
+                    continue
                 yield float(item["t"]), bytes.fromhex(item["data"])
             except (ValueError, KeyError, TypeError):
                 raise ValueError(f"{path}:{n}: not a capture line") from None

@@ -93,8 +93,8 @@ async def test_bad_argument_is_refused_before_connecting() -> None:
         code, _out, err = await run(
             "-m", "chassis_sdk.cli", "drive", sim.port, "--linear", "nan", "--duration", "0.1"
         )
-    assert code == 1
-    assert "linear must be finite" in err
+    assert code == 2  # a usage error now: refused while parsing, before the port opens
+    assert "argument --linear: linear must be finite" in err
 
 
 async def test_record_replay_and_detect(tmp_path: Path) -> None:

@@ -1,11 +1,15 @@
 """The ``chassis-sdk`` command line, built on the public API and the device registry.
 
 Every command prints one clear line and exits non-zero on the everyday failures (no
-such port, permission denied, nothing answering) instead of a traceback. Commands loop
-over :func:`chassis_sdk.devices.profiles`: a device registered or installed as a
-package is simulated, detected, recorded, replayed and driven like the built-in ones,
-and a device's own commands (``demo``, ``info``, ``monitor``, ``plot``) come from its
+such port, permission denied, nothing answering, the wrong device on the port, the
+cable pulled) instead of a traceback. Commands loop over
+:func:`chassis_sdk.devices.profiles`: a device registered or installed as a package is
+simulated, detected, recorded, replayed and driven like the built-in ones, and a
+device's own commands (``demo``, ``info``, ``monitor``, ``plot``) come from its
 profile.
+
+``CHASSIS_SDK_PORT`` and ``CHASSIS_SDK_PROTOCOL`` give the defaults of the port and of
+``--protocol``, so a robot's service file or a shell profile sets them once.
 """
 
 from __future__ import annotations
@@ -14,18 +18,79 @@ import argparse
 import asyncio
 import json
 import logging
+import os
 import sys
-from collections.abc import Coroutine, Sequence
+import time
+from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
 from .. import capture
 from ..core.run import run
 from ..core.simulator import LineFaults
+from ..core.supervisor import ConnectionState
+from ..core.validation import check_int, check_real
+from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile, profile, profiles
 from ..errors import ChassisError, RequestTimeoutError
-from .common import jsonable, out
+from ..ports import list_serial_ports
+from .common import first_frame, jsonable, out, progress_line
 
-__all__ = ["main"]
+__all__ = ["ENV_PORT", "ENV_PROTOCOL", "main"]
+
+#: Environment variables that give defaults to the port and ``--protocol``.
+ENV_PORT = "CHASSIS_SDK_PORT"
+ENV_PROTOCOL = "CHASSIS_SDK_PROTOCOL"
+#: ``drive``'s default limits: slow enough to walk beside.
+DRIVE_MAX_LINEAR = 0.5
+DRIVE_MAX_ANGULAR = 1.0
+
+
+# --- commands -----------------------------------------------------------------------------
+
+
+def _ports(as_json: bool) -> None:
+    ports = list_serial_ports()
+    if as_json:
+        out(json.dumps([p.as_dict() for p in ports]))
+        return
+    if not ports:
+        out("no serial ports found (is the adapter plugged in? see `dmesg | tail`)")
+        return
+    for p in ports:
+        usb = f"  USB {p.vid_pid}" if p.vid_pid else ""
+        who = ", ".join(x for x in (p.manufacturer, p.description) if x)
+        serial_no = f"  serial {p.serial_number}" if p.serial_number else ""
+        out(f"{p.device:<16}{usb}  {who or '-'}{serial_no}  [{p.access}]")
+
+
+async def _detect_one(port: str, seconds: float, baudrate: int) -> str:
+    try:
+        found = await capture.detect_protocol(port, seconds=seconds, baudrate=baudrate)
+    except ChassisError as exc:
+        return str(exc)
+    if found is None:
+        heard = " or ".join(p.recognised_by for p in profiles().values())
+        return f"nothing recognisable within {seconds:g} s (expected {heard} frames)"
+    return found
+
+
+async def _detect(port: str | None, seconds: float, baudrate: int) -> None:
+    if port is not None:
+        found = await _detect_one(port, seconds, baudrate)
+        if found not in profiles():
+            raise ChassisError(f"{port}: {found}")
+        out(found)
+        return
+    # Every listed port at once, listening only: nothing is ever written to a port
+    # that may be someone else's device.
+    ports = [p.device for p in list_serial_ports() if p.access == "ok"]
+    if not ports:
+        raise ChassisError("no serial port this user can open (see `chassis-sdk ports`)")
+    results = await asyncio.gather(*(_detect_one(p, seconds, baudrate) for p in ports))
+    for port_name, found in zip(ports, results, strict=True):
+        out(f"{port_name}: {found}")
+    if not any(found in profiles() for found in results):
+        raise ChassisError("no known device answered on any port")
 
 
 async def _sim(device: DeviceProfile, tcp: int | None, faults: LineFaults) -> None:
@@ -35,58 +100,97 @@ async def _sim(device: DeviceProfile, tcp: int | None, faults: LineFaults) -> No
         await asyncio.Event().wait()
 
 
-async def _info(device: DeviceProfile, port: str, timeout: float) -> None:
+async def _info(device: DeviceProfile, port: str, baudrate: int, timeout: float) -> None:
     if device.info is not None:
-        await device.info(port, timeout)
+        await device.info(port, baudrate, timeout)
         return
-    async with device.device(port, request_timeout=timeout) as dev:
+    async with device.device(port, baudrate=baudrate, request_timeout=timeout) as dev:
         out(f"port         {port}")
         out(f"device       {device.name}: {device.summary}")
-        for _ in range(int(timeout / 0.05) + 1):  # a generic device: wait for frames
-            if dev.stats.frames:
-                break
-            await asyncio.sleep(0.05)
-        else:
-            raise RequestTimeoutError(f"no {device.recognised_by} within {timeout:g} s")
+        await first_frame(dev, max(timeout, 1.0), device.recognised_by)
         out(f"link         {dev.connection_state.value} via {dev.transport_backend}")
         for key, value in dev.stats.as_dict().items():
             if value:
                 out(f"  {key:<19}{value}")
 
 
-async def _drive(
-    device: DeviceProfile, port: str, linear: float, angular: float, seconds: float
-) -> None:
-    async with device.device(port) as dev:
-        out(f"driving v={linear} m/s, w={angular} rad/s for {seconds} s")
-        await dev.set_velocity(linear, angular, duration=seconds)
-        await asyncio.sleep(seconds)
+def _clamp(name: str, value: float, limit: float, flag: str, unit: str) -> float:
+    if abs(value) <= limit:
+        return value
+    clamped = limit if value > 0 else -limit
+    out(f"{name} {value:g} {unit} clamped to {clamped:g} {unit} ({flag})")
+    return clamped
+
+
+async def _drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    linear = _clamp("linear", args.linear, args.max_linear, "--max-linear", "m/s")
+    angular = _clamp("angular", args.angular, args.max_angular, "--max-angular", "rad/s")
+    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
+    async with device.device(port, baudrate=args.baudrate, limits=limits) as dev:
+        # Only a device that answers in its own protocol is driven.
+        await first_frame(dev, args.timeout, device.recognised_by)
+        states = dev.connection_states()
+        out(f"driving v={linear:g} m/s, w={angular:g} rad/s for {args.duration:g} s")
+        started = time.monotonic()
+        await dev.set_velocity(linear, angular, duration=args.duration)
+        try:
+            async with asyncio.timeout(args.duration):
+                async for state in states:
+                    if state in (ConnectionState.LOST, ConnectionState.RECONNECTING):
+                        raise ChassisError(
+                            f"lost the link to {port} after {time.monotonic() - started:.1f} s "
+                            "while driving; the firmware stops the wheels on its own"
+                        )
+        except TimeoutError:
+            pass
         await dev.stop()
     out("stopped")
 
 
-async def _monitor(device: DeviceProfile, port: str, seconds: float | None) -> None:
+async def _monitor(
+    device: DeviceProfile, port: str, baudrate: int, seconds: float | None, as_json: bool
+) -> None:
     if device.monitor is None:
         raise ChassisError(f"monitor has no view of a {device.name}; try `info` or `record`")
-    await device.monitor(port, seconds)
+    await device.monitor(port, baudrate, seconds, as_json)
 
 
-async def _record(port: str, path: str, seconds: float) -> None:
-    def progress(n_bytes: int, elapsed: float) -> None:
-        print(f"\rrecording {path}: {n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s", end="")
-        sys.stdout.flush()
+async def _record(port: str, path: str, seconds: float, baudrate: int) -> None:
+    show = progress_line(f"recording {path}")
 
-    cap = await capture.record(port, path, seconds=seconds, progress=progress)
-    out(f"\rrecorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s to {path}")
+    def progress(n_bytes: int, elapsed: float, up: bool) -> None:
+        link = "" if up else "  LINK LOST, reconnecting"
+        show(f"{n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s{link}", not up)
+
+    cap = await capture.record(port, path, seconds=seconds, baudrate=baudrate, progress=progress)
+    show.done(
+        f"recorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s "
+        f"to {path}" + (f"; the link dropped {cap.disconnects} time(s)" if cap.disconnects else "")
+    )
+    if not cap.connected:
+        raise ChassisError(f"the link to {port} was lost and not restored before the end")
 
 
 def _replay(path: str, protocol: str | None, as_json: bool) -> None:
     proto = protocol or _detect_file(path)
+    count = 0
     for t, msg in capture.decode_capture(path, proto):
+        count += 1
         if as_json:
             out(json.dumps({"t": t, "type": type(msg).__name__, **jsonable(msg)}))
         else:
             out(f"{t:10.6f}  {msg}")
+    if count == 0:
+        _no_messages(path, proto)
+
+
+def _no_messages(path: str, proto: str) -> None:
+    data = b"".join(chunk for _, chunk in capture.read_capture(path))
+    if not data:
+        raise ChassisError(f"{path} holds no bytes")
+    other = capture.detect_in(data)
+    hint = f": it looks like a {other} capture; try --protocol {other}" if other else ""
+    raise ChassisError(f"no {proto} frames in {path}{hint}")
 
 
 def _detect_file(path: str) -> str:
@@ -108,6 +212,8 @@ def _plot(path: str, output: str, protocol: str | None) -> None:
     proto = protocol or _detect_file(path)
     device = profile(proto)
     rows = list(capture.decode_capture(path, proto))
+    if not rows:
+        _no_messages(path, proto)
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
     if device.plot is not None:
         device.plot(rows, axes)
@@ -138,20 +244,55 @@ def _plot_fields(rows: list[tuple[float, object]], axes: Any) -> None:
         axes[min(i // 3, 2)].plot(ts, ys, label=name)
 
 
-async def _detect(port: str, seconds: float) -> None:
-    found = await capture.detect_protocol(port, seconds=seconds)
-    if found is None:
-        heard = " or ".join(p.recognised_by for p in profiles().values())
-        raise ChassisError(
-            f"nothing recognisable on {port} within {seconds:g} s (expected {heard} frames)"
-        )
-    out(found)
-
-
 async def _demo(device: DeviceProfile) -> None:
     if device.demo is None:
         raise ChassisError(f"there is no demo of a {device.name}; try `sim {device.name}`")
     await device.demo()
+
+
+# --- arguments ----------------------------------------------------------------------------
+
+
+def _arg_type(convert: Callable[[str], Any], check: Callable[[Any], Any]) -> Callable[[str], Any]:
+    """An argparse type that refuses what the SDK would refuse, before any port opens."""
+
+    def parse(text: str) -> Any:
+        try:
+            return check(convert(text))
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def _finite(name: str) -> Callable[[str], Any]:
+    return _arg_type(float, lambda v: check_real(v, name))
+
+
+def _positive(name: str) -> Callable[[str], Any]:
+    return _arg_type(float, lambda v: check_real(v, name, low=0, low_open=True))
+
+
+_BAUD = _arg_type(int, lambda v: check_int(v, "baudrate", low=1))
+
+
+def _port_args(p: argparse.ArgumentParser, *, required: bool = True) -> None:
+    help_text = f"device path, pty path or socket://host:port (default: ${ENV_PORT})"
+    if not required:
+        help_text = f"the port (default: ${ENV_PORT}, else every serial port)"
+    p.add_argument("port", nargs="?", default=os.environ.get(ENV_PORT) or None, help=help_text)
+    p.add_argument("-b", "--baudrate", type=_BAUD, default=115200, help="serial speed")
+
+
+def _protocol_arg(p: argparse.ArgumentParser, names: list[str], *, detected: bool) -> None:
+    default = os.environ.get(ENV_PROTOCOL) or (None if detected else names[0])
+    p.add_argument(
+        "--protocol",
+        choices=names,
+        default=default,
+        help=f"which device (default: ${ENV_PROTOCOL}, else "
+        + ("detected)" if detected else f"{names[0]})"),
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -179,130 +320,145 @@ def _parser() -> argparse.ArgumentParser:
             help=f"= --device {other}",
         )
 
+    po = sub.add_parser("ports", help="list the serial ports, with USB ids and access")
+    po.add_argument("--json", action="store_true", help="one JSON array, for scripts")
+
+    de = sub.add_parser("detect", help="listen and say which device is on a port (or on each)")
+    _port_args(de, required=False)
+    de.add_argument("--seconds", type=_positive("seconds"), default=1.5, help="how long to listen")
+
     s = sub.add_parser("sim", help="run a simulator until Ctrl-C; prints the port to use")
     s.add_argument("kind", choices=names)
     s.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP instead of a pty")
+    for flag, dest, what in (
+        ("--noise", "noise", "insert a random byte before a sent byte with this chance"),
+        ("--bit-flips", "bit_flips", "flip one bit of a sent byte with this chance"),
+        ("--drop", "drop", "lose a sent byte with this chance"),
+    ):
+        s.add_argument(flag, dest=dest, type=float, default=0.0, metavar="RATE", help=what)
     s.add_argument(
-        "--noise",
-        type=float,
-        default=0.0,
-        metavar="RATE",
-        help="insert a random byte before a sent byte with this chance",
-    )
-    s.add_argument(
-        "--bit-flips",
-        type=float,
-        default=0.0,
-        metavar="RATE",
-        help="flip one bit of a sent byte with this chance",
-    )
-    s.add_argument(
-        "--drop", type=float, default=0.0, metavar="RATE", help="lose a sent byte with this chance"
-    )
-    s.add_argument(
-        "--reply-delay",
-        type=float,
-        default=0.0,
-        metavar="SECONDS",
-        help="hold every reply back this long",
+        "--reply-delay", type=float, default=0.0, metavar="SECONDS", help="hold replies back"
     )
 
     i = sub.add_parser("info", help="what the device says about itself, and a diagnosis")
-    i.add_argument("port", help="device path, pty path or socket://host:port")
-    i.add_argument("--protocol", choices=names, default=names[0])
-    i.add_argument("--timeout", type=float, default=1.0, help="seconds per request")
+    _port_args(i)
+    _protocol_arg(i, names, detected=False)
+    i.add_argument("--timeout", type=_positive("timeout"), default=1.0, help="seconds per request")
 
-    m = sub.add_parser("monitor", help="live view of the telemetry, faults and events")
-    m.add_argument("port")
-    m.add_argument("--protocol", choices=names, default=names[0])
-    m.add_argument("--seconds", type=float, help="stop after this long")
+    m = sub.add_parser("monitor", help="live view of the telemetry, link, faults and events")
+    _port_args(m)
+    _protocol_arg(m, names, detected=False)
+    m.add_argument("--seconds", type=_positive("seconds"), help="stop after this long")
+    m.add_argument("--json", action="store_true", help="one JSON object per message")
 
-    dr = sub.add_parser("drive", help="drive for a while, then stop")
-    dr.add_argument("port")
-    dr.add_argument("--protocol", choices=names, default=names[0])
-    dr.add_argument("--linear", type=float, default=0.0, help="m/s")
-    dr.add_argument("--angular", type=float, default=0.0, help="rad/s")
-    dr.add_argument("--duration", type=float, default=1.0, help="seconds")
+    dr = sub.add_parser("drive", help="drive for a while (within limits), then stop")
+    _port_args(dr)
+    _protocol_arg(dr, names, detected=False)
+    dr.add_argument("--linear", type=_finite("linear"), default=0.0, help="m/s")
+    dr.add_argument("--angular", type=_finite("angular"), default=0.0, help="rad/s")
+    dr.add_argument("--duration", type=_positive("duration"), default=1.0, help="seconds")
+    dr.add_argument(
+        "--max-linear",
+        type=_positive("max_linear"),
+        default=DRIVE_MAX_LINEAR,
+        help="m/s (clamps --linear)",
+    )
+    dr.add_argument(
+        "--max-angular",
+        type=_positive("max_angular"),
+        default=DRIVE_MAX_ANGULAR,
+        help="rad/s (clamps --angular)",
+    )
+    dr.add_argument(
+        "--timeout", type=_positive("timeout"), default=2.0, help="seconds to hear the device"
+    )
+
     r = sub.add_parser("record", help="capture timestamped raw bytes from a port")
-    r.add_argument("port")
+    _port_args(r)
     r.add_argument("file")
-    r.add_argument("--seconds", type=float, default=10.0)
+    r.add_argument("--seconds", type=_positive("seconds"), default=10.0)
 
     rp = sub.add_parser("replay", help="decode a capture and print its messages")
     rp.add_argument("file")
-    rp.add_argument("--protocol", choices=names, help="default: detected")
+    _protocol_arg(rp, names, detected=True)
     rp.add_argument("--json", action="store_true", help="one JSON object per line")
 
     pl = sub.add_parser("plot", help="plot a capture: velocities, wheel speeds, voltage, ...")
     pl.add_argument("file")
     pl.add_argument("-o", "--output", default="capture.png")
-    pl.add_argument("--protocol", choices=names, help="default: detected")
-
-    de = sub.add_parser("detect", help="listen briefly and say which protocol is on a port")
-    de.add_argument("port")
-    de.add_argument("--seconds", type=float, default=1.5)
+    _protocol_arg(pl, names, detected=True)
     return p
+
+
+def _job(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Coroutine[Any, Any, None]:
+    command = args.command
+    if command == "detect":
+        return _detect(args.port, args.seconds, args.baudrate)
+    if command == "demo":
+        return _demo(profile(args.device))
+    if command == "sim":
+        faults = LineFaults(
+            noise_rate=args.noise,
+            bit_flip_rate=args.bit_flips,
+            drop_rate=args.drop,
+            reply_delay=args.reply_delay,
+        )
+        return _sim(profile(args.kind), args.tcp, faults)
+    if args.port is None:
+        parser.error(f"{command}: no port given (give PORT, or set {ENV_PORT})")
+    if command == "record":
+        return _record(args.port, args.file, args.seconds, args.baudrate)
+    device = profile(args.protocol)
+    if command == "info":
+        return _info(device, args.port, args.baudrate, args.timeout)
+    if command == "monitor":
+        return _monitor(device, args.port, args.baudrate, args.seconds, args.json)
+    return _drive(device, args.port, args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``chassis-sdk`` console script."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    # The CLI says what went wrong itself, in one line; the library's warnings (a
+    # stale link, a reconnect) would only come first with a timestamp. -v shows all.
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING,
+        level=logging.DEBUG if args.verbose else logging.ERROR,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
-    job: Coroutine[Any, Any, None]
-    if args.command in ("replay", "plot"):
-        try:
+    try:
+        if args.command == "ports":
+            _ports(args.json)
+            return 0
+        protocol = getattr(args, "protocol", None)
+        if protocol is not None and protocol not in profiles():  # from the environment
+            parser.error(
+                f"{ENV_PROTOCOL}={protocol!r} is not a known device "
+                f"(known: {', '.join(profiles())})"
+            )
+        if args.command in ("replay", "plot"):
             if args.command == "replay":
                 _replay(args.file, args.protocol, args.json)
             else:
                 _plot(args.file, args.output, args.protocol)
-        except BrokenPipeError:  # `| head`
             return 0
-        except (ChassisError, ValueError, OSError) as exc:
-            print(f"chassis-sdk: {exc}", file=sys.stderr)
-            return 1
+        job = _job(args, parser)
+    except BrokenPipeError:  # `| head`
         return 0
-    if args.command == "record":
-        job = _record(args.port, args.file, args.seconds)
-    elif args.command == "detect":
-        job = _detect(args.port, args.seconds)
-    elif args.command == "demo":
-        job = _demo(profile(args.device))
-    elif args.command == "sim":
-        try:
-            faults = LineFaults(
-                noise_rate=args.noise,
-                bit_flip_rate=args.bit_flips,
-                drop_rate=args.drop,
-                reply_delay=args.reply_delay,
-            )
-        except ValueError as exc:
-            print(f"chassis-sdk: {exc}", file=sys.stderr)
-            return 1
-        job = _sim(profile(args.kind), args.tcp, faults)
-    elif args.command == "info":
-        job = _info(profile(args.protocol), args.port, args.timeout)
-    elif args.command == "monitor":
-        job = _monitor(profile(args.protocol), args.port, args.seconds)
-    else:
-        job = _drive(profile(args.protocol), args.port, args.linear, args.angular, args.duration)
+    except (ChassisError, ValueError, OSError) as exc:
+        print(f"chassis-sdk: {exc}", file=sys.stderr)
+        return 1
     try:
         run(job)  # SIGTERM and SIGHUP unwind like Ctrl-C: the robot is stopped first
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        return 0
     except RequestTimeoutError as exc:
-        print(
-            f"chassis-sdk: {exc} (is the device powered, and is it a {_kind(args)}?)",
-            file=sys.stderr,
-        )
+        hint = f"is the device powered, and is it a {getattr(args, 'protocol', None) or 'device'}?"
+        print(f"chassis-sdk: {exc} ({hint})", file=sys.stderr)
         return 2
     except (ChassisError, ValueError) as exc:
         print(f"chassis-sdk: {exc}", file=sys.stderr)
         return 1
     return 0
-
-
-def _kind(args: argparse.Namespace) -> str:
-    return str(getattr(args, "protocol", None) or next(iter(profiles())))

@@ -8,6 +8,7 @@ import contextlib
 import dataclasses
 import datetime
 import enum
+import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from typing import Any, TypeVar
@@ -23,8 +24,10 @@ __all__ = [
     "drive_for",
     "explain_silence",
     "first",
+    "first_frame",
     "jsonable",
     "out",
+    "progress_line",
     "simulated",
 ]
 
@@ -88,19 +91,94 @@ async def simulated(name: str, device: type[D]) -> AsyncIterator[D]:
             yield connected
 
 
+async def first_frame(device: Device[Any, Any], timeout: float, what: str) -> None:
+    """Wait for the first valid frame of ``device``'s protocol: proof that the device on
+    the port is this one before anything is done to it.
+
+    Raises:
+        WrongProtocolError: Bytes arrive, but none forms a frame of this protocol.
+        RequestTimeoutError: Nothing arrived within ``timeout`` seconds.
+    """
+    end = time.monotonic() + timeout
+    while not device.stats.frames:
+        if not device.is_connected:
+            raise ChassisError(f"{device.port} is {device.connection_state.value}")
+        if time.monotonic() >= end:
+            stats = device.stats
+            if stats.bytes_received:
+                _wrong_protocol(device)
+            raise RequestTimeoutError(f"no {what} from {device.port} within {timeout:g} s")
+        await asyncio.sleep(0.02)
+
+
+def _wrong_protocol(device: Device[Any, Any]) -> None:
+    from ..devices import profiles
+
+    others = [name for name in profiles() if name != device.kind] or ["different device"]
+    raise WrongProtocolError(
+        f"{device.stats.bytes_received} bytes arrived on {device.port} but none is a "
+        f"{device.kind} frame: is it a {' or a '.join(others)}? Try --protocol "
+        f"{others[0]}, or `chassis-sdk detect`"
+    )
+
+
+class ProgressLine:
+    """Progress of a long command: one live line on a terminal (through rich when it
+    is installed), plain lines at most once a second when piped (never a carriage
+    return into a pipe), and at once when something important changes."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self._tty = sys.stdout.isatty()
+        self._last = 0.0
+        self._important = False
+        self._live: Any = None
+        if self._tty:
+            try:
+                from rich.console import Console
+                from rich.live import Live
+
+                self._live = Live(console=Console(), auto_refresh=False, transient=True)
+                self._live.start()
+            except ImportError:
+                pass
+
+    def __call__(self, text: str, important: bool = False) -> None:
+        line = f"{self.label}: {text}"
+        if self._live is not None:
+            self._live.update(line, refresh=True)
+        elif self._tty:
+            print(f"\r{line}\033[K", end="", flush=True)
+        else:
+            now = time.monotonic()
+            if important != self._important or now - self._last >= 1.0:
+                out(line)
+                self._last = now
+        self._important = important
+
+    def done(self, text: str) -> None:
+        """End the live line and print the result."""
+        if self._live is not None:
+            self._live.stop()
+        elif self._tty:
+            print("\r\033[K", end="")
+        out(text)
+
+
+def progress_line(label: str) -> ProgressLine:
+    """A :class:`ProgressLine` for ``label``."""
+    return ProgressLine(label)
+
+
 def explain_silence(device: Device[Any, Any], exc: RequestTimeoutError) -> None:
     """Re-raise a request's timeout, as :class:`WrongProtocolError` if bytes arrived
     but none formed a frame of this device's protocol."""
-    from ..devices import profiles
-
     stats = device.stats
     if stats.bytes_received and not stats.frames:
-        others = [name for name in profiles() if name != device.kind] or ["different device"]
-        raise WrongProtocolError(
-            f"{stats.bytes_received} bytes arrived on {device.port} but none is a "
-            f"{device.kind} frame: is it a {' or a '.join(others)}? Try --protocol "
-            f"{others[0]}, or `chassis-sdk detect`"
-        ) from exc
+        try:
+            _wrong_protocol(device)
+        except WrongProtocolError as wrong:
+            raise wrong from exc
     raise exc
 
 

@@ -52,6 +52,7 @@ import importlib
 import logging
 import math
 import os
+import socket
 import termios
 import threading
 import time
@@ -399,7 +400,7 @@ class Link(asyncio.Protocol, Generic[M]):
 # --- opening ---------------------------------------------------------------------------
 
 
-def _lock_holder(path: str) -> str | None:
+def lock_holder(path: str) -> str | None:
     """Who holds the advisory lock on ``path`` (from ``/proc/locks``), if we can see it."""
     try:
         st = os.stat(path)
@@ -427,7 +428,7 @@ def _describe_open_error(url: str, exc: BaseException) -> str:
     err = getattr(exc, "errno", None)
     text = str(exc)
     if "exclusively lock" in text or err in (errno.EAGAIN, errno.EWOULDBLOCK):
-        holder = _lock_holder(url)
+        holder = lock_holder(url)
         return f"could not open {url}: port busy, held by " + (
             holder or "another program (close it, or check `fuser -v " + url + "`)"
         )
@@ -444,6 +445,13 @@ def _describe_open_error(url: str, exc: BaseException) -> str:
         )
     if err == errno.ECONNREFUSED or "Connection refused" in text or "[Errno 111]" in text:
         return f"could not open {url}: connection refused (is the server running?)"
+    if err == errno.EISDIR or "Is a directory" in text:
+        return f"could not open {url}: it is a directory, not a serial port"
+    if err == errno.ENOTTY or "Inappropriate ioctl" in text:
+        return f"could not open {url}: not a serial port (it takes no serial settings)"
+    if isinstance(exc, socket.gaierror):
+        host = urllib.parse.urlsplit(url).hostname
+        return f"could not open {url}: cannot resolve the host {host!r}"
     return f"could not open {url}: {text}"
 
 
@@ -512,10 +520,14 @@ async def open_link(
     try:
         async with asyncio.timeout(timeout):
             if parsed.scheme == "socket":
-                if not parsed.hostname or parsed.port is None:
-                    raise ValueError("expected socket://host:port")
+                try:
+                    port = parsed.port
+                except ValueError:  # not a number, or out of range
+                    port = None
+                if not parsed.hostname or port is None:
+                    raise ValueError("a socket URL needs a host and a port: socket://HOST:PORT")
                 transport, protocol = await loop.create_connection(
-                    link_factory, parsed.hostname, parsed.port
+                    link_factory, parsed.hostname, port
                 )
             elif "://" in url:
                 raise ValueError(

@@ -69,9 +69,10 @@ class DeviceProfile:
             largest frame, plus any look-ahead); the fuzzer checks it.
         recognised_by: What ``detect`` hears from this device unprompted, for messages.
         demo: ``chassis-sdk demo --device NAME``: drives the simulator, narrating.
-        info: ``chassis-sdk info PORT``: ``info(port, timeout)``; a generic report if
-            ``None``.
-        monitor: ``chassis-sdk monitor PORT``: ``monitor(port, seconds)``.
+        info: ``chassis-sdk info PORT``: ``info(port, baudrate, timeout)``; a generic
+            report if ``None``.
+        monitor: ``chassis-sdk monitor PORT``: ``monitor(port, baudrate, seconds,
+            as_json)``.
         plot: ``chassis-sdk plot``: ``plot(rows, axes)`` fills three matplotlib axes
             from decoded ``(seconds, message)`` rows; a generic plot if ``None``.
     """
@@ -88,8 +89,8 @@ class DeviceProfile:
     max_buffered: int
     recognised_by: str
     demo: Callable[[], Coroutine[Any, Any, None]] | None = None
-    info: Callable[[str, float], Coroutine[Any, Any, None]] | None = None
-    monitor: Callable[[str, float | None], Coroutine[Any, Any, None]] | None = None
+    info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
+    monitor: Callable[[str, int, float | None, bool], Coroutine[Any, Any, None]] | None = None
     plot: Callable[[list[tuple[float, object]], Any], None] | None = None
 
     def __post_init__(self) -> None:

@@ -38,9 +38,9 @@ async def demo() -> None:
     out("done: the board stopped and the port is closed.")
 
 
-async def info(port: str, timeout: float) -> None:
+async def info(port: str, baudrate: int, timeout: float) -> None:
     """LED and buzzer states, one IMU sample, the battery and a diagnosis."""
-    async with Board(port, request_timeout=timeout) as board:
+    async with Board(port, baudrate=baudrate, request_timeout=timeout) as board:
         out(f"port         {port}")
         try:
             led = await board.get_led()

@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 import collections
+import json
+import math
+import sys
 import time
 from typing import Any
 
 import anyio
 
-from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
-from ...core.diagnosis import Diagnosis
-from ...errors import RequestTimeoutError
+from ...cli.common import (
+    DEMO_PATTERN,
+    drive_for,
+    explain_silence,
+    first,
+    first_frame,
+    jsonable,
+    out,
+    simulated,
+)
+from ...errors import ChassisError, RequestTimeoutError
 from .device import Chassis
 from .messages import Telemetry
 
@@ -85,9 +96,9 @@ async def demo() -> None:
     out("done: the robot stopped and the port is closed.")
 
 
-async def info(port: str, timeout: float) -> None:
+async def info(port: str, baudrate: int, timeout: float) -> None:
     """Versions, geometry, one telemetry frame and a diagnosis."""
-    async with Chassis(port, request_timeout=timeout) as robot:
+    async with Chassis(port, baudrate=baudrate, request_timeout=timeout) as robot:
         out(f"port         {port}")
         try:
             await _print_info(robot)
@@ -97,45 +108,113 @@ async def info(port: str, timeout: float) -> None:
         out(str(await robot.diagnose()))
 
 
-async def monitor(port: str, seconds: float | None) -> None:
-    """A live view of the telemetry, faults, events and link (plain lines without rich)."""
-    async with Chassis(port) as robot, anyio.create_task_group() as tg:
-        recent: collections.deque[str] = collections.deque(maxlen=4)
-        report: list[Diagnosis] = []
+async def monitor(port: str, baudrate: int, seconds: float | None, as_json: bool) -> None:
+    """A live view of the telemetry, the link, faults and events that lives through an
+    unplug (it reconnects and says so). Plain lines when piped (rich on a terminal);
+    ``as_json``: one JSON object per telemetry frame, state change and event."""
+    async with Chassis(port, baudrate=baudrate, reconnect=True) as robot:
+        # A silent port, or another device's, is a one-line error, not an empty screen.
+        await first_frame(robot, 3.0, "0x81 chassis telemetry")
+        view = _View(robot, port, as_json)
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(view.follow_telemetry)
+            tg.start_soon(view.follow_states)
+            tg.start_soon(view.follow_events)
+            tg.start_soon(view.check_health)
+            if view.live is not None:
+                tg.start_soon(view.render_loop)
+            elif not as_json:
+                print("Ctrl-C to quit", file=sys.stderr)
+            with anyio.move_on_after(math.inf if seconds is None else seconds):
+                await anyio.sleep_forever()
+            tg.cancel_scope.cancel()
+        view.close()
 
-        async def follow_events() -> None:
-            async for event in robot.events():
-                recent.append(f"{time.strftime('%H:%M:%S')} {event}")
-                if plain:
+
+class _View:
+    """What ``monitor`` shows, in whichever of its three forms."""
+
+    def __init__(self, robot: Chassis, port: str, as_json: bool) -> None:
+        self.robot = robot
+        self.port = port
+        self.as_json = as_json
+        self.recent: collections.deque[str] = collections.deque(maxlen=4)
+        self.faults: tuple[str, ...] | None = None
+        self.live: Any = None
+        self._last_line = 0.0
+        if not as_json and sys.stdout.isatty():
+            try:
+                from rich.live import Live
+
+                self.live = Live(auto_refresh=False)
+                self.live.start()
+            except ImportError:
+                pass
+
+    def close(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+
+    async def follow_telemetry(self) -> None:
+        async for t in self.robot.telemetry():
+            if self.as_json:
+                out(json.dumps({"type": "Telemetry", **jsonable(t)}))
+            elif self.live is None and t.timestamp - self._last_line >= 0.2:
+                out(format_telemetry(t))
+                self._last_line = t.timestamp
+
+    async def follow_states(self) -> None:
+        async for state in self.robot.connection_states():
+            if self.as_json:
+                out(json.dumps({"type": "link", "state": state.value}))
+            else:
+                self.recent.append(f"{time.strftime('%H:%M:%S')} link {state.value}")
+                if self.live is None:
+                    out(f"link: {state.value}")
+
+    async def follow_events(self) -> None:
+        async for event in self.robot.events():
+            if event.kind.value.startswith("link_"):
+                continue  # follow_states tells these
+            if self.as_json:
+                out(json.dumps({"type": "event", **jsonable(event)}))
+            else:
+                self.recent.append(f"{time.strftime('%H:%M:%S')} {event}")
+                if self.live is None:
                     out(f"event: {event}")
 
-        async def check_health() -> None:  # diagnose() reads 0xB0: once a second is plenty
-            while True:
-                report[:] = [await robot.diagnose()]
-                await anyio.sleep(1.0)
+    async def check_health(self) -> None:  # diagnose() reads 0xB0: once a second is plenty
+        while True:
+            if self.robot.is_connected:
+                try:
+                    report = await self.robot.diagnose()
+                except ChassisError:  # the link went away meanwhile: the states say so
+                    report = None
+                if report is not None and report.faults != self.faults:
+                    self.faults = report.faults
+                    if self.as_json:
+                        out(json.dumps({"type": "faults", "faults": list(report.faults)}))
+                    elif self.live is None:
+                        out("faults: " + (", ".join(report.faults) or "none"))
+            await anyio.sleep(1.0)
 
-        try:
-            from rich.live import Live
-            from rich.table import Table
+    async def render_loop(self) -> None:
+        while True:
+            self.live.update(self.render(), refresh=True)
+            await anyio.sleep(0.1)
 
-            plain = False
-        except ImportError:  # plain lines without rich
-            plain = True
-        tg.start_soon(follow_events)
-        tg.start_soon(check_health)
-        end = None if seconds is None else time.monotonic() + seconds
-        if plain:
-            await first(robot.telemetry(), 2.0, "telemetry (0x81)")
-            out(str(await robot.diagnose()))
-            async for t in robot.telemetry():
-                out(format_telemetry(t))
-                if end is not None and time.monotonic() >= end:
-                    break
-            tg.cancel_scope.cancel()
-            return
+    def render(self) -> Any:
+        from rich.table import Table
 
-        def render(t: Telemetry) -> Table:
-            table = Table(title=f"chassis on {port}", show_header=False)
+        robot = self.robot
+        table = Table(title=f"chassis on {self.port}", caption="Ctrl-C to quit", show_header=False)
+        age = robot.telemetry_age
+        state = robot.connection_state.value
+        fresh = "no telemetry yet" if age is None else f"last telemetry {age:.1f} s ago"
+        style = "green" if state == "connected" and age is not None and age < 0.5 else "red"
+        table.add_row("link", f"[{style}]{state}[/], {fresh}")
+        t = robot.latest_telemetry
+        if t is not None:
             table.add_row("voltage", f"{t.voltage:.1f} V")
             table.add_row("velocity", f"{t.linear:+.3f} m/s   {t.angular:+.3f} rad/s")
             w = t.wheels
@@ -146,27 +225,17 @@ async def monitor(port: str, seconds: float | None) -> None:
             )
             table.add_row("status", _status_names(t).replace("|", ", ") or "ok")
             table.add_row("docking", t.docking.name)
-            if report:
-                faults = report[0].faults
-                table.add_row("faults", "\n".join(faults) if faults else "none")
-            table.add_row("events", "\n".join(recent) or "-")
-            s = robot.stats
-            table.add_row(
-                "link",
-                f"{s.frames} frames, {s.bytes_dropped} bytes dropped, "
-                f"{s.checksum_errors} checksum errors, {s.sequence_gaps} gaps",
-            )
-            return table
-
-        with Live(auto_refresh=False) as live:
-            last = 0.0
-            async for t in robot.telemetry():
-                if t.timestamp - last >= 0.1:
-                    live.update(render(t), refresh=True)
-                    last = t.timestamp
-                if end is not None and time.monotonic() >= end:
-                    break
-        tg.cancel_scope.cancel()
+        if self.faults is not None:
+            table.add_row("faults", "\n".join(self.faults) or "none")
+        table.add_row("events", "\n".join(self.recent) or "-")
+        s = robot.stats
+        table.add_row(
+            "counters",
+            f"{s.frames} frames, {s.bytes_dropped} bytes dropped, "
+            f"{s.checksum_errors} checksum errors, {s.sequence_gaps} gaps, "
+            f"{s.reconnects} reconnects",
+        )
+        return table
 
 
 def plot(rows: list[tuple[float, object]], axes: Any) -> None:

@@ -1,0 +1,385 @@
+"""The operator's first hour: the real ``chassis-sdk`` in a subprocess against the
+simulators on ptys and TCP, a silent pty and the other device's simulator; the cable
+pulled during ``monitor``, ``drive`` and ``record``; SIGTERM during ``drive``.
+
+Every everyday failure is one line on stderr, with no traceback and no log line before
+it, and an exit code that says it failed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import json
+import os
+import signal
+import subprocess
+import sys
+import tty
+from collections.abc import AsyncIterator, Callable, Iterator
+from pathlib import Path
+
+import pytest
+from serial.tools.list_ports_common import ListPortInfo
+
+from chassis_sdk.cli import main as cli_main
+from chassis_sdk.protocol import DriveVelocity
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+ROOT = Path(__file__).resolve().parent.parent
+CLI = (sys.executable, "-m", "chassis_sdk.cli")
+
+
+async def cli(
+    *args: str, env: dict[str, str] | None = None, timeout: float = 30.0
+) -> tuple[int, str, str]:
+    proc = await asyncio.create_subprocess_exec(
+        *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=ROOT,
+        env={**os.environ, **(env or {})},
+    )  # fmt: skip
+    async with asyncio.timeout(timeout):
+        out, err = await proc.communicate()
+    assert proc.returncode is not None
+    return proc.returncode, out.decode(), err.decode()
+
+
+def one_line(err: str) -> str:
+    """The whole of stderr is one ``chassis-sdk: ...`` line."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("chassis-sdk: "), err
+    return lines[0]
+
+
+@contextlib.contextmanager
+def silent_pty() -> Iterator[str]:
+    """A port that accepts bytes and never says anything."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        yield os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+class Running:
+    """A CLI command running in the background, read line by line."""
+
+    def __init__(self, proc: asyncio.subprocess.Process) -> None:
+        self.proc = proc
+        self.lines: list[str] = []
+
+    async def wait_for_line(self, predicate: Callable[[str], bool], timeout: float = 10.0) -> str:
+        assert self.proc.stdout is not None
+        async with asyncio.timeout(timeout):
+            while True:
+                line = (await self.proc.stdout.readline()).decode()
+                if not line:
+                    raise AssertionError(f"ended before the line; got {self.lines}")
+                self.lines.append(line)
+                if predicate(line):
+                    return line
+
+    async def finish(self, timeout: float = 20.0) -> tuple[int, str, str]:
+        async with asyncio.timeout(timeout):
+            out, err = await self.proc.communicate()
+        self.lines += out.decode().splitlines(keepends=True)
+        assert self.proc.returncode is not None
+        return self.proc.returncode, "".join(self.lines), err.decode()
+
+
+@contextlib.asynccontextmanager
+async def running(*args: str) -> AsyncIterator[Running]:
+    proc = await asyncio.create_subprocess_exec(
+        *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=ROOT
+    )
+    try:
+        yield Running(proc)
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+
+
+def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
+    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
+
+
+# --- finding the port ---------------------------------------------------------------------
+
+
+def test_ports_lists_every_port_with_its_access(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with silent_pty() as free, silent_pty() as held:
+        usb = ListPortInfo(free)
+        usb.vid, usb.pid, usb.serial_number = 0x1A86, 0x7523, "A1B2"
+        usb.manufacturer, usb.description = "QinHeng Electronics", "USB Serial"
+        fake = [ListPortInfo("/dev/ttyGONE"), usb, ListPortInfo(held)]
+        monkeypatch.setattr("serial.tools.list_ports.comports", lambda: fake)
+        with open(held) as holder:
+            fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as pyserial's exclusive open
+            assert cli_main(["ports", "--json"]) == 0
+            rows = json.loads(capsys.readouterr().out)
+            assert cli_main(["ports"]) == 0
+            text = capsys.readouterr().out
+    by_device = {row["device"]: row for row in rows}
+    assert rows[0]["device"] == free  # USB first
+    assert by_device[free]["vid_pid"] == "1A86:7523"
+    assert by_device[free]["serial_number"] == "A1B2"
+    assert by_device[free]["access"] == "ok"
+    assert by_device[held]["access"].startswith("busy: held by this process")
+    assert by_device["/dev/ttyGONE"]["access"] == "missing"
+    assert "USB 1A86:7523  QinHeng Electronics, USB Serial  serial A1B2  [ok]" in text
+
+
+def _sim_process(kind: str) -> tuple[subprocess.Popen[bytes], str]:
+    proc = subprocess.Popen([*CLI, "sim", kind], stdout=subprocess.PIPE, cwd=ROOT)
+    assert proc.stdout is not None
+    return proc, proc.stdout.readline().decode().strip()
+
+
+def test_detect_without_a_port_listens_on_every_port(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    chassis, chassis_port = _sim_process("chassis")
+    board, board_port = _sim_process("board")
+    try:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        quiet = os.ttyname(slave)
+        try:
+            fake = [ListPortInfo(p) for p in (chassis_port, board_port, quiet)]
+            monkeypatch.setattr("serial.tools.list_ports.comports", lambda: fake)
+            assert cli_main(["detect", "--seconds", "1.5"]) == 0
+            out = capsys.readouterr().out
+            assert f"{chassis_port}: chassis\n" in out
+            assert f"{board_port}: board\n" in out
+            assert f"{quiet}: nothing recognisable within 1.5 s" in out
+            os.set_blocking(master, False)
+            with pytest.raises(BlockingIOError):  # listening only: nothing was written
+                os.read(master, 64)
+        finally:
+            os.close(master)
+            os.close(slave)
+    finally:
+        for proc in (chassis, board):
+            proc.terminate()
+            proc.wait()
+
+
+async def test_baudrate_and_environment_defaults_reach_every_command() -> None:
+    async with ChassisSimulator() as sim, BoardSimulator() as board:
+        code, out, err = await cli("info", "-b", "57600", env={"CHASSIS_SDK_PORT": sim.port})
+        assert code == 0, err
+        assert "hardware     ZKWL-brush-motor-chassis" in out
+        code, out, err = await cli(
+            "info", env={"CHASSIS_SDK_PORT": board.port, "CHASSIS_SDK_PROTOCOL": "board"}
+        )
+        assert code == 0, err
+        assert "led" in out
+    code, _, err = await cli("info", env={"CHASSIS_SDK_PORT": ""})
+    assert code == 2
+    assert "no port given (give PORT, or set CHASSIS_SDK_PORT)" in err
+    code, _, err = await cli("info", "/dev/ttyX", "--baudrate", "0")
+    assert code == 2
+    assert "baudrate" in err
+    code, _, err = await cli("info", "/dev/ttyX", env={"CHASSIS_SDK_PROTOCOL": "tractor"})
+    assert code == 2
+    assert "CHASSIS_SDK_PROTOCOL='tractor' is not a known device (known: chassis, board)" in err
+
+
+# --- one line, never a traceback ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("port", "says"),
+    [
+        pytest.param("socket://localhost", "needs a host and a port: socket://HOST:PORT", id="no-tcp-port"),
+        pytest.param("/dev/null", "not a serial port", id="dev-null"),
+        pytest.param("/tmp", "it is a directory, not a serial port", id="directory"),
+        pytest.param("socket://no-such-host.invalid:5000", "cannot resolve the host 'no-such-host.invalid'", id="unknown-host"),
+        pytest.param("/dev/ttyDOESNOTEXIST", "no such device", id="missing"),
+    ],
+)  # fmt: skip
+async def test_everyday_failures_are_one_line(port: str, says: str) -> None:
+    code, _, err = await cli("info", port, "--timeout", "0.3")
+    assert code == 1
+    assert says in one_line(err)
+
+
+async def test_info_on_a_silent_port_is_one_line_without_a_log_before_it() -> None:
+    with silent_pty() as quiet:
+        code, _, err = await cli("info", quiet, "--timeout", "0.3")
+    assert code == 2
+    assert "no reply" in one_line(err)
+
+
+# --- monitor ----------------------------------------------------------------------------------
+
+
+async def test_monitor_lives_through_an_unplug_and_says_so() -> None:
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("monitor", sim.port, "--seconds", "6") as mon,
+    ):
+        await mon.wait_for_line(lambda line: "v=+0.000" in line)
+        sim.unplug()
+        await mon.wait_for_line(lambda line: line == "link: reconnecting\n")
+        await sim.replug()
+        await mon.wait_for_line(lambda line: line == "link: connected\n")
+        await mon.wait_for_line(lambda line: "v=+0.000" in line)
+        code, out, err = await mon.finish()
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert "faults: none" in out
+
+
+async def test_monitor_on_a_silent_port_or_another_device_is_one_line_within_seconds() -> None:
+    with silent_pty() as quiet:
+        code, _, err = await cli("monitor", quiet, "--seconds", "30", timeout=10)
+    assert code == 2
+    assert "no 0x81 chassis telemetry from" in one_line(err)
+    async with BoardSimulator() as board:
+        code, _, err = await cli("monitor", board.port, "--seconds", "30", timeout=10)
+    assert code == 1
+    assert "none is a chassis frame: is it a board?" in one_line(err)
+
+
+async def test_monitor_json_is_one_object_per_line() -> None:
+    async with ChassisSimulator() as sim:
+        code, out, err = await cli("monitor", sim.port, "--seconds", "1", "--json")
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.splitlines()]
+    telemetry = [r for r in rows if r["type"] == "Telemetry"]
+    assert len(telemetry) >= 20
+    assert telemetry[0]["status"] == "REMOTE_OFFLINE"
+    assert {"type": "faults", "faults": []} in rows
+
+
+# --- drive ------------------------------------------------------------------------------------
+
+
+async def test_drive_refuses_bad_numbers_before_opening_the_port() -> None:
+    for bad in ("nan", "inf", "x"):
+        code, out, err = await cli("drive", "/dev/ttyDOESNOTEXIST", "--linear", bad)
+        assert code == 2
+        assert "argument --linear" in err
+        assert "could not open" not in err
+        assert "driving" not in out
+
+
+async def test_drive_does_not_claim_success_on_a_silent_port_or_another_device() -> None:
+    with silent_pty() as quiet:
+        code, out, err = await cli("drive", quiet, "--linear", "0.2", "--timeout", "0.5")
+    assert code == 2
+    assert "driving" not in out
+    assert "no 0x81 chassis telemetry" in one_line(err)
+    async with BoardSimulator() as board:
+        code, out, err = await cli("drive", board.port, "--linear", "0.2", "--timeout", "0.5")
+        assert code == 1
+        assert "driving" not in out
+        assert "none is a chassis frame" in one_line(err)
+        assert board.firmware.received == type(board.firmware.received)()  # nothing written
+
+
+async def test_drive_clamps_to_the_default_limits_and_says_so() -> None:
+    async with ChassisSimulator() as sim:
+        code, out, err = await cli(
+            "drive", sim.port, "--linear", "2", "--angular", "-5", "--duration", "0.3"
+        )
+        assert code == 0, err
+        assert "linear 2 m/s clamped to 0.5 m/s (--max-linear)" in out
+        assert "angular -5 rad/s clamped to -1 rad/s (--max-angular)" in out
+        assert max(d.linear_mm for d in drives(sim)) == 500
+        assert min(d.angular for d in drives(sim)) == pytest.approx(-1.0)
+        assert drives(sim)[-1] == DriveVelocity(0, 0.0)
+
+
+async def test_drive_ends_at_once_when_the_link_is_lost() -> None:
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("drive", sim.port, "--linear", "0.2", "--duration", "20") as drive,
+    ):
+        await drive.wait_for_line(lambda line: line.startswith("driving"))
+        sim.unplug()
+        code, out, err = await drive.finish(timeout=5)
+    assert code == 1
+    assert "lost the link to" in one_line(err)
+    assert "stopped" not in out
+
+
+async def test_sigterm_during_drive_leaves_zero_as_the_last_frame() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        running("drive", sim.port, "--linear", "0.3", "--duration", "20") as drive,
+    ):
+        await drive.wait_for_line(lambda line: line.startswith("driving"))
+        drive.proc.send_signal(signal.SIGTERM)
+        code, _, _ = await drive.finish()
+        assert code == 128 + signal.SIGTERM
+        async with asyncio.timeout(5):
+            while not drives(sim) or drives(sim)[-1] != DriveVelocity(0, 0.0):
+                await asyncio.sleep(0.01)
+        assert any(d.linear_mm == 300 for d in drives(sim))
+
+
+# --- record, replay, sim ----------------------------------------------------------------------
+
+
+async def test_record_reports_an_unplug_and_a_replug_and_writes_them_down(tmp_path: Path) -> None:
+    path = tmp_path / "cap.jsonl"
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("record", sim.port, str(path), "--seconds", "3") as rec,
+    ):
+        await rec.wait_for_line(lambda line: "bytes" in line)
+        sim.unplug()
+        await rec.wait_for_line(lambda line: "LINK LOST" in line)
+        await sim.replug()
+        code, out, err = await rec.finish()
+    assert code == 0, err
+    assert "\r" not in out  # piped: plain lines, never a carriage return
+    assert "the link dropped 1 time(s)" in out
+    events = [json.loads(line).get("event") for line in path.read_text().splitlines()]
+    assert [e for e in events if e] == ["disconnected", "reconnected"]
+    code, out, err = await cli("replay", str(path))
+    assert code == 0, err
+    assert "Telemetry(" in out
+
+
+async def test_record_fails_when_the_link_is_not_restored(tmp_path: Path) -> None:
+    path = tmp_path / "cap.jsonl"
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("record", sim.port, str(path), "--seconds", "2") as rec,
+    ):
+        await rec.wait_for_line(lambda line: "bytes" in line)
+        sim.unplug()
+        code, _, err = await rec.finish()
+    assert code == 1
+    assert "was lost and not restored" in one_line(err)
+
+
+async def test_replay_with_the_wrong_protocol_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "board.jsonl"
+    async with BoardSimulator() as board:
+        code, _, err = await cli("record", board.port, str(path), "--seconds", "0.5")
+    assert code == 0, err
+    code, out, err = await cli("replay", str(path), "--protocol", "chassis")
+    assert code == 1
+    assert out == ""
+    assert "no chassis frames in" in one_line(err)
+    assert "it looks like a board capture; try --protocol board" in err
+
+
+async def test_sim_removes_its_port_link_on_sigterm() -> None:
+    async with running("sim", "chassis") as sim:
+        port = (await sim.wait_for_line(lambda line: True)).strip()
+        assert os.path.islink(port)
+        sim.proc.send_signal(signal.SIGTERM)
+        code, _, _ = await sim.finish()
+    assert code == 128 + signal.SIGTERM
+    assert not os.path.lexists(port)
