@@ -3,21 +3,72 @@
     pip install ".[bench,fast]"
     python benchmarks/all.py [--quick]
 
-The figures in README.md come from this command on the 2-core development machine.
+The figures in docs/figures.md come from this command on the 2-core development
+machine. It first prints what a figure depends on: the date, the commit, the CPU,
+Python and the versions of the packages on the path.
 """
 
 from __future__ import annotations
 
+import datetime
+import os
+import platform
 import subprocess
 import sys
+from importlib import metadata
 from pathlib import Path
 
 HERE = Path(__file__).parent
 SCRIPTS = ["decoder_throughput.py", "latency.py", "load.py", "phantoms.py"]
 
 
+PACKAGES = ["chassis-sdk", "pyserial", "pyserial-asyncio", "pyserial-asyncio-fast", "pymavlink"]
+
+
+def _cpu() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def machine() -> list[str]:
+    """What the figures depend on, one ``key: value`` line each."""
+    try:
+        commit = subprocess.run(
+            ["git", "describe", "--always", "--dirty"],
+            cwd=HERE,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown (not a git checkout)"
+    versions = []
+    for name in PACKAGES:
+        try:
+            versions.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{name} -")
+    return [
+        f"date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
+        f"commit: {commit}",
+        f"cpu: {_cpu()} ({platform.machine()}), {len(os.sched_getaffinity(0))} cores usable",
+        f"python: {platform.python_implementation()} {platform.python_version()}",
+        f"packages: {', '.join(versions)}",
+    ]
+
+
 def main() -> int:
     extra = sys.argv[1:]
+    print("== machine")
+    for line in machine():
+        print(line)
+    print(flush=True)
     for script in SCRIPTS:
         print(f"== {script} {' '.join(extra)}".rstrip(), flush=True)
         done = subprocess.run([sys.executable, str(HERE / script), *extra], check=False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import sys
 import tty
 from pathlib import Path
@@ -175,7 +176,8 @@ async def test_sim_prints_its_port_and_info_reaches_it_from_another_process() ->
 
 
 @pytest.mark.parametrize(
-    "command", ["", "demo", "sim", "info", "monitor", "drive", "record", "replay", "plot", "detect"]
+    "command",
+    ["", "demo", "ports", "sim", "info", "monitor", "drive", "record", "replay", "plot", "detect"],
 )
 async def test_help_on_every_command(command: str) -> None:
     code, out, _ = await run("-m", "chassis_sdk.cli", *([command] if command else []), "--help")
@@ -190,3 +192,17 @@ def test_permission_denied_names_the_group_to_join() -> None:
     text = _describe_open_error("/dev/ttyUSB0", exc)
     assert "permission denied" in text
     assert "dialout" in text
+
+
+async def test_the_cli_page_documents_every_command_and_no_other() -> None:
+    page = (ROOT / "docs" / "cli.md").read_text()
+    documented = set(re.findall(r"^chassis-sdk (\w+)", page, re.M))
+    code, out, _ = await run("-m", "chassis_sdk.cli", "--help")
+    assert code == 0
+    listed = re.search(r"\{([\w,]+)\}", out)
+    commands = set(listed.group(1).split(",")) if listed else set()
+    if not commands:  # argparse prints each command on its own line with metavar COMMAND
+        commands = set(re.findall(r"^    (\w+)\s", out, re.M))
+    assert documented == commands
+    for command in commands:
+        assert f"**{command}**" in page, f"docs/cli.md says nothing of {command}"
