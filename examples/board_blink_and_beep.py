@@ -19,6 +19,7 @@ async def main(port: str | None) -> None:
         if port is None:
             port = (await stack.enter_async_context(BoardSimulator())).port
         board = await stack.enter_async_context(Board(port))
+        await board.verify()  # the device on the port is a board
         for _ in range(3):
             print("led on:", await board.set_led(True))
             await asyncio.sleep(0.2)
@@ -33,4 +34,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

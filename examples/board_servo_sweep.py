@@ -24,6 +24,7 @@ async def main(port: str | None) -> None:
         if port is None:
             port = (await stack.enter_async_context(BoardSimulator())).port
         board = await stack.enter_async_context(Board(port))
+        await board.verify()  # the device on the port is a board
         async with asyncio.TaskGroup() as tg:
             logger = tg.create_task(print_logs(board))
             for angle in [*range(0, 91, 15), *range(75, -1, -15)]:
@@ -34,4 +35,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

@@ -21,6 +21,7 @@ async def main(port: str | None) -> None:
         if port is None:
             port = (await stack.enter_async_context(ChassisSimulator())).port
         robot = await stack.enter_async_context(Chassis(port))
+        await robot.verify()  # the device on the port is a chassis
 
         print("firmware:", await robot.get_firmware_version())
         print("hardware:", await robot.get_hardware_version())
@@ -30,12 +31,12 @@ async def main(port: str | None) -> None:
         n = 0
         async for t in robot.telemetry():  # 50 Hz
             print(f"{t.seq:5d}  {t.voltage:4.1f} V  v={t.linear:+.3f} m/s  "
-                  f"w={t.angular:+.3f} rad/s  {t.status!r}")  # fmt: skip
+                  f"w={t.angular:+.3f} rad/s  {t.status}")  # fmt: skip
             n += 1
             if n == 50:
                 break  # breaking out unsubscribes
-        print("link stats:", robot.stats)
+        print("link:", robot.stats)
 
 
 if __name__ == "__main__":
-    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

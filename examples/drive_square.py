@@ -37,14 +37,17 @@ async def main(port: str | None) -> None:
         if port is None:
             port = (await stack.enter_async_context(ChassisSimulator())).port
         robot = await stack.enter_async_context(Chassis(port))
+        await robot.verify()  # the device on the port is a chassis
         for side in range(4):
             print(f"side {side + 1}: forward {SIDE} m")
             await hold(robot, SPEED, 0.0, SIDE / SPEED)
             print(f"side {side + 1}: turn 90 degrees")
             await hold(robot, 0.0, TURN_RATE, (math.pi / 2) / TURN_RATE)
         await robot.stop()
-        print("done; last telemetry:", robot.latest_telemetry)
+        # Report the robot at rest: wait for telemetry that shows the stop.
+        t = await robot.wait_for(lambda t: t.linear == 0 and t.angular == 0, timeout=2.0)
+        print(f"done: stopped (v={t.linear:+.2f} m/s, w={t.angular:+.2f} rad/s, {t.status})")
 
 
 if __name__ == "__main__":
-    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

@@ -72,8 +72,11 @@ async def square(robot: Chassis, side: float = 1.0) -> Odometry:
     """Drive a square counter-clockwise back to the start and face the start heading."""
     await anext(robot.odometry())  # the first pose, so turning starts from a known heading
     robot.reset_odometry()
-    for x, y in [(side, 0.0), (side, side), (0.0, side), (0.0, 0.0)]:
-        await drive_to(robot, x, y)
+    for corner, (x, y) in enumerate([(side, 0.0), (side, side), (0.0, side), (0.0, 0.0)], 1):
+        print(f"corner {corner}/4: driving to ({x:.1f}, {y:.1f}) m ...", flush=True)
+        pose = await drive_to(robot, x, y)
+        print(f"corner {corner}/4: reached ({pose.x:+.3f}, {pose.y:+.3f}) m", flush=True)
+    print("turning back to the start heading ...", flush=True)
     await turn_to(robot, 0.0)
     return await settle(robot)
 
@@ -85,6 +88,7 @@ async def main(port: str | None) -> None:
             sim = await stack.enter_async_context(ChassisSimulator())
             port = sim.port
         robot = await stack.enter_async_context(Chassis(port))
+        await robot.verify()  # the device on the port is a chassis
         end = await square(robot)
         print(f"odometry at the end: x={end.x:+.3f} m  y={end.y:+.3f} m  "
               f"heading={math.degrees(end.heading):+.1f} deg")  # fmt: skip
@@ -96,4 +100,4 @@ async def main(port: str | None) -> None:
 
 
 if __name__ == "__main__":
-    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

@@ -18,7 +18,7 @@ async def wait_for_status(robot: Chassis, test: str, check: object) -> Telemetry
     async with asyncio.timeout(2.0):
         async for t in robot.telemetry():
             if check(t):  # type: ignore[operator]
-                print(f"{test}: status = {t.status!r}")
+                print(f"{test}: status = {t.status}")
                 return t
     raise AssertionError("unreachable")
 
@@ -30,6 +30,7 @@ async def main(port: str | None) -> None:
             port = sim.port
             sim.firmware.press_bumper(front=True)  # something for clear_faults() to clear
         robot = await stack.enter_async_context(Chassis(port))
+        await robot.verify()  # the device on the port is a chassis
 
         await robot.emergency_stop()
         await wait_for_status(robot, "e-stop engaged", lambda t: t.emergency_stopped)
@@ -47,8 +48,8 @@ async def main(port: str | None) -> None:
         )
         status = await robot.get_driver_status()
         for name, driver in zip(("FL", "FR", "RL", "RR"), status.wheels, strict=True):
-            print(f"driver {name}: errors={driver.errors!r} motor={driver.motor!r}")
+            print(f"driver {name}: errors={driver.errors}  motor={driver.motor}")
 
 
 if __name__ == "__main__":
-    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+    chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

@@ -43,6 +43,7 @@ async def main(port: str | None) -> None:
             sim = await stack.enter_async_context(ChassisSimulator())
             port = sim.port
         robot = await stack.enter_async_context(Chassis(port, reconnect=True))
+        await robot.verify()  # the device on the port is a chassis
         async with asyncio.TaskGroup() as tg:
             states = tg.create_task(watch_states(robot))
             cable = tg.create_task(pull_the_cable(sim)) if sim else None
@@ -60,9 +61,9 @@ async def main(port: str | None) -> None:
                     break
             await robot.stop()
             states.cancel()
-        print("link stats:", robot.stats)
+        print("link:", robot.stats)
 
 
 if __name__ == "__main__":
     with contextlib.suppress(KeyboardInterrupt):
-        chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None))
+        chassis_sdk.run(main(sys.argv[1] if len(sys.argv) > 1 else None), one_line_errors=True)

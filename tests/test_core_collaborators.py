@@ -236,3 +236,27 @@ def test_every_bad_number_gets_one_kind_of_message(
 ) -> None:
     with pytest.raises(ValueError, match=match):
         check(value)  # type: ignore[operator]
+
+
+# --- enums that print as what they mean ---------------------------------------------------
+
+
+def test_named_flags_and_enums_print_names_and_stay_numbers() -> None:
+    from chassis_sdk import ChassisStatus, DockingState, DriverError
+
+    s = ChassisStatus.REMOTE_OFFLINE | ChassisStatus.FRONT_BUMPER
+    assert (str(s), f"{s}", f"{s:>28}") == (
+        "REMOTE_OFFLINE|FRONT_BUMPER",
+        "REMOTE_OFFLINE|FRONT_BUMPER",
+        " REMOTE_OFFLINE|FRONT_BUMPER",
+    )
+    assert (f"{s:d}", f"{s:#06x}", int(s), s & ChassisStatus.BUMPER) == (
+        "1032",
+        "0x0408",
+        1032,
+        ChassisStatus.FRONT_BUMPER,
+    )
+    assert str(DriverError(0)) == "none"
+    assert str(ChassisStatus(1 << 14)) == "BIT_14"  # undocumented bits are named too
+    assert (str(DockingState.DOCKED), f"{DockingState.DOCKED:d}") == ("DOCKED", "4")
+    assert repr(DockingState.DOCKED) == "<DockingState.DOCKED: 4>"

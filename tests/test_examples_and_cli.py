@@ -41,6 +41,36 @@ async def test_every_example_runs_against_the_simulator() -> None:
         assert out.strip(), path.name
 
 
+@pytest.mark.timeout(120)
+async def test_every_example_on_the_other_devices_port_fails_in_one_line() -> None:
+    async def on_wrong_port(path: Path) -> tuple[int, str, str]:
+        other = ChassisSimulator() if "board" in path.name else BoardSimulator()
+        async with other:  # one each: ports are exclusive
+            return await run(str(path), other.port)
+
+    results = await asyncio.gather(*(on_wrong_port(path) for path in EXAMPLES))
+    for path, (code, out, err) in zip(EXAMPLES, results, strict=True):
+        lines = err.strip().splitlines()
+        assert code == 1, f"{path.name}: {code}\n{out}\n{err}"
+        assert len(lines) == 1, f"{path.name}: {err}"
+        assert lines[0].startswith(f"{path.name}: "), err
+        assert "is it another device, or the wrong baud rate?" in lines[0]
+
+
+async def test_examples_print_names_not_numbers_and_end_stopped() -> None:
+    results = await asyncio.gather(
+        *(run(str(ROOT / "examples" / name)) for name in
+          ("chassis_info_and_telemetry.py", "estop_and_faults.py", "drive_square.py"))
+    )  # fmt: skip
+    text = "".join(out for _, out, _ in results)
+    assert "<ChassisStatus" not in text, text
+    assert "<DriverError" not in text, text
+    assert "REMOTE_OFFLINE" in text
+    assert "faults latched: FRONT_BUMPER" in text
+    assert "errors=none" in text
+    assert "done: stopped (v=+0.00 m/s, w=+0.00 rad/s" in results[2][1]
+
+
 async def test_example_takes_a_port_argument() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await run(

@@ -14,7 +14,7 @@ from collections.abc import AsyncIterator, Callable
 from typing import Any, TypeVar
 
 from ..core.device import Device
-from ..errors import ChassisError, RequestTimeoutError
+from ..errors import ChassisError, ProtocolError, RequestTimeoutError
 
 D = TypeVar("D", bound=Device[Any, Any])
 
@@ -92,23 +92,20 @@ async def simulated(name: str, device: type[D]) -> AsyncIterator[D]:
 
 
 async def first_frame(device: Device[Any, Any], timeout: float, what: str) -> None:
-    """Wait for the first valid frame of ``device``'s protocol: proof that the device on
-    the port is this one before anything is done to it.
+    """``device.verify()``, with errors that name the other known devices and what
+    was expected: proof that the device on the port is this one before anything is
+    done to it.
 
     Raises:
         WrongProtocolError: Bytes arrive, but none forms a frame of this protocol.
         RequestTimeoutError: Nothing arrived within ``timeout`` seconds.
     """
-    end = time.monotonic() + timeout
-    while not device.stats.frames:
-        if not device.is_connected:
-            raise ChassisError(f"{device.port} is {device.connection_state.value}")
-        if time.monotonic() >= end:
-            stats = device.stats
-            if stats.bytes_received:
-                _wrong_protocol(device)
-            raise RequestTimeoutError(f"no {what} from {device.port} within {timeout:g} s")
-        await asyncio.sleep(0.02)
+    try:
+        await device.verify(timeout)
+    except ProtocolError:
+        _wrong_protocol(device)
+    except RequestTimeoutError:
+        raise RequestTimeoutError(f"no {what} from {device.port} within {timeout:g} s") from None
 
 
 def _wrong_protocol(device: Device[Any, Any]) -> None:

@@ -28,7 +28,7 @@ from typing import Any, ClassVar, Generic, Self, TypeVar
 import anyio
 import anyio.lowlevel
 
-from ..errors import NotConnectedError
+from ..errors import NotConnectedError, RequestTimeoutError
 from .dispatch import Broadcast, Streams, Subscription
 from .events import BatteryMonitor, EventKind, RobotEvent
 from .framing import FrameDecoder
@@ -307,8 +307,21 @@ class Device(Motion, Observation, Generic[M, K]):
     async def _request(
         self, build: Callable[[], tuple[bytes, K]], *, read_only: bool, name: str
     ) -> Any:
-        """Write a request and wait for its reply (see :meth:`Requester.call`)."""
-        return await self._requests.call(build, read_only=read_only, name=name)
+        """Write a request and wait for its reply (see :meth:`Requester.call`).
+
+        A timeout on a port where bytes arrive but no frame of this protocol does says
+        so: that is another device, or the wrong baud rate, not a slow one.
+        """
+        try:
+            return await self._requests.call(build, read_only=read_only, name=name)
+        except RequestTimeoutError as exc:
+            d = self._decoder.stats
+            if d.bytes_received and not d.frames:
+                raise RequestTimeoutError(
+                    f"{exc}; {d.bytes_received} bytes arrived but none is a {self.kind} "
+                    "frame (another device on the port, or the wrong baud rate?)"
+                ) from None
+            raise
 
     def _reply(self, key: K, msg: Any) -> None:
         """A reply arrived for ``key``: answer its call, or count it late or unmatched."""

@@ -14,25 +14,11 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from .enums import flag_names
 from .stats import LinkStats
 from .supervisor import ConnectionState
 
 __all__ = ["Diagnosis", "Findings", "flag_names"]
-
-
-def flag_names(value: enum.IntFlag) -> list[str]:
-    """The name of every set bit of ``value``, lowest first; an undocumented bit is
-    named ``BIT_n``."""
-    names = []
-    bits = int(value)
-    cls = type(value)
-    for n in range(bits.bit_length()):
-        if bits >> n & 1:
-            try:
-                names.append(cls(1 << n).name or f"BIT_{n}")
-            except ValueError:
-                names.append(f"BIT_{n}")
-    return names
 
 
 class Findings:

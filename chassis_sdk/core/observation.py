@@ -10,7 +10,7 @@ from typing import Any, ClassVar, TypeVar
 
 import anyio
 
-from ..errors import NotConnectedError
+from ..errors import NotConnectedError, ProtocolError, RequestTimeoutError
 from .diagnosis import Diagnosis, Findings
 from .dispatch import Broadcast, Streams, Subscription
 from .events import BatteryMonitor, RobotEvent
@@ -75,6 +75,36 @@ class Observation:
                         return item
                 raise NotConnectedError(f"{self.port} was closed while waiting")
         raise TimeoutError(f"{self.port}: no {what} satisfied the condition in {timeout:g} s")
+
+    async def verify(self, timeout: float = 3.0) -> None:
+        """Make sure the device on the port is this one: wait until a valid frame of
+        its protocol arrives (returns at once if one has). Call it before driving a
+        robot whose port you are not sure of: another device, a wrong baud rate and a
+        silent port each give one clear error instead of a robot that does not move.
+
+        Raises:
+            ProtocolError: Bytes arrive but none forms a frame of this protocol.
+            RequestTimeoutError: Nothing arrived within ``timeout`` seconds.
+            NotConnectedError: The port is not open.
+            ValueError: ``timeout`` is not a finite number > 0.
+        """
+        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
+        end = time.monotonic() + timeout
+        while not self._decoder.stats.frames:
+            if not self._link.is_open:
+                raise NotConnectedError(f"{self.port} is {self._link.state.value}")
+            if time.monotonic() >= end:
+                received = self._decoder.stats.bytes_received
+                if received:
+                    raise ProtocolError(
+                        f"{received} bytes arrived on {self.port} but none is a {self.kind} "
+                        "frame: is it another device, or the wrong baud rate?"
+                    )
+                raise RequestTimeoutError(
+                    f"nothing arrived from {self.port} within {timeout:g} s (is the device "
+                    "on, and is this its port?)"
+                )
+            await anyio.sleep(0.02)
 
     def _on_odometry_reset(self, heading: float) -> None:
         """A device with its own heading source resets it too."""

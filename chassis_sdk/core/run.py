@@ -12,9 +12,13 @@ stops the wheels. :func:`run` turns both into the same cancellation as Ctrl-C.
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
+import sys
 from collections.abc import Coroutine
 from typing import Any, TypeVar
+
+from ..errors import ChassisError, RequestTimeoutError
 
 __all__ = ["run"]
 
@@ -24,7 +28,9 @@ T = TypeVar("T")
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 
 
-def run(main: Coroutine[Any, Any, T], *, debug: bool | None = None) -> T:
+def run(
+    main: Coroutine[Any, Any, T], *, debug: bool | None = None, one_line_errors: bool = False
+) -> T:
     """Run ``main`` to completion in a new event loop, like :func:`asyncio.run`, with
     SIGTERM and SIGHUP cancelling it the way Ctrl-C does.
 
@@ -49,13 +55,36 @@ def run(main: Coroutine[Any, Any, T], *, debug: bool | None = None) -> T:
     Args:
         main: The program's main coroutine.
         debug: asyncio debug mode, as for :func:`asyncio.run`.
+        one_line_errors: For scripts an operator runs: a :class:`~chassis_sdk.ChassisError`
+            (no such port, nothing answering, another device on the port, the link
+            lost...) ends the program with its message on one line of stderr, named
+            after the script, and exit status 1 (2 for a timeout), instead of a
+            traceback. The robot has been stopped by then, as on any exit.
 
     Returns:
         What ``main`` returned.
 
     Raises:
-        SystemExit: ``main`` was cancelled by SIGTERM or SIGHUP.
+        SystemExit: ``main`` was cancelled by SIGTERM or SIGHUP, or (with
+            ``one_line_errors``) failed with a ``ChassisError``.
     """
+    if not one_line_errors:
+        return _run(main, debug)
+    try:
+        return _run(main, debug)
+    except RequestTimeoutError as exc:
+        print(f"{_program()}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except ChassisError as exc:
+        print(f"{_program()}: {exc}", file=sys.stderr)
+        raise SystemExit(1) from None
+
+
+def _program() -> str:
+    return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "python"
+
+
+def _run(main: Coroutine[Any, Any, T], debug: bool | None) -> T:
     received: list[int] = []
 
     async def guarded() -> T:

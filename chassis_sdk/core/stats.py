@@ -56,6 +56,11 @@ class LinkStats:
     resends: int = 0
     command_expiries: int = 0
 
+    def __str__(self) -> str:
+        """The counters that are not zero, ``name=value`` each (``frames=55
+        frames_sent=4 ...``), or ``no traffic``."""
+        return " ".join(f"{k}={v}" for k, v in self.as_dict().items() if v) or "no traffic"
+
     def as_dict(self) -> dict[str, int]:
         """Return the counters as a plain ``dict``."""
         return {f.name: getattr(self, f.name) for f in fields(self)}

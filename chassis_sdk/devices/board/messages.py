@@ -10,6 +10,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple, TypeAlias
 
+from ...core.enums import NamedEnum
+
 __all__ = [
     "BatteryReading",
     "BoardCommand",
@@ -54,7 +56,7 @@ class SwitchAction(IntEnum):
     READ = 2  #: only report the state
 
 
-class Motor(IntEnum):
+class Motor(NamedEnum):
     """Motor numbers of the 0x21 PWM command."""
 
     REAR_LEFT = 1  #: rear-left wheel
@@ -63,7 +65,7 @@ class Motor(IntEnum):
     FRONT_RIGHT = 4  #: front-right wheel
 
 
-class Servo(IntEnum):
+class Servo(NamedEnum):
     """Servo channels of the 0x31 servo command."""
 
     FIRST = 1  #: servo channel 1

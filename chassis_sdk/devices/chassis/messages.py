@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import datetime
 from dataclasses import dataclass
-from enum import IntEnum, IntFlag
+from enum import IntEnum
 from typing import NamedTuple, TypeAlias
+
+from ...core.enums import NamedEnum, NamedFlag
 
 __all__ = [
     "ChassisInfo",
@@ -65,7 +67,7 @@ class ReplyId(IntEnum):
     SHIP_DATE = 0x8A  #: ship date (13 bytes)
 
 
-class ChassisStatus(IntFlag):
+class ChassisStatus(NamedFlag):
     """Status bits of the 0x81 telemetry frame."""
 
     HARDWARE_ESTOP = 1 << 0  #: the hardware emergency-stop button is pressed
@@ -94,7 +96,7 @@ class ChassisStatus(IntFlag):
     BUMPER = FRONT_BUMPER | REAR_BUMPER  #: either bumper
 
 
-class DockingState(IntEnum):
+class DockingState(NamedEnum):
     """Docking state of the 0x81 telemetry frame.
 
     A value the document does not list decodes to a pseudo-member named
@@ -120,7 +122,7 @@ class DockingState(IntEnum):
         return None
 
 
-class DriverError(IntFlag):
+class DriverError(NamedFlag):
     """Error bits of one motor driver (0xB0 reply)."""
 
     UNDER_VOLTAGE = 1 << 0  #: battery under-voltage
@@ -141,7 +143,7 @@ class DriverError(IntFlag):
     DRIVER_OVER_TEMPERATURE_2 = 1 << 14
 
 
-class MotorStatus(IntFlag):
+class MotorStatus(NamedFlag):
     """Motor status bits of one motor driver (0xB0 reply)."""
 
     SERVO_STARTED = 1 << 0  #: servo enabled
@@ -160,7 +162,7 @@ class MotorStatus(IntFlag):
     FORWARD_STALL = 1 << 13  #: stalled forwards
 
 
-class FaultClear(IntFlag):
+class FaultClear(NamedFlag):
     """What a 0x05 clear-faults frame clears."""
 
     DRIVER = 1 << 0  #: motor-driver faults
