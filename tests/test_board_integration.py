@@ -194,3 +194,22 @@ async def test_with_every_request_id_retired_a_request_times_out_cleanly() -> No
         with pytest.raises(RequestTimeoutError, match="no request id came free"):
             await board.get_led()
         assert len(dev.of_kind(0x01)) == 256  # nothing was sent for the last one
+
+
+async def test_a_board_imu_scale_applies_to_samples_and_the_diagnosis() -> None:
+    from chassis_sdk import ImuScale
+    from chassis_sdk.sim import BoardSimulator
+
+    async with BoardSimulator() as sim, Board(sim.port) as board:
+        assert board.imu_scale == ImuScale()
+        first = await anext(board.imu())
+        assert first.accel.z == pytest.approx(1.0, abs=0.05)  # the document's scale
+        assert any(n.startswith("IMU reads |a| = ") for n in (await board.diagnose()).notes)
+        board.imu_scale = ImuScale(accel=16384.0, gyro=65.5)
+        sample = await anext(board.imu())
+        assert sample.raw is not None
+        assert sample.accel.z == pytest.approx(sample.raw.accel_z / 16384.0)
+        report = await board.diagnose()
+        assert any(f.startswith("IMU reads |a| = 0.01 g") for f in report.faults)
+        with pytest.raises(ValueError, match="ImuScale"):
+            board.imu_scale = 164.0  # type: ignore[assignment]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import random
+import struct
 
 import pytest
 from hypothesis import given, settings
@@ -428,3 +429,30 @@ def test_lost_bytes_make_far_fewer_phantoms_and_no_fewer_good_frames() -> None:
     assert aligned[0] * 5 <= plain[0]  # at least 80 % fewer
     assert aligned[1] >= plain[1]  # and no good frame lost for it
     assert aligned[2] >= plain[0] - aligned[0]
+
+
+# --- IMU units: the document's scale, the raw counts, another scale, SI -----------------------
+
+
+def test_imu_keeps_the_raw_counts_and_offers_si_values() -> None:
+    from chassis_sdk.protocol import ImuCounts, ImuScale
+
+    frame = encode_frame(
+        DEVICE_HEAD, 0x11, struct.pack("<9h", 164, -328, 16384, 164, 0, -1640, 300, 0, -420)
+    )
+    (imu,) = BoardDecoder().feed(frame)
+    assert isinstance(imu, ImuSample)
+    assert imu.raw == ImuCounts(164, -328, 16384, 164, 0, -1640, 300, 0, -420)
+    assert imu.accel == Vector3(1.0, -2.0, 16384 / 164)  # the document's 164 per g
+    assert imu.gyro == pytest.approx(Vector3(10.0, 0.0, -100.0))  # 16.4 per deg/s
+    assert imu == ImuSample(imu.accel, imu.gyro, imu.mag, imu.timestamp)  # raw is not compared
+    assert imu.linear_acceleration.x == pytest.approx(9.80665)
+    assert imu.angular_velocity.z == pytest.approx(math.radians(-100.0))
+    other = imu.scaled(ImuScale(accel=16384.0, gyro=65.5))
+    assert other.accel.z == pytest.approx(1.0)
+    assert other.gyro.x == pytest.approx(164 / 65.5)
+    assert other.raw == imu.raw
+    with pytest.raises(ValueError, match="no raw counts"):
+        ImuSample(Vector3(0, 0, 1), Vector3(0, 0, 0), Vector3(0, 0, 0)).scaled(ImuScale())
+    with pytest.raises(ValueError, match="imu scale accel"):
+        ImuScale(accel=0.0)

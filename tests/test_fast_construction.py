@@ -26,7 +26,8 @@ def test_builder_equals_the_dataclass_constructor_and_stays_frozen() -> None:
     assert repr(built) == repr(Telemetry(*args))
     with pytest.raises(dataclasses.FrozenInstanceError):
         built.voltage = 1.0  # type: ignore[misc]
-    imu = frozen_builder(ImuSample)(Vector3(1, 2, 3), Vector3(4, 5, 6), Vector3(7, 8, 9), 0.5)
+    # Every field positionally, the raw counts (not compared) included.
+    imu = frozen_builder(ImuSample)(Vector3(1, 2, 3), Vector3(4, 5, 6), Vector3(7, 8, 9), 0.5, None)
     assert imu == ImuSample(Vector3(1, 2, 3), Vector3(4, 5, 6), Vector3(7, 8, 9), 0.5)
 
 

@@ -22,6 +22,7 @@ from .protocol import (
     BuzzerCommand,
     BuzzerReply,
     ImuSample,
+    ImuScale,
     LedCommand,
     LedReply,
     LogMessage,
@@ -48,6 +49,11 @@ class Board(Device[BoardMessage, _Key]):
 
     Lifetime, options, the velocity watchdog and the deadman are exactly those of
     :class:`~chassis_sdk.Chassis`.
+
+    IMU samples are in g and °/s by the vendor document's scale (164 counts per g, 16.4
+    per °/s), with the raw counts in ``ImuSample.raw`` and SI values in
+    ``linear_acceleration`` (m/s²) and ``angular_velocity`` (rad/s). A board whose IMU
+    counts differently gets its own scale: ``board.imu_scale = ImuScale(16384, 65.5)``.
 
     LED and buzzer requests carry a one-byte request id that the board copies into its
     reply. Ids are allocated round-robin, skipping any in use, so up to 256 requests
@@ -82,6 +88,7 @@ class Board(Device[BoardMessage, _Key]):
             LedReply: lambda m: self._reply((BoardType.LED, m.request_id), m),
             BuzzerReply: lambda m: self._reply((BoardType.BUZZER, m.request_id), m),
         }
+        self._imu_scale: ImuScale | None = None  # None: the decoder's, the document's
 
     # --- Device hooks -----------------------------------------------------------------------
 
@@ -89,6 +96,8 @@ class Board(Device[BoardMessage, _Key]):
         return BoardDecoder()
 
     def _on_imu(self, m: ImuSample) -> None:
+        if self._imu_scale is not None and m.raw is not None:
+            m = m.scaled(self._imu_scale)
         self._imu.publish(m)
         if self._gyro_heading is not None:
             last, self._last_imu_time = self._last_imu_time, m.timestamp
@@ -273,6 +282,18 @@ class Board(Device[BoardMessage, _Key]):
     def logs(self) -> Subscription[str]:
         """Subscribe to the board's log lines (0xF1)."""
         return self._subscribe(self._logs)
+
+    @property
+    def imu_scale(self) -> ImuScale:
+        """The IMU's counts per g and per °/s applied to :meth:`imu` samples (and to the
+        ``diagnose()`` check); assign to change it."""
+        return self._imu_scale if self._imu_scale is not None else ImuScale()
+
+    @imu_scale.setter
+    def imu_scale(self, scale: ImuScale) -> None:
+        if not isinstance(scale, ImuScale):
+            raise ValueError(f"imu_scale must be an ImuScale, got {scale!r}")
+        self._imu_scale = None if scale == ImuScale() else scale
 
     @property
     def latest_imu(self) -> ImuSample | None:

@@ -6,20 +6,25 @@ numbers), in SI units; the wire format is :mod:`.protocol`'s business.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple, TypeAlias
 
 from ...core.enums import NamedEnum
+from ...core.validation import check_real
 
 __all__ = [
+    "STANDARD_GRAVITY",
     "BatteryReading",
     "BoardCommand",
     "BoardMessage",
     "BoardType",
     "BuzzerCommand",
     "BuzzerReply",
+    "ImuCounts",
     "ImuSample",
+    "ImuScale",
     "LedCommand",
     "LedReply",
     "LogMessage",
@@ -80,21 +85,97 @@ class Vector3(NamedTuple):
     z: float
 
 
+#: Standard gravity (m/s² per g), for SI accelerations.
+STANDARD_GRAVITY = 9.80665
+
+
+class ImuCounts(NamedTuple):
+    """The 0x11 frame's nine int16 counts, exactly as the board sent them."""
+
+    accel_x: int
+    accel_y: int
+    accel_z: int
+    gyro_x: int
+    gyro_y: int
+    gyro_z: int
+    mag_x: int
+    mag_y: int
+    mag_z: int
+
+
+@dataclass(frozen=True, slots=True)
+class ImuScale:
+    """How many counts the board's IMU reports per unit.
+
+    The defaults are the vendor document's: accel / 164.0, gyro / 16.4. 16.4 counts per
+    °/s is the ±2000 °/s range of common MEMS gyros. 164 counts per g matches no standard
+    accelerometer range (a ±2 g part reads 16384 per g, ±16 g 2048): it is a unit the
+    firmware defines, and the simulator follows the document. A public driver for this
+    board family uses ``ImuScale(accel=16384.0, gyro=65.5)``; if at rest ``|accel|`` is
+    not about 1, measure yours and pass it to ``Board(imu_scale=...)``.
+
+    Attributes:
+        accel: Counts per g.
+        gyro: Counts per degree per second.
+    """
+
+    accel: float = 164.0
+    gyro: float = 16.4
+
+    def __post_init__(self) -> None:
+        for name in ("accel", "gyro"):
+            check_real(getattr(self, name), f"imu scale {name}", low=0, low_open=True)
+
+
 @dataclass(frozen=True, slots=True)
 class ImuSample:
     """The 0x11 IMU frame.
 
     Attributes:
-        accel: Acceleration, raw / 164.0 (the vendor's scale; in g for a ±2 g part).
-        gyro: Angular rate, raw / 16.4 (the vendor's scale; degrees per second).
+        accel: Acceleration in g: the raw counts over the scale (164 per g by default,
+            the vendor document's; see :class:`ImuSample.scaled` and ``ImuScale``).
+        gyro: Angular rate in degrees per second (raw / 16.4 by default).
         mag: Magnetic field, raw counts (the document gives no scale).
         timestamp: ``time.monotonic()`` at receipt (0.0 without a clock).
+        raw: The nine counts as received (``None`` for a sample built by hand); not
+            part of equality.
     """
 
     accel: Vector3
     gyro: Vector3
     mag: Vector3
     timestamp: float = 0.0
+    raw: ImuCounts | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def linear_acceleration(self) -> Vector3:
+        """Acceleration in m/s² (SI, as ROS REP 103 expects), from :attr:`accel`."""
+        g = STANDARD_GRAVITY
+        return Vector3(self.accel.x * g, self.accel.y * g, self.accel.z * g)
+
+    @property
+    def angular_velocity(self) -> Vector3:
+        """Angular rate in rad/s (SI), from :attr:`gyro`."""
+        r = math.pi / 180
+        return Vector3(self.gyro.x * r, self.gyro.y * r, self.gyro.z * r)
+
+    def scaled(self, scale: ImuScale) -> ImuSample:
+        """This sample with ``scale`` applied to its raw counts.
+
+        Raises:
+            ValueError: The sample has no raw counts (it was built by hand).
+        """
+        c = self.raw
+        if c is None:
+            raise ValueError("this ImuSample has no raw counts to scale")
+        a, w = scale.accel, scale.gyro
+        return ImuSample(
+            Vector3(c.accel_x / a, c.accel_y / a, c.accel_z / a),
+            Vector3(c.gyro_x / w, c.gyro_y / w, c.gyro_z / w),
+            self.mag,
+            self.timestamp,
+            c,
+        )
 
 
 @dataclass(frozen=True, slots=True)

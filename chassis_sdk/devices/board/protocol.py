@@ -27,13 +27,16 @@ from ...core.construct import frozen_builder
 from ...core.framing import INVALID, NEED_DATA, FrameDecoder, FrameTable, byte_sum
 from ...core.validation import INT16, UINT8, check_int, check_member, scale_to_int
 from .messages import (
+    STANDARD_GRAVITY,
     BatteryReading,
     BoardCommand,
     BoardMessage,
     BoardType,
     BuzzerCommand,
     BuzzerReply,
+    ImuCounts,
     ImuSample,
+    ImuScale,
     LedCommand,
     LedReply,
     LogMessage,
@@ -50,6 +53,7 @@ from .messages import (
 __all__ = [
     "DEVICE_HEAD",
     "HOST_HEAD",
+    "STANDARD_GRAVITY",
     "BatteryReading",
     "BoardCommand",
     "BoardCommandDecoder",
@@ -59,7 +63,9 @@ __all__ = [
     "BoardType",
     "BuzzerCommand",
     "BuzzerReply",
+    "ImuCounts",
     "ImuSample",
+    "ImuScale",
     "LedCommand",
     "LedReply",
     "LogMessage",
@@ -82,10 +88,10 @@ DEVICE_HEAD = b"\xfe\xce"
 #: Head of frames from the host to the board.
 HOST_HEAD = b"\xab\xbc"
 
-#: Accelerometer scale: raw / 164.0 (per the vendor document).
-ACCEL_SCALE = 164.0
-#: Gyroscope scale: raw / 16.4 (per the vendor document).
-GYRO_SCALE = 16.4
+#: The vendor document's IMU scale, the decoder's: accel counts per g, gyro counts
+#: per °/s (see ImuScale for why 164 is not a standard accelerometer range).
+ACCEL_SCALE = ImuScale().accel
+GYRO_SCALE = ImuScale().gyro
 
 
 def velocity_command(linear: float, angular: float) -> VelocityCommand:
@@ -221,12 +227,14 @@ _tuple_new = tuple.__new__
 
 def _parse_imu(b: bytes | bytearray, o: int, n: int, ts: float) -> ImuSample:
     # The hot path (100 Hz): see _fast.py for why it is built this way.
-    ax, ay, az, gx, gy, gz, mx, my, mz = _IMU.unpack_from(b, o)
+    counts = _IMU.unpack_from(b, o)
+    ax, ay, az, gx, gy, gz, mx, my, mz = counts
     return _build_imu(
         _tuple_new(Vector3, (ax / ACCEL_SCALE, ay / ACCEL_SCALE, az / ACCEL_SCALE)),
         _tuple_new(Vector3, (gx / GYRO_SCALE, gy / GYRO_SCALE, gz / GYRO_SCALE)),
         _tuple_new(Vector3, (float(mx), float(my), float(mz))),
         ts,
+        _tuple_new(ImuCounts, counts),
     )
 
 
