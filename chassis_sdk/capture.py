@@ -209,17 +209,22 @@ def read_capture(path: str | Path) -> Iterator[tuple[float, bytes]]:
                 raise ValueError(f"{path}:{n}: not a capture line") from None
 
 
-def decode_capture(path: str | Path, protocol: str) -> Iterator[tuple[float, object]]:
+def decode_capture(
+    path: str | Path, protocol: str, *, commands: bool = False
+) -> Iterator[tuple[float, object]]:
     """Decode a capture: yield ``(seconds since start, message)`` in order.
 
     Args:
         path: The capture file.
         protocol: The device's name (see :func:`chassis_sdk.devices.profiles`).
+        commands: Decode what the *host* sent instead (a capture taken on a tap that
+            sees both directions holds both; one from ``record`` holds none).
 
     Raises:
         ValueError: An unknown device, or a file that is not a capture.
     """
-    decoder = profile(protocol).decoder()
+    device = profile(protocol)
+    decoder = device.command_decoder() if commands else device.decoder()
     for t, data in read_capture(path):
         for msg in decoder.feed(data, t):
             yield t, msg

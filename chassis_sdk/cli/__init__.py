@@ -214,34 +214,36 @@ def _plot(path: str, output: str, protocol: str | None) -> None:
     rows = list(capture.decode_capture(path, proto))
     if not rows:
         _no_messages(path, proto)
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 8))
+    commands = list(capture.decode_capture(path, proto, commands=True))
+    fig = plt.figure(figsize=(13, 9))
     if device.plot is not None:
-        device.plot(rows, axes)
+        device.plot(rows, commands, fig)
     else:  # a generic device: every numeric field of every message, by type
-        _plot_fields(rows, axes)
-    axes[2].set_xlabel("time since start of capture (s)")
-    for ax in axes:
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(loc="upper right")
-        ax.grid(True, alpha=0.3)
+        _plot_fields(rows, fig)
     fig.suptitle(f"{proto} capture {path}")
     fig.tight_layout()
     fig.savefig(output, dpi=100)
-    out(f"wrote {output} ({len(rows)} messages)")
+    plt.close(fig)
+    extra = f" and {len(commands)} commands" if commands else ""
+    out(f"wrote {output} ({len(rows)} messages{extra})")
 
 
-def _plot_fields(rows: list[tuple[float, object]], axes: Any) -> None:
+def _plot_fields(rows: list[tuple[float, object]], fig: Any) -> None:
     series: dict[str, tuple[list[float], list[float]]] = {}
     for t, msg in rows:
         for key, value in jsonable(msg).items():
-            if isinstance(value, int | float) and not isinstance(value, bool):
-                name = f"{type(msg).__name__}.{key}"
-                if key != "timestamp":
-                    ts, ys = series.setdefault(name, ([], []))
-                    ts.append(t)
-                    ys.append(float(value))
-    for i, (name, (ts, ys)) in enumerate(sorted(series.items())[:9]):
-        axes[min(i // 3, 2)].plot(ts, ys, label=name)
+            numeric = isinstance(value, int | float) and not isinstance(value, bool)
+            if numeric and key != "timestamp":
+                ts, ys = series.setdefault(f"{type(msg).__name__}.{key}", ([], []))
+                ts.append(t)
+                ys.append(float(value))
+    names = sorted(series)[:6]
+    axes = fig.subplots(max(len(names), 1), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, name in zip(axes, names, strict=False):
+        ax.plot(*series[name])
+        ax.set_ylabel(name, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time since start of capture (s)")
 
 
 async def _demo(device: DeviceProfile) -> None:

@@ -73,8 +73,9 @@ class DeviceProfile:
             report if ``None``.
         monitor: ``chassis-sdk monitor PORT``: ``monitor(port, baudrate, seconds,
             as_json)``.
-        plot: ``chassis-sdk plot``: ``plot(rows, axes)`` fills three matplotlib axes
-            from decoded ``(seconds, message)`` rows; a generic plot if ``None``.
+        plot: ``chassis-sdk plot``: ``plot(rows, commands, figure)`` draws decoded
+            ``(seconds, message)`` rows, and the host's commands if the capture holds
+            any, into a matplotlib figure; a generic plot if ``None``.
     """
 
     name: str
@@ -91,7 +92,9 @@ class DeviceProfile:
     demo: Callable[[], Coroutine[Any, Any, None]] | None = None
     info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
     monitor: Callable[[str, int, float | None, bool], Coroutine[Any, Any, None]] | None = None
-    plot: Callable[[list[tuple[float, object]], Any], None] | None = None
+    plot: Callable[[list[tuple[float, object]], list[tuple[float, object]], Any], None] | None = (
+        None
+    )
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.isidentifier() or self.name != self.name.lower():

@@ -5,9 +5,10 @@ from __future__ import annotations
 from typing import Any
 
 from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
+from ...cli.plotting import empty, layout, path_panel, series, velocity_panels
 from ...errors import RequestTimeoutError
 from .device import Board
-from .messages import BatteryReading, ImuSample, VelocityFeedback
+from .messages import BatteryReading, ImuSample, VelocityCommand, VelocityFeedback
 
 __all__ = ["demo", "info", "plot"]
 
@@ -55,14 +56,33 @@ async def info(port: str, baudrate: int, timeout: float) -> None:
         out(str(await board.diagnose()))
 
 
-def plot(rows: list[tuple[float, object]], axes: Any) -> None:
-    """Velocity feedback, gyro rate and battery of a decoded capture on three axes."""
-    vel = [(t, m) for t, m in rows if isinstance(m, VelocityFeedback)]
-    imu = [(t, m) for t, m in rows if isinstance(m, ImuSample)]
-    bat = [(t, m) for t, m in rows if isinstance(m, BatteryReading)]
-    axes[0].plot([t for t, _ in vel], [m.linear for _, m in vel], label="linear (m/s)")
-    axes[0].plot([t for t, _ in vel], [m.angular for _, m in vel], label="angular (rad/s)")
-    axes[0].set_ylabel("velocity")
-    axes[1].plot([t for t, _ in imu], [m.gyro.z for _, m in imu], label="gyro z (deg/s)")
-    axes[2].plot([t for t, _ in bat], [m.voltage for _, m in bat], label="battery (V)")
-    axes[2].set_ylabel("volts")
+def plot(rows: list[tuple[float, object]], commands: list[tuple[float, object]], fig: Any) -> None:
+    """Linear and angular velocity feedback (each with what was commanded, if the
+    capture holds it; the gyro's z rate beside the angular one), the battery, and the
+    path from odometry."""
+    (linear, angular, volts), path = layout(fig, 3)
+    t, v = series(rows, VelocityFeedback, "linear")
+    _, w = series(rows, VelocityFeedback, "angular")
+    drives = [(ts, c) for ts, c in commands if isinstance(c, VelocityCommand)]
+    commanded = (
+        [ts for ts, _ in drives],
+        [c.linear_milli / 1000 for _, c in drives],
+        [c.angular_milli / 1000 for _, c in drives],
+    )
+    velocity_panels(linear, angular, (t, v, w), commanded)
+    imu = [(ts, m) for ts, m in rows if isinstance(m, ImuSample)]
+    angular.plot(
+        [ts for ts, _ in imu],
+        [m.angular_velocity.z for _, m in imu],
+        linewidth=0.6,
+        alpha=0.6,
+        label="gyro z",
+    )
+    angular.legend(loc="upper right", fontsize=8)
+    bt, bv = series(rows, BatteryReading, "voltage")
+    volts.set_ylabel("battery (V)")
+    if bt:
+        volts.plot(bt, bv, "o-", color="tab:green")
+    else:
+        empty(volts, "no battery reading (0x13 comes once a second)")
+    path_panel(path, t, v, w)

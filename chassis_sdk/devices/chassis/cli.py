@@ -21,9 +21,10 @@ from ...cli.common import (
     out,
     simulated,
 )
+from ...cli.plotting import layout, path_panel, series, velocity_panels
 from ...errors import ChassisError, RequestTimeoutError
 from .device import Chassis
-from .messages import Telemetry
+from .messages import DriveVelocity, Telemetry
 
 __all__ = ["demo", "format_telemetry", "info", "monitor", "plot"]
 
@@ -238,15 +239,30 @@ class _View:
         return table
 
 
-def plot(rows: list[tuple[float, object]], axes: Any) -> None:
-    """Velocities, wheel speeds and voltage of a decoded capture on three axes."""
-    tel = [(t, m) for t, m in rows if isinstance(m, Telemetry)]
-    ts = [t for t, _ in tel]
-    axes[0].plot(ts, [m.linear for _, m in tel], label="linear (m/s)")
-    axes[0].plot(ts, [m.angular for _, m in tel], label="angular (rad/s)")
-    axes[0].set_ylabel("velocity")
-    for name in ("front_left", "front_right", "rear_left", "rear_right"):
-        axes[1].plot(ts, [getattr(m.wheels, name) for _, m in tel], label=name)
-    axes[1].set_ylabel("wheel speed (m/s)")
-    axes[2].plot(ts, [m.voltage for _, m in tel], label="battery (V)")
-    axes[2].set_ylabel("volts")
+def plot(rows: list[tuple[float, object]], commands: list[tuple[float, object]], fig: Any) -> None:
+    """Linear and angular velocity (each with what was commanded, if the capture holds
+    it), the four wheels (left blue, right orange; front solid, rear dashed), the
+    battery, and the path from odometry."""
+    (linear, angular, wheels, volts), path = layout(fig, 4)
+    t, v = series(rows, Telemetry, "linear")
+    _, w = series(rows, Telemetry, "angular")
+    drives = [(ts, c) for ts, c in commands if isinstance(c, DriveVelocity)]
+    commanded = (
+        [ts for ts, _ in drives],
+        [c.linear_mm / 1000 for _, c in drives],
+        [c.angular for _, c in drives],
+    )
+    velocity_panels(linear, angular, (t, v, w), commanded)
+    telemetry = [m for _, m in rows if isinstance(m, Telemetry)]
+    for name, color, style in (
+        ("front_left", "tab:blue", "-"),
+        ("rear_left", "tab:blue", "--"),
+        ("front_right", "tab:orange", "-"),
+        ("rear_right", "tab:orange", "--"),
+    ):
+        wheels.plot(t, [getattr(m.wheels, name) for m in telemetry], style, color=color, label=name)
+    wheels.set_ylabel("wheels (m/s)")
+    wheels.legend(loc="upper right", fontsize=8, ncol=2)
+    volts.plot(t, [m.voltage for m in telemetry], color="tab:green")
+    volts.set_ylabel("battery (V)")
+    path_panel(path, t, v, w)
