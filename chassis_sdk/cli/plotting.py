@@ -4,7 +4,7 @@ panel has nothing to show."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..core.odometry import OdometryIntegrator
@@ -39,23 +39,36 @@ def empty(ax: Any, text: str) -> None:
     ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", color="gray")
 
 
+Series3 = tuple[list[float], list[float], list[float]]
+
+
 def velocity_panels(
     linear_ax: Any,
     angular_ax: Any,
-    measured: tuple[list[float], list[float], list[float]],
-    commanded: tuple[list[float], list[float], list[float]],
-) -> None:
-    """Measured linear (m/s) and angular (rad/s) velocity on their own axes, each with
-    what the host commanded when the capture holds it (a step line: a command holds
-    until the next)."""
-    t, v, w = measured
-    ct, cv, cw = commanded
+    rows: Rows,
+    kind: type,
+    commands: Rows,
+    command_kind: type,
+    command_si: Callable[[Any], tuple[float, float]],
+) -> Series3:
+    """Measured linear (m/s) and angular (rad/s) velocity (the ``linear`` and
+    ``angular`` of every ``kind`` message) on their own axes, each with what the host
+    commanded (``command_si`` of every ``command_kind``: m/s and rad/s) when the capture
+    holds it, as a step line: a command holds until the next. Returns the measured
+    (times, linear, angular)."""
+    t, v = series(rows, kind, "linear")
+    _, w = series(rows, kind, "angular")
+    drives = [(ts, command_si(c)) for ts, c in commands if isinstance(c, command_kind)]
+    ct = [ts for ts, _ in drives]
+    cv = [vw[0] for _, vw in drives]
+    cw = [vw[1] for _, vw in drives]
     for ax, values, wanted, unit in ((linear_ax, v, cv, "m/s"), (angular_ax, w, cw, "rad/s")):
         ax.plot(t, values, label="measured")
         if ct:
             ax.step(ct, wanted, where="post", linestyle="--", label="commanded")
         ax.set_ylabel(f"{'linear' if unit == 'm/s' else 'angular'} ({unit})")
         ax.legend(loc="upper right", fontsize=8)
+    return t, v, w
 
 
 def path_panel(ax: Any, t: list[float], v: list[float], w: list[float]) -> None:

@@ -61,15 +61,10 @@ def plot(rows: list[tuple[float, object]], commands: list[tuple[float, object]],
     capture holds it; the gyro's z rate beside the angular one), the battery, and the
     path from odometry."""
     (linear, angular, volts), path = layout(fig, 3)
-    t, v = series(rows, VelocityFeedback, "linear")
-    _, w = series(rows, VelocityFeedback, "angular")
-    drives = [(ts, c) for ts, c in commands if isinstance(c, VelocityCommand)]
-    commanded = (
-        [ts for ts, _ in drives],
-        [c.linear_milli / 1000 for _, c in drives],
-        [c.angular_milli / 1000 for _, c in drives],
-    )
-    velocity_panels(linear, angular, (t, v, w), commanded)
+    t, v, w = velocity_panels(
+        linear, angular, rows, VelocityFeedback, commands, VelocityCommand,
+        lambda c: (c.linear_milli / 1000, c.angular_milli / 1000),
+    )  # fmt: skip
     imu = [(ts, m) for ts, m in rows if isinstance(m, ImuSample)]
     angular.plot(
         [ts for ts, _ in imu],

@@ -21,7 +21,7 @@ from ...cli.common import (
     out,
     simulated,
 )
-from ...cli.plotting import layout, path_panel, series, velocity_panels
+from ...cli.plotting import layout, path_panel, velocity_panels
 from ...errors import ChassisError, RequestTimeoutError
 from .device import Chassis
 from .messages import DriveVelocity, Telemetry
@@ -244,15 +244,10 @@ def plot(rows: list[tuple[float, object]], commands: list[tuple[float, object]],
     it), the four wheels (left blue, right orange; front solid, rear dashed), the
     battery, and the path from odometry."""
     (linear, angular, wheels, volts), path = layout(fig, 4)
-    t, v = series(rows, Telemetry, "linear")
-    _, w = series(rows, Telemetry, "angular")
-    drives = [(ts, c) for ts, c in commands if isinstance(c, DriveVelocity)]
-    commanded = (
-        [ts for ts, _ in drives],
-        [c.linear_mm / 1000 for _, c in drives],
-        [c.angular for _, c in drives],
-    )
-    velocity_panels(linear, angular, (t, v, w), commanded)
+    t, v, w = velocity_panels(
+        linear, angular, rows, Telemetry, commands, DriveVelocity,
+        lambda c: (c.linear_mm / 1000, c.angular),
+    )  # fmt: skip
     telemetry = [m for _, m in rows if isinstance(m, Telemetry)]
     for name, color, style in (
         ("front_left", "tab:blue", "-"),
