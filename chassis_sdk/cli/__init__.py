@@ -70,7 +70,7 @@ async def _detect_one(port: str, seconds: float, baudrate: int) -> str:
         return str(exc)
     if found is None:
         heard = " or ".join(p.recognised_by for p in profiles().values())
-        return f"nothing recognisable within {seconds:g} s (expected {heard} frames)"
+        return f"nothing recognisable within {seconds:g} s (expected {heard})"
     return found
 
 

@@ -69,7 +69,7 @@ PROFILE = DeviceProfile(
     command_examples=COMMAND_EXAMPLES,
     # Protocol B holds up to three bytes past a frame whose end could start a head.
     max_buffered=262,
-    recognised_by="0x11 board IMU frames",
+    recognised_by="0x11 board IMU samples",
     demo=cli.demo,
     info=cli.info,
     plot=cli.plot,
