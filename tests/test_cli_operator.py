@@ -13,6 +13,7 @@ import contextlib
 import fcntl
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -335,7 +336,7 @@ async def test_record_reports_an_unplug_and_a_replug_and_writes_them_down(tmp_pa
         ChassisSimulator(tcp_port=0) as sim,
         running("record", sim.port, str(path), "--seconds", "3") as rec,
     ):
-        await rec.wait_for_line(lambda line: "bytes" in line)
+        await rec.wait_for_line(lambda line: re.search(r": [1-9][\d,]* bytes", line) is not None)
         sim.unplug()
         await rec.wait_for_line(lambda line: "LINK LOST" in line)
         await sim.replug()
@@ -356,7 +357,7 @@ async def test_record_fails_when_the_link_is_not_restored(tmp_path: Path) -> Non
         ChassisSimulator(tcp_port=0) as sim,
         running("record", sim.port, str(path), "--seconds", "2") as rec,
     ):
-        await rec.wait_for_line(lambda line: "bytes" in line)
+        await rec.wait_for_line(lambda line: re.search(r": [1-9][\d,]* bytes", line) is not None)
         sim.unplug()
         code, _, err = await rec.finish()
     assert code == 1

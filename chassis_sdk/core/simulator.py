@@ -494,6 +494,10 @@ class SimulatorServer:
     async def _serve_client(
         self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
     ) -> None:
+        if self._server is None:
+            # Connected before the cable was pulled, served after: the cable is out.
+            writer.close()
+            return
         task = asyncio.current_task()
         assert task is not None
         self._client_tasks.add(task)
