@@ -35,11 +35,12 @@ from ..errors import ChassisError, RequestTimeoutError
 from ..ports import list_serial_ports
 from .common import first_frame, jsonable, out, progress_line
 
-__all__ = ["ENV_PORT", "ENV_PROTOCOL", "main"]
+__all__ = ["ENV_BROKER", "ENV_PORT", "ENV_PROTOCOL", "main"]
 
 #: Environment variables that give defaults to the port and ``--protocol``.
 ENV_PORT = "CHASSIS_SDK_PORT"
 ENV_PROTOCOL = "CHASSIS_SDK_PROTOCOL"
+ENV_BROKER = "CHASSIS_SDK_BROKER"
 #: ``drive``'s default limits: slow enough to walk beside.
 DRIVE_MAX_LINEAR = 0.5
 DRIVE_MAX_ANGULAR = 1.0
@@ -246,6 +247,12 @@ def _plot_fields(rows: list[tuple[float, object]], fig: Any) -> None:
     axes[-1].set_xlabel("time since start of capture (s)")
 
 
+async def _bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    from .bridge_command import bridge
+
+    await bridge(device, port, args)
+
+
 async def _demo(device: DeviceProfile) -> None:
     if device.demo is None:
         raise ChassisError(f"there is no demo of a {device.name}; try `sim {device.name}`")
@@ -375,6 +382,23 @@ def _parser() -> argparse.ArgumentParser:
         "--timeout", type=_positive("timeout"), default=2.0, help="seconds to hear the device"
     )
 
+    br = sub.add_parser("bridge", help="put the device on an MQTT broker (pip install '.[mqtt]')")
+    _port_args(br)
+    _protocol_arg(br, names, detected=False)
+    br.add_argument(
+        "--broker",
+        default=os.environ.get(ENV_BROKER) or "mqtt://127.0.0.1:1883",
+        help=f"mqtt://HOST:PORT or mqtts://HOST:PORT (default: ${ENV_BROKER})",
+    )
+    br.add_argument("--robot-id", required=True, help="the robot's name under the prefix")
+    br.add_argument("--prefix", default="robots", help="the first topic level")
+    br.add_argument("--rate", type=_positive("rate"), default=10.0, help="telemetry per second")
+    br.add_argument("--read-only", action="store_true", help="never take a command")
+    br.add_argument("--username", help="broker user name")
+    br.add_argument("--password-file", help="a file holding the broker password")
+    br.add_argument("--tls", action="store_true", help="TLS (implied by mqtts://)")
+    br.add_argument("--cafile", help="CA certificates for TLS (default: the system's)")
+
     r = sub.add_parser("record", help="capture timestamped raw bytes from a port")
     _port_args(r)
     r.add_argument("file")
@@ -415,6 +439,8 @@ def _job(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Coroutine
         return _info(device, args.port, args.baudrate, args.timeout)
     if command == "monitor":
         return _monitor(device, args.port, args.baudrate, args.seconds, args.json)
+    if command == "bridge":
+        return _bridge(device, args.port, args)
     return _drive(device, args.port, args)
 
 

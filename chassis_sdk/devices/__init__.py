@@ -21,8 +21,8 @@ device" in the docs for a whole device in one file.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Coroutine, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Coroutine, Mapping, Sequence
+from dataclasses import dataclass, field
 from importlib import import_module, metadata
 from typing import Any
 
@@ -68,6 +68,11 @@ class DeviceProfile:
         max_buffered: The most bytes a decoder may hold after ``feed`` returns (its
             largest frame, plus any look-ahead); the fuzzer checks it.
         recognised_by: What ``detect`` hears from this device unprompted, for messages.
+        streams: The device's stream methods the MQTT bridge publishes
+            (``telemetry/{stream}``).
+        requests: The read-only request methods the bridge answers (``request/{name}``).
+        identity: The requests whose results make the bridge's retained ``info``.
+        features: What the device has, for ``info`` (``{"servos": 2, ...}``).
         demo: ``chassis-sdk demo --device NAME``: drives the simulator, narrating.
         info: ``chassis-sdk info PORT``: ``info(port, baudrate, timeout)``; a generic
             report if ``None``.
@@ -89,6 +94,10 @@ class DeviceProfile:
     command_examples: Sequence[Example]
     max_buffered: int
     recognised_by: str
+    streams: tuple[str, ...] = ()
+    requests: tuple[str, ...] = ()
+    identity: tuple[str, ...] = ()
+    features: Mapping[str, object] = field(default_factory=dict)
     demo: Callable[[], Coroutine[Any, Any, None]] | None = None
     info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
     monitor: Callable[[str, int, float | None, bool], Coroutine[Any, Any, None]] | None = None

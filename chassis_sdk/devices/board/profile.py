@@ -70,6 +70,9 @@ PROFILE = DeviceProfile(
     # Protocol B holds up to three bytes past a frame whose end could start a head.
     max_buffered=262,
     recognised_by="0x11 board IMU samples",
+    streams=("imu", "velocity", "battery", "odometry"),
+    requests=("get_led", "get_buzzer", "diagnose"),
+    features={"imu": True, "led": True, "buzzer": True, "motors": 4, "servos": 2},
     demo=cli.demo,
     info=cli.info,
     plot=cli.plot,

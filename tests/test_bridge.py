@@ -1,0 +1,352 @@
+"""The MQTT bridge against a real mosquitto on loopback and the simulators on ptys:
+the connection topic and last will, retained info, telemetry at the rate, events,
+commands under the deadman, broker loss, no late command, malformed payloads,
+read-only mode and MQTT 5 request/response."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+
+from chassis_sdk import Board, Chassis
+from chassis_sdk.bridge import MqttBridge, connection_will
+from chassis_sdk.protocol import DriveVelocity
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+from .mqtt_broker import Broker, broker
+
+ROOT = Path(__file__).resolve().parent.parent
+V5 = aiomqtt.ProtocolVersion.V5
+
+
+def bridge_client(b: Broker, robot_id: str) -> aiomqtt.Client:
+    return aiomqtt.Client(
+        "127.0.0.1",
+        b.port,
+        identifier=f"bridge-{robot_id}",
+        protocol=V5,
+        will=connection_will(robot_id),
+        clean_start=True,
+    )
+
+
+class Observer:
+    """A dashboard: subscribes under ``robots/#`` and keeps what arrives, in order."""
+
+    count = 0
+
+    def __init__(self, b: Broker) -> None:
+        Observer.count += 1
+        name = f"observer-{os.getpid()}-{Observer.count}"  # a shared id would evict the other
+        self.client = aiomqtt.Client("127.0.0.1", b.port, identifier=name, protocol=V5)
+        self.seen: list[tuple[str, Any, bool]] = []
+        self._task: asyncio.Task[None] | None = None
+        self._arrived = asyncio.Event()
+
+    async def __aenter__(self) -> Observer:
+        await self.client.__aenter__()
+        await self.client.subscribe("robots/#", qos=1)
+        self._task = asyncio.create_task(self._collect())
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        assert self._task is not None
+        self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+            await self._task
+        with contextlib.suppress(aiomqtt.MqttError):  # the broker may be gone (killed)
+            await self.client.__aexit__(None, None, None)
+
+    async def _collect(self) -> None:
+        async for m in self.client.messages:
+            raw = m.payload if isinstance(m.payload, bytes | bytearray) else b""
+            try:
+                payload: Any = json.loads(raw) if raw else None
+            except ValueError:
+                payload = raw
+            self.seen.append((str(m.topic), payload, bool(m.retain)))
+            self._arrived.set()
+
+    def on(self, topic: str) -> list[Any]:
+        return [p for t, p, _ in self.seen if t == topic]
+
+    async def wait(self, predicate: Callable[[], bool], timeout: float = 5.0) -> None:
+        async with asyncio.timeout(timeout):
+            while not predicate():
+                self._arrived.clear()
+                await self._arrived.wait()
+
+    async def publish(self, topic: str, payload: Any, **kwargs: Any) -> None:
+        data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
+        await self.client.publish(topic, data, **kwargs)
+
+
+@contextlib.asynccontextmanager
+async def bridged(
+    b: Broker, device: Chassis | Board, robot_id: str = "r1", **options: Any
+) -> AsyncIterator[asyncio.Task[None]]:
+    bridge = MqttBridge(device, bridge_client(b, robot_id), robot_id, **options)
+    task = asyncio.create_task(bridge.run())
+    try:
+        yield task
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+            await task
+
+
+def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
+    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
+
+
+async def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> None:
+    async with asyncio.timeout(timeout):
+        while not predicate():
+            await asyncio.sleep(0.01)
+
+
+@pytest.fixture
+async def stand() -> AsyncIterator[tuple[Broker, ChassisSimulator, Chassis, Observer]]:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port, reconnect=True) as robot,
+        Observer(b) as obs,
+    ):
+        yield b, sim, robot, obs
+
+
+async def test_connection_info_link_and_a_clean_stop(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, _sim, robot, obs = stand
+    async with bridged(b, robot):
+        await obs.wait(lambda: bool(obs.on("robots/r1/info")) and bool(obs.on("robots/r1/link")))
+        assert obs.on("robots/r1/connection")[-1]["state"] == "ONLINE"
+        info = obs.on("robots/r1/info")[-1]
+        assert info["device"] == "chassis"
+        assert info["hardware_version"] == "ZKWL-brush-motor-chassis"
+        assert info["chassis_info"]["track_width"] == pytest.approx(0.725)
+        assert info["features"]["wheels"] == 4
+        assert obs.on("robots/r1/link")[-1]["state"] == "connected"
+    await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "OFFLINE")
+    # Retained: a dashboard that comes later still learns all three.
+    async with Observer(b) as late:
+        await late.wait(lambda: len({t for t, _, r in late.seen if r}) >= 3)
+        assert late.on("robots/r1/connection")[-1]["state"] == "OFFLINE"
+        assert late.on("robots/r1/info")[-1]["device"] == "chassis"
+
+
+async def test_telemetry_at_the_rate_and_events(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, sim, robot, obs = stand
+    async with bridged(b, robot, rate=10.0):
+        await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
+        start, first = time.monotonic(), len(obs.on("robots/r1/telemetry/telemetry"))
+        await asyncio.sleep(1.5)
+        rate = (len(obs.on("robots/r1/telemetry/telemetry")) - first) / (time.monotonic() - start)
+        assert 8.0 <= rate <= 11.0  # at most 10/s of the 50 Hz stream, never a backlog
+        t = obs.on("robots/r1/telemetry/telemetry")[-1]
+        assert (t["type"], t["status"], t["docking"]) == (
+            "Telemetry",
+            "REMOTE_OFFLINE",
+            "SEARCHING",
+        )
+        assert obs.on("robots/r1/telemetry/odometry")[-1]["type"] == "Odometry"
+        sim.firmware.press_bumper(front=True)
+        await obs.wait(lambda: any(e["kind"] == "bumper_hit" for e in obs.on("robots/r1/events")))
+        hit = next(e for e in obs.on("robots/r1/events") if e["kind"] == "bumper_hit")
+        assert hit["source"] == "front"
+
+
+async def test_a_velocity_command_moves_the_robot_and_stops_when_commands_stop(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, sim, robot, obs = stand
+    async with bridged(b, robot):
+        await obs.wait(lambda: bool(obs.on("robots/r1/connection")))
+        for _ in range(6):
+            await obs.publish("robots/r1/cmd/velocity", {"linear": 0.3, "angular": 0.1})
+            await asyncio.sleep(0.1)
+        await wait_until(lambda: any(d.linear_mm == 300 for d in drives(sim)))
+        stopped_publishing = time.monotonic()
+        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=2.0)
+        # The deadman (command_timeout 0.5 s) stopped it: the dashboard went quiet.
+        assert time.monotonic() - stopped_publishing < 1.0
+        assert robot.stats.command_expiries == 1
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
+        await wait_until(lambda: drives(sim)[-1].linear_mm == 200)
+        await obs.publish("robots/r1/cmd/stop", b"")
+        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
+        await obs.publish("robots/r1/cmd/estop", {"engaged": True})
+        await wait_until(
+            lambda: robot.latest_telemetry is not None and robot.latest_telemetry.emergency_stopped
+        )
+
+
+async def test_losing_the_broker_stops_the_robot_at_once(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, sim, robot, obs = stand
+    task = asyncio.create_task(MqttBridge(robot, bridge_client(b, "r1"), "r1").run())
+    await obs.wait(lambda: bool(obs.on("robots/r1/connection")))
+
+    async def dashboard() -> None:  # keeps the command fresh, as a joystick would
+        with contextlib.suppress(aiomqtt.MqttError):
+            while True:
+                await obs.publish("robots/r1/cmd/velocity", {"linear": 0.3, "angular": 0.0})
+                await asyncio.sleep(0.05)
+
+    joystick = asyncio.create_task(dashboard())
+    await wait_until(lambda: any(d.linear_mm == 300 for d in drives(sim)))
+    killed = time.monotonic()
+    b.kill()
+    with pytest.raises(aiomqtt.MqttError):
+        await asyncio.wait_for(task, 5)
+    await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=1.0)
+    # At once: well before the deadman's 0.5 s after the last command would have.
+    assert time.monotonic() - killed < 0.3
+    assert robot.commanded_velocity is None
+    joystick.cancel()
+
+
+async def test_no_command_is_delivered_late_after_a_reconnect(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, sim, robot, obs = stand
+    async with bridged(b, robot):
+        await obs.wait(lambda: bool(obs.on("robots/r1/connection")))
+    await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "OFFLINE")
+    # While the bridge is away: commands at QoS 0 and 1, and one retained.
+    await obs.publish("robots/r1/cmd/velocity", {"linear": 0.4, "angular": 0.0}, qos=1)
+    await obs.publish("robots/r1/cmd/velocity", {"linear": 0.4, "angular": 0.0}, qos=0)
+    await obs.publish("robots/r1/cmd/velocity", {"linear": 0.5, "angular": 0.0}, qos=1, retain=True)
+    before = len(drives(sim))
+    async with bridged(b, robot):
+        await obs.wait(lambda: any("retained" in e["error"] for e in obs.on("robots/r1/errors")))
+        await obs.wait(lambda: len(obs.on("robots/r1/telemetry/telemetry")) >= 5)
+        assert all(d.linear_mm == 0 for d in drives(sim)[before:])
+    await obs.publish("robots/r1/cmd/velocity", b"", retain=True)  # clear the retained one
+
+
+@pytest.mark.parametrize(
+    ("topic", "payload", "why"),
+    [
+        pytest.param("velocity", b"not json", "not JSON", id="not-json"),
+        pytest.param("velocity", b"[1, 2]", "not a JSON object", id="not-an-object"),
+        pytest.param("velocity", b'{"linear": 0.3}', "'angular' must be a number", id="missing-field"),
+        pytest.param("velocity", b'{"linear": "fast", "angular": 0}', "'linear' must be a number", id="a-string"),
+        pytest.param("velocity", b'{"linear": true, "angular": 0}', "'linear' must be a number", id="a-bool"),
+        pytest.param("velocity", b'{"linear": NaN, "angular": 0}', "'linear' must be finite", id="nan"),
+        pytest.param("velocity", b'{"linear": 1e9, "angular": 0}', "out of range", id="out-of-range"),
+        pytest.param("velocity", b'{"linear": 0, "angular": 99}', "angular", id="angular-too-fast"),
+        pytest.param("estop", b'{"engaged": "yes"}', "'engaged' must be true or false", id="estop-not-bool"),
+        pytest.param("fly", b"{}", "unknown command 'fly'", id="unknown-command"),
+    ],
+)  # fmt: skip
+async def test_malformed_commands_are_rejected_and_never_written(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer], topic: str, payload: bytes, why: str
+) -> None:
+    b, sim, robot, obs = stand
+    async with bridged(b, robot):
+        await obs.wait(lambda: bool(obs.on("robots/r1/connection")))
+        await obs.publish(f"robots/r1/cmd/{topic}", payload)
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        error = obs.on("robots/r1/errors")[0]
+        assert error["topic"] == f"robots/r1/cmd/{topic}"
+        assert why in error["error"]
+        assert drives(sim) == []
+        assert robot.is_connected
+
+
+async def test_read_only_never_takes_a_command_but_answers_requests(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, sim, robot, obs = stand
+    async with bridged(b, robot, read_only=True):
+        await obs.wait(lambda: bool(obs.on("robots/r1/connection")))
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.3, "angular": 0.0})
+        result = await request(obs, "r1", "get_firmware_version")  # the bridge is past it
+        assert result == {"result": sim.firmware.spec.firmware_version}
+        assert drives(sim) == []
+        assert obs.on("robots/r1/errors") == []
+
+
+async def request(obs: Observer, robot_id: str, name: str) -> Any:
+    """One MQTT 5 request/response round trip, matched by correlation data."""
+    reply_to = f"replies/{robot_id}/{name}"
+    await obs.client.subscribe(reply_to)
+    props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
+    props.ResponseTopic = reply_to
+    props.CorrelationData = b"req-42"
+    await obs.client.publish(f"robots/{robot_id}/request/{name}", b"", properties=props)
+    await obs.wait(lambda: bool([p for t, p, _ in obs.seen if t == reply_to]))
+    return [p for t, p, _ in obs.seen if t == reply_to][-1]
+
+
+async def test_requests_and_responses_over_mqtt5(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
+) -> None:
+    b, _sim, robot, obs = stand
+    async with bridged(b, robot):
+        await obs.wait(lambda: bool(obs.on("robots/r1/connection")))
+        assert (await request(obs, "r1", "get_chassis_info"))["result"][
+            "wheelbase"
+        ] == pytest.approx(0.5)
+        report = (await request(obs, "r1", "diagnose"))["result"]
+        assert report["device"] == "chassis"
+        assert "status REMOTE_OFFLINE" in report["notes"]
+        assert (
+            "unknown request 'set_velocity'" in (await request(obs, "r1", "set_velocity"))["error"]
+        )
+
+
+async def test_a_board_is_bridged_with_its_own_streams() -> None:
+    async with (
+        broker() as b,
+        BoardSimulator() as sim,
+        Board(sim.port) as board,
+        Observer(b) as obs,
+        bridged(b, board, "b1"),
+    ):
+        await obs.wait(lambda: bool(obs.on("robots/b1/telemetry/imu")))
+        info = obs.on("robots/b1/info")[-1]
+        assert (info["device"], info["features"]["servos"]) == ("board", 2)
+        await obs.wait(lambda: bool(obs.on("robots/b1/telemetry/battery")))
+        await obs.publish("robots/b1/cmd/estop", {"engaged": True})
+        await obs.wait(lambda: bool(obs.on("robots/b1/errors")))
+        assert "a board has no e-stop; it was stopped" in obs.on("robots/b1/errors")[0]["error"]
+
+
+async def test_the_last_will_says_connectionbroken_when_the_bridge_vanishes() -> None:
+    async with broker() as b, ChassisSimulator() as sim, Observer(b) as obs:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "chassis_sdk.cli", "bridge", sim.port,
+            "--broker", f"mqtt://127.0.0.1:{b.port}", "--robot-id", "r9",
+            cwd=ROOT, stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        try:
+            await obs.wait(lambda: bool(obs.on("robots/r9/info")), timeout=15)
+            assert obs.on("robots/r9/connection")[-1]["state"] == "ONLINE"
+            os.kill(proc.pid, signal.SIGKILL)
+            await obs.wait(
+                lambda: obs.on("robots/r9/connection")[-1]["state"] == "CONNECTIONBROKEN"
+            )
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                proc.kill()
+            await proc.wait()
