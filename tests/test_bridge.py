@@ -350,3 +350,46 @@ async def test_the_last_will_says_connectionbroken_when_the_bridge_vanishes() ->
             with contextlib.suppress(ProcessLookupError):
                 proc.kill()
             await proc.wait()
+
+
+async def test_the_fleet_console_lists_every_robot_and_stops_them_all() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        BoardSimulator() as board_sim,
+        Board(board_sim.port) as board,
+        Observer(b) as obs,
+        bridged(b, robot, "r1"),
+        bridged(b, board, "b2"),
+    ):
+        await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
+        await obs.wait(lambda: bool(obs.on("robots/b2/telemetry/battery")))
+        await robot.set_velocity(0.3, 0.0, duration=30.0)  # moving until stopped
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, str(ROOT / "examples" / "fleet_console.py"),
+            "--broker", f"mqtt://127.0.0.1:{b.port}", "--seconds", "1.5", "--stop-all",
+            cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        out, err = await asyncio.wait_for(proc.communicate(), 20)
+        text = out.decode()
+        assert proc.returncode == 0, err.decode()
+        lines = {line.split()[0]: line for line in text.splitlines()[1:] if line.strip()}
+        assert "chassis  ONLINE            connected     25." in lines["r1"]
+        assert "board    ONLINE            connected     " in lines["b2"]
+        assert "sent cmd/stop to 2 robot(s)" in text
+        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
+        assert robot.commanded_velocity is None
+
+
+async def test_the_fleet_console_without_a_broker_is_one_line() -> None:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, str(ROOT / "examples" / "fleet_console.py"),
+        "--broker", "mqtt://127.0.0.1:1", "--seconds", "0.5",
+        cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    _, err = await asyncio.wait_for(proc.communicate(), 20)
+    assert proc.returncode == 1
+    lines = err.decode().strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith("fleet_console.py: broker mqtt://127.0.0.1:1:")
