@@ -19,10 +19,17 @@ from importlib import metadata
 from pathlib import Path
 
 HERE = Path(__file__).parent
-SCRIPTS = ["decoder_throughput.py", "latency.py", "load.py", "phantoms.py"]
+SCRIPTS = ["decoder_throughput.py", "latency.py", "load.py", "phantoms.py", "mqtt_fleet.py"]
 
 
-PACKAGES = ["chassis-sdk", "pyserial", "pyserial-asyncio", "pyserial-asyncio-fast", "pymavlink"]
+PACKAGES = [
+    "chassis-sdk",
+    "pyserial",
+    "pyserial-asyncio",
+    "pyserial-asyncio-fast",
+    "pymavlink",
+    "aiomqtt",
+]
 
 
 def _cpu() -> str:

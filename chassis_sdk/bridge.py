@@ -49,6 +49,7 @@ from paho.mqtt.properties import Properties
 
 from .cli.common import jsonable
 from .core.device import Device
+from .core.simulator import next_slot
 from .devices import DeviceProfile, profile
 from .errors import ChassisError
 
@@ -226,8 +227,12 @@ class MqttBridge:
         follower = asyncio.create_task(follow())
         try:
             period = 1.0 / self.rate
+            loop = asyncio.get_running_loop()
+            due = loop.time()
             while True:
-                await asyncio.sleep(period)
+                # An absolute schedule: publishing takes time, and must not slow the rate.
+                due = next_slot(due, period, loop.time())
+                await asyncio.sleep(due - loop.time())
                 if latest:
                     message = latest.pop()
                     payload = json.dumps({"type": type(message).__name__, **jsonable(message)})

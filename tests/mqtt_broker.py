@@ -1,7 +1,8 @@
-"""A real mosquitto on a loopback port, for the MQTT bridge's tests.
+"""A real mosquitto on a loopback port, for the MQTT bridge's tests and benchmark.
 
 The tests need the broker (Debian's ``mosquitto`` package; ``.ci/run`` installs it):
-without it they fail and say how to install it, rather than pass by skipping.
+without it they fail and say how to install it, rather than pass by skipping. Nothing
+here imports pytest at import time, so ``benchmarks/mqtt_fleet.py`` uses it too.
 """
 
 from __future__ import annotations
@@ -14,37 +15,48 @@ import subprocess
 import tempfile
 from collections.abc import AsyncIterator
 from pathlib import Path
-from types import TracebackType
 
-import pytest
+__all__ = ["Broker", "Mosquitto", "broker", "find_mosquitto"]
 
 
-def _free_port() -> int:
+def find_mosquitto() -> str | None:
+    """The broker's path, or ``None`` (Debian installs it in /usr/sbin)."""
+    found = shutil.which("mosquitto")
+    if found is None and Path("/usr/sbin/mosquitto").exists():
+        found = "/usr/sbin/mosquitto"
+    return found
+
+
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
 
 
-class Broker:
-    """``mosquitto`` on ``127.0.0.1:port``; :meth:`kill` and :meth:`start` again."""
+class Mosquitto:
+    """``mosquitto`` on ``127.0.0.1:port``, anonymous, without persistence.
+
+    Raises:
+        RuntimeError: mosquitto is not installed.
+    """
 
     def __init__(self) -> None:
-        exe = shutil.which("mosquitto") or (
-            "/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None
-        )
+        exe = find_mosquitto()
         if exe is None:
-            pytest.fail("mosquitto is not installed (apt-get install -y mosquitto)")
+            raise RuntimeError("mosquitto is not installed (apt-get install -y mosquitto)")
         self.exe = exe
-        self.port = _free_port()
+        self.port = free_port()
         self._dir = tempfile.TemporaryDirectory(prefix="mosquitto-")
         self.conf = Path(self._dir.name) / "mosquitto.conf"
         self.conf.write_text(
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
+            "max_queued_messages 10000\n"
         )
         self.proc: subprocess.Popen[bytes] | None = None
 
     async def start(self) -> None:
+        """Start it and wait until it accepts connections."""
         self.proc = subprocess.Popen(  # noqa: ASYNC220 (a daemon: started, not waited on)
             [self.exe, "-c", str(self.conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )
@@ -57,23 +69,33 @@ class Broker:
                 await asyncio.sleep(0.02)
 
     def kill(self) -> None:
+        """Kill it (a broker that vanishes)."""
         if self.proc is not None:
             self.proc.kill()
             self.proc.wait()
             self.proc = None
 
-    async def __aenter__(self) -> Broker:
-        await self.start()
-        return self
-
-    async def __aexit__(
-        self, et: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
-    ) -> None:
+    def cleanup(self) -> None:
         self.kill()
         self._dir.cleanup()
 
 
+class Broker(Mosquitto):
+    """:class:`Mosquitto`, failing the test (not skipping it) when it is missing."""
+
+    def __init__(self) -> None:
+        if find_mosquitto() is None:
+            import pytest
+
+            pytest.fail("mosquitto is not installed (apt-get install -y mosquitto)")
+        super().__init__()
+
+
 @contextlib.asynccontextmanager
 async def broker() -> AsyncIterator[Broker]:
-    async with Broker() as b:
+    b = Broker()
+    await b.start()
+    try:
         yield b
+    finally:
+        b.cleanup()
