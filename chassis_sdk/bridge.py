@@ -155,10 +155,10 @@ class MqttBridge:
         """
         try:
             async with self.client:
-                await self._publish("connection", _state("ONLINE"), qos=1, retain=True)
-                await self._publish_info()
-                await self._subscribe()
-                try:
+                try:  # from here on, a clean stop (cancellation) says OFFLINE
+                    await self._publish("connection", _state("ONLINE"), qos=1, retain=True)
+                    await self._publish_info()
+                    await self._subscribe()
                     async with asyncio.TaskGroup() as tg:
                         tg.create_task(self._commands(), name=f"bridge commands:{self.topic}")
                         tg.create_task(self._link(), name=f"bridge link:{self.topic}")
@@ -166,8 +166,7 @@ class MqttBridge:
                         for stream in self.profile.streams:
                             tg.create_task(self._telemetry(stream), name=f"bridge {stream}")
                 except asyncio.CancelledError:
-                    with contextlib.suppress(aiomqtt.MqttError):
-                        await self._publish("connection", _state("OFFLINE"), qos=1, retain=True)
+                    await self._offline()
                     raise
         except* aiomqtt.MqttError as group:
             _log.warning("%s: broker lost (%s); the robot is stopped", self.topic, group)
@@ -176,6 +175,19 @@ class MqttBridge:
             raise _first(group) from None
         finally:
             await self._stop_robot()
+
+    async def _offline(self) -> None:
+        """Say ``OFFLINE`` (a clean stop), bounded: a broker that does not acknowledge
+        within two seconds does not hold the stop up (its last will then tells)."""
+        publish = asyncio.ensure_future(
+            self._publish("connection", _state("OFFLINE"), qos=1, retain=True)
+        )
+        # asyncio.wait, unlike wait_for, works in a task that is being cancelled.
+        done, _ = await asyncio.wait((publish,), timeout=2.0)
+        if not done:
+            publish.cancel()
+        elif publish.exception() is not None:
+            _log.info("%s: could not say OFFLINE: %r", self.topic, publish.exception())
 
     async def _stop_robot(self) -> None:
         with contextlib.suppress(ChassisError):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import shutil
 import socket
 import subprocess
@@ -41,7 +42,7 @@ class Mosquitto:
         RuntimeError: mosquitto is not installed.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, extra: str = "") -> None:
         exe = find_mosquitto()
         if exe is None:
             raise RuntimeError("mosquitto is not installed (apt-get install -y mosquitto)")
@@ -49,9 +50,14 @@ class Mosquitto:
         self.port = free_port()
         self._dir = tempfile.TemporaryDirectory(prefix="mosquitto-")
         self.conf = Path(self._dir.name) / "mosquitto.conf"
+        self.dir = Path(self._dir.name)
+        # Settings after the listener line are that listener's (TLS files, ...).
+        # As root, mosquitto drops to the user "mosquitto", who cannot read a test's
+        # files (key, passwords) in a private temporary directory: stay root there.
+        user = "user root\n" if os.geteuid() == 0 else ""
         self.conf.write_text(
-            f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-            "max_queued_messages 10000\n"
+            f"{user}listener {self.port} 127.0.0.1\npersistence false\n"
+            "max_queued_messages 10000\n" + (extra or "allow_anonymous true\n")
         )
         self.proc: subprocess.Popen[bytes] | None = None
 
@@ -83,17 +89,17 @@ class Mosquitto:
 class Broker(Mosquitto):
     """:class:`Mosquitto`, failing the test (not skipping it) when it is missing."""
 
-    def __init__(self) -> None:
+    def __init__(self, extra: str = "") -> None:
         if find_mosquitto() is None:
             import pytest
 
             pytest.fail("mosquitto is not installed (apt-get install -y mosquitto)")
-        super().__init__()
+        super().__init__(extra)
 
 
 @contextlib.asynccontextmanager
-async def broker() -> AsyncIterator[Broker]:
-    b = Broker()
+async def broker(extra: str = "") -> AsyncIterator[Broker]:
+    b = Broker(extra)
     await b.start()
     try:
         yield b

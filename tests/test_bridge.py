@@ -10,6 +10,8 @@ import contextlib
 import json
 import os
 import signal
+import ssl
+import subprocess
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
@@ -48,10 +50,10 @@ class Observer:
 
     count = 0
 
-    def __init__(self, b: Broker) -> None:
+    def __init__(self, b: Broker, **login: Any) -> None:
         Observer.count += 1
         name = f"observer-{os.getpid()}-{Observer.count}"  # a shared id would evict the other
-        self.client = aiomqtt.Client("127.0.0.1", b.port, identifier=name, protocol=V5)
+        self.client = aiomqtt.Client("127.0.0.1", b.port, identifier=name, protocol=V5, **login)
         self.seen: list[tuple[str, Any, bool]] = []
         self._task: asyncio.Task[None] | None = None
         self._arrived = asyncio.Event()
@@ -393,3 +395,67 @@ async def test_the_fleet_console_without_a_broker_is_one_line() -> None:
     lines = err.decode().strip().splitlines()
     assert len(lines) == 1
     assert lines[0].startswith("fleet_console.py: broker mqtt://127.0.0.1:1:")
+
+
+@pytest.fixture
+def tls_files(tmp_path: Path) -> Path:
+    """A self-signed certificate for 127.0.0.1 and a password file (r1, dashboard)."""
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+         "-keyout", str(tmp_path / "key.pem"), "-out", str(tmp_path / "cert.pem"),
+         "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    users = tmp_path / "passwd"
+    for user, password in (("r1", "secret-r1"), ("dashboard", "secret-d")):
+        flags = ["-b"] if users.exists() else ["-b", "-c"]
+        subprocess.run(["mosquitto_passwd", *flags, str(users), user, password], check=True)
+    return tmp_path
+
+
+async def test_the_bridge_command_logs_in_over_tls_and_says_when_it_cannot(
+    tls_files: Path,
+) -> None:
+    tmp_path = tls_files
+    key, cert, users = tmp_path / "key.pem", tmp_path / "cert.pem", tmp_path / "passwd"
+    right, wrong = tmp_path / "right", tmp_path / "wrong"
+    right.write_text("secret-r1\n")
+    wrong.write_text("guess\n")
+    extra = (
+        f"cafile {cert}\ncertfile {cert}\nkeyfile {key}\n"
+        f"allow_anonymous false\npassword_file {users}\n"
+    )
+    tls = ssl.create_default_context(cafile=str(cert))
+    async with (
+        broker(extra) as b,
+        ChassisSimulator() as sim,
+        ChassisSimulator() as other,
+        Observer(b, username="dashboard", password="secret-d", tls_context=tls) as obs,
+    ):
+        url = f"mqtts://127.0.0.1:{b.port}"
+        common = ["--cafile", str(cert), "--username", "r1"]
+        good = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "chassis_sdk.cli", "bridge", sim.port, "--broker", url,
+            "--robot-id", "r1", "--password-file", str(right), *common,
+            cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        bad = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "chassis_sdk.cli", "bridge", other.port, "--broker", url,
+            "--robot-id", "r2", "--password-file", str(wrong), *common,
+            cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        try:
+            await obs.wait(lambda: bool(obs.on("robots/r1/info")), timeout=15)
+            assert bad.stdout is not None
+            async with asyncio.timeout(15):
+                while True:
+                    line = (await bad.stdout.readline()).decode()
+                    if line.startswith("broker "):
+                        break
+            assert "the robot is stopped; retrying in" in line
+            assert obs.on("robots/r2/connection") == []
+        finally:
+            for proc in (good, bad):
+                proc.send_signal(signal.SIGTERM)
+                await proc.wait()
+        await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "OFFLINE")

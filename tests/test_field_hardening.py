@@ -733,6 +733,39 @@ async def test_sigterm_and_sighup_write_zero_before_the_process_exits(
         await dev.wait_for(last_drive_is_zero, timeout=2)
 
 
+_SWALLOWER = """
+import asyncio, sys
+import chassis_sdk
+
+async def main() -> None:
+    async with chassis_sdk.Chassis(sys.argv[1], command_timeout=None) as robot:
+        await robot.set_velocity(0.3, 0.0)
+        print("driving", flush=True)
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            pass  # lost, as asyncio.wait_for loses one before Python 3.12 (gh-86296)
+        await asyncio.Event().wait()
+
+chassis_sdk.run(main())
+"""
+
+
+async def test_sigterm_stops_the_robot_even_when_a_library_loses_the_cancellation() -> None:
+    """A first cancellation swallowed inside the program (aiomqtt's publish does, through
+    asyncio.wait_for, about one SIGTERM in three) must not keep the robot driving."""
+    async with ChassisStandIn(noise=False) as dev:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-c", _SWALLOWER, dev.port,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        await dev.wait_for(lambda fs: len(drive_frames(fs)) >= 3, timeout=30)
+        proc.send_signal(signal.SIGTERM)
+        _, err = await asyncio.wait_for(proc.communicate(), 10)
+        assert proc.returncode == 128 + signal.SIGTERM, err.decode()
+        await dev.wait_for(last_drive_is_zero, timeout=2)
+
+
 # --- 11. break unsubscribes at once --------------------------------------------------------------
 
 

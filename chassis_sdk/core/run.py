@@ -26,6 +26,9 @@ T = TypeVar("T")
 
 #: Signals that cancel the main task (SIGINT is asyncio.Runner's own).
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+#: A cancellation is repeated this often, this many times, while the task runs on.
+RECANCEL_AFTER = 1.0
+RECANCELS = 10
 
 
 def run(
@@ -96,7 +99,18 @@ def _run(main: Coroutine[Any, Any, T], debug: bool | None) -> T:
             received.append(signum)
             for sig in installed:  # a second signal takes the default action
                 loop.remove_signal_handler(sig)
-            task.cancel(f"received {signal.Signals(signum).name}")
+            cancel(f"received {signal.Signals(signum).name}", RECANCELS)
+
+        def cancel(why: str, again: int) -> None:
+            # asyncio.wait_for before Python 3.12 loses a cancellation that arrives as
+            # its future completes (gh-86296), and libraries use it everywhere (aiomqtt
+            # on every publish): the program would go on as if never asked to stop.
+            # Until the task is done, ask again; closing a device is shielded, so a
+            # second request cannot cut its zero frame short.
+            if not task.done():
+                task.cancel(why)
+                if again:
+                    loop.call_later(RECANCEL_AFTER, cancel, why, again - 1)
 
         installed: list[signal.Signals] = []
         for sig in STOP_SIGNALS:
