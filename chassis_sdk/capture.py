@@ -15,6 +15,7 @@ import contextlib
 import datetime
 import json
 import logging
+import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ from .errors import PortOpenError
 
 __all__ = [
     "Capture",
+    "CaptureDevice",
     "Progress",
     "decode_capture",
     "detect_in",
@@ -266,3 +268,85 @@ async def detect_protocol(port: str, *, seconds: float = 1.0, baudrate: int = 11
     finally:
         await link.aclose(1.0)
     return detect_in(bytes(received))
+
+
+class CaptureDevice:
+    """A capture played back as a device: the firmware model of a
+    :class:`~chassis_sdk.core.simulator.SimulatorServer` that sends the recorded bytes
+    at the recorded times (``speed`` times faster), so an unmodified application runs
+    against what a real robot sent. What the application writes is counted and decoded
+    (``commands``), never acted on.
+
+    Timing starts with :meth:`on_connect`: when the server starts (a pty, after
+    ``start_after`` seconds, so the application has time to open it) or when a TCP
+    client connects.
+
+    Args:
+        path: The capture file.
+        protocol: The device's name, to decode what the application writes.
+        speed: Playback speed (2: twice as fast).
+        start_after: Seconds between :meth:`on_connect` and the first chunk.
+        on_done: Called once the last chunk has been played.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        protocol: str,
+        *,
+        speed: float = 1.0,
+        start_after: float = 0.0,
+        on_done: Callable[[], None] | None = None,
+    ) -> None:
+        if isinstance(speed, bool) or not isinstance(speed, int | float) or not speed > 0:
+            raise ValueError(f"speed must be a number > 0, got {speed!r}")
+        self.chunks = list(read_capture(path))
+        self.speed = float(speed)
+        self.start_after = float(start_after)
+        self._decoder = profile(protocol).command_decoder()
+        #: What the application wrote, decoded, in order.
+        self.commands: list[object] = []
+        #: Bytes the application wrote; bytes and chunks played so far.
+        self.bytes_written = 0
+        self.bytes_played = 0
+        self._next = 0
+        self._t0: float | None = None
+        self._on_done = on_done
+
+    @property
+    def done(self) -> bool:
+        """True once every recorded chunk has been played."""
+        return self._next >= len(self.chunks)
+
+    def on_connect(self, now: float) -> None:
+        self._t0 = now + self.start_after
+        self._next = 0
+
+    def receive(self, data: bytes, now: float) -> bytes:
+        self.bytes_written += len(data)
+        self.commands += self._decoder.feed(data, now)
+        return b""
+
+    def _due(self, index: int) -> float:
+        assert self._t0 is not None
+        return self._t0 + self.chunks[index][0] / self.speed
+
+    def poll(self, now: float) -> bytes:
+        if self._t0 is None:
+            return b""
+        out = bytearray()
+        while self._next < len(self.chunks) and self._due(self._next) <= now:
+            out += self.chunks[self._next][1]
+            self._next += 1
+        self.bytes_played += len(out)
+        if out and self.done and self._on_done is not None:
+            self._on_done()
+        return bytes(out)
+
+    def next_deadline(self) -> float:
+        if self._t0 is None or self.done:
+            return math.inf
+        return self._due(self._next)
+
+    def reset(self, now: float, downtime: float = 0.5) -> None:
+        self.on_connect(now + downtime)

@@ -384,3 +384,30 @@ async def test_sim_removes_its_port_link_on_sigterm() -> None:
         code, _, _ = await sim.finish()
     assert code == 128 + signal.SIGTERM
     assert not os.path.lexists(port)
+
+
+async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path) -> None:
+    from chassis_sdk import Chassis, ConnectionLostError, Telemetry, capture
+
+    path = tmp_path / "cap.jsonl"
+    async with ChassisSimulator() as sim:
+        await capture.record(sim.port, path, seconds=1.0)
+    recorded = [
+        m.seq for _, m in capture.decode_capture(path, "chassis") if isinstance(m, Telemetry)
+    ]
+    assert len(recorded) >= 40
+    async with running("replay", str(path), "--as-device", "--tcp", "0") as replay:
+        port = (await replay.wait_for_line(lambda line: True)).strip()
+        seen: list[int] = []
+        async with Chassis(port) as robot:
+            await robot.set_velocity(0.2, 0.0)  # written, counted, never acted on
+            with contextlib.suppress(ConnectionLostError):
+                async for t in robot.telemetry():
+                    seen.append(t.seq)
+        code, out, err = await replay.finish()
+    assert code == 0, err
+    # What the robot sent, with its own sequence numbers, in order.
+    assert len(seen) >= len(recorded) - 5
+    assert seen == recorded[len(recorded) - len(seen) :]
+    assert "the application wrote" in out
+    assert "DriveVelocity" in out

@@ -185,6 +185,30 @@ def _replay(path: str, protocol: str | None, as_json: bool) -> None:
         _no_messages(path, proto)
 
 
+async def _replay_as_device(args: argparse.Namespace) -> None:
+    from ..core.simulator import SimulatorServer
+
+    proto = args.protocol or _detect_file(args.file)
+    start_after = 0.0 if args.tcp is not None else args.start_after
+    finished = asyncio.Event()
+    device = capture.CaptureDevice(
+        args.file, proto, speed=args.speed, start_after=start_after, on_done=finished.set
+    )
+    total = sum(len(data) for _, data in device.chunks)
+    if not total:
+        raise ChassisError(f"{args.file} holds no bytes to replay")
+    async with SimulatorServer(device, tcp_port=args.tcp) as server:
+        out(server.port)
+        out(f"replaying {total:,} bytes of {proto} capture {args.file} at {args.speed:g}x")
+        await finished.wait()
+        await asyncio.sleep(0.5)  # the last bytes reach the application before the line goes
+    kinds: dict[str, int] = {}
+    for command in device.commands:
+        kinds[type(command).__name__] = kinds.get(type(command).__name__, 0) + 1
+    wrote = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) or "nothing"
+    out(f"replayed {device.bytes_played:,} bytes; the application wrote {wrote}")
+
+
 def _no_messages(path: str, proto: str) -> None:
     data = b"".join(chunk for _, chunk in capture.read_capture(path))
     if not data:
@@ -408,6 +432,17 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument("file")
     _protocol_arg(rp, names, detected=True)
     rp.add_argument("--json", action="store_true", help="one JSON object per line")
+    rp.add_argument(
+        "--as-device", action="store_true", help="serve the recorded bytes on a pty (or --tcp)"
+    )
+    rp.add_argument("--tcp", type=int, metavar="PORT", help="with --as-device: serve on TCP")
+    rp.add_argument("--speed", type=_positive("speed"), default=1.0, help="playback speed")
+    rp.add_argument(
+        "--start-after",
+        type=_positive("start_after"),
+        default=1.0,
+        help="with --as-device on a pty: seconds before playback starts",
+    )
 
     pl = sub.add_parser("plot", help="plot a capture: velocities, wheel speeds, voltage, ...")
     pl.add_argument("file")
@@ -464,13 +499,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{ENV_PROTOCOL}={protocol!r} is not a known device "
                 f"(known: {', '.join(profiles())})"
             )
-        if args.command in ("replay", "plot"):
+        if args.command == "replay" and args.as_device:
+            job = _replay_as_device(args)
+        elif args.command in ("replay", "plot"):
             if args.command == "replay":
                 _replay(args.file, args.protocol, args.json)
             else:
                 _plot(args.file, args.output, args.protocol)
             return 0
-        job = _job(args, parser)
+        else:
+            job = _job(args, parser)
     except BrokenPipeError:  # `| head`
         return 0
     except (ChassisError, ValueError, OSError) as exc:
