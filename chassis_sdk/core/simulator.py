@@ -216,9 +216,9 @@ class SimulatorServer:
 
     Args:
         firmware: The model.
-        tcp_port: ``None`` for a pseudo-terminal; a port number (0 picks a free one) for
-            TCP.
+        tcp_port: ``None`` for a pseudo-terminal; a TCP port (0 picks a free one).
         host: Interface to listen on for TCP.
+        faults: Line faults to start with (``faults`` can be changed while it runs).
     """
 
     def __init__(
@@ -230,10 +230,8 @@ class SimulatorServer:
         faults: LineFaults | None = None,
     ):
         self.firmware = firmware
-        #: Line faults applied to everything sent; edit on the fly.
-        self.faults = faults if faults is not None else LineFaults()
-        #: What the fault injection did so far.
-        self.fault_counts = FaultCounts()
+        self.faults = faults if faults is not None else LineFaults()  # applied to all sent
+        self.fault_counts = FaultCounts()  # what injection did
         self._tcp_port = tcp_port
         self._host = host
         self._master: int | None = None
@@ -494,8 +492,7 @@ class SimulatorServer:
     async def _serve_client(
         self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
     ) -> None:
-        if self._server is None:
-            # Connected before the cable was pulled, served after: the cable is out.
+        if self._server is None:  # connected before the cable was pulled, served after
             writer.close()
             return
         task = asyncio.current_task()
