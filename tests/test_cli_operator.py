@@ -411,3 +411,20 @@ async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path) ->
     assert seen == recorded[len(recorded) - len(seen) :]
     assert "the application wrote" in out
     assert "DriveVelocity" in out
+
+
+async def test_monitor_shows_any_device_from_its_profile_streams() -> None:
+    async with BoardSimulator() as board:
+        code, out, err = await cli("monitor", board.port, "--protocol", "board", "--seconds", "1.2")
+        assert code == 0, err
+        assert "imu: accel=" in out
+        assert "velocity: linear=" in out
+        lines = out.splitlines()
+        assert len([line for line in lines if line.startswith("imu:")]) <= 8  # 5/s at most
+        code, out, err = await cli(
+            "monitor", board.port, "--protocol", "board", "--seconds", "1", "--json"
+        )
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert sum(r["type"] == "ImuSample" for r in rows) >= 50  # every sample at 100 Hz
+    assert {"VelocityFeedback", "BatteryReading"} <= {r["type"] for r in rows}

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import logging
 import os
@@ -151,9 +152,49 @@ async def _drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
 async def _monitor(
     device: DeviceProfile, port: str, baudrate: int, seconds: float | None, as_json: bool
 ) -> None:
-    if device.monitor is None:
-        raise ChassisError(f"monitor has no view of a {device.name}; try `info` or `record`")
-    await device.monitor(port, baudrate, seconds, as_json)
+    if device.monitor is not None:
+        await device.monitor(port, baudrate, seconds, as_json)
+        return
+    # Any other device: its streams (from its profile), link and events, as lines.
+    async with device.device(port, baudrate=baudrate, reconnect=True) as dev:
+        await first_frame(dev, 3.0, device.recognised_by)
+        if not as_json:
+            print("Ctrl-C to quit", file=sys.stderr)
+        async with asyncio.TaskGroup() as tg:
+            tasks = [tg.create_task(_follow(dev, name, as_json)) for name in device.streams]
+            tasks.append(tg.create_task(_follow_link(dev, as_json)))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.Event().wait(), seconds)
+            for task in tasks:
+                task.cancel()
+
+
+def _brief(value: object) -> str:
+    """A message's fields on one line, numbers to three decimals."""
+    if isinstance(value, dict):
+        return " ".join(f"{k}={_brief(v)}" for k, v in value.items() if k != "timestamp")
+    if isinstance(value, float):
+        return f"{value:.3f}"
+    return str(value)
+
+
+async def _follow(dev: Any, stream: str, as_json: bool) -> None:
+    last = 0.0
+    async for message in getattr(dev, stream)():
+        if as_json:
+            out(json.dumps({"type": type(message).__name__, **jsonable(message)}))
+        elif time.monotonic() - last >= 0.2:  # five lines a second per stream at most
+            out(f"{stream}: {_brief(jsonable(message))}")
+            last = time.monotonic()
+
+
+async def _follow_link(dev: Any, as_json: bool) -> None:
+    async for state in dev.connection_states():
+        out(
+            json.dumps({"type": "link", "state": state.value})
+            if as_json
+            else f"link: {state.value}"
+        )
 
 
 async def _record(port: str, path: str, seconds: float, baudrate: int) -> None:
@@ -378,7 +419,7 @@ def _parser() -> argparse.ArgumentParser:
     _protocol_arg(i, names, detected=False)
     i.add_argument("--timeout", type=_positive("timeout"), default=1.0, help="seconds per request")
 
-    m = sub.add_parser("monitor", help="live view of the telemetry, link, faults and events")
+    m = sub.add_parser("monitor", help="live view of the streams, link, faults and events")
     _port_args(m)
     _protocol_arg(m, names, detected=False)
     m.add_argument("--seconds", type=_positive("seconds"), help="stop after this long")
