@@ -40,8 +40,8 @@ import json
 import logging
 import math
 import time
-from collections.abc import Awaitable, Callable
-from typing import Any
+from collections.abc import Awaitable, Callable, Coroutine
+from typing import Any, cast
 
 import aiomqtt
 from paho.mqtt.packettypes import PacketTypes
@@ -153,28 +153,48 @@ class MqttBridge:
             aiomqtt.MqttError: The broker connection failed or was lost; the robot was
                 stopped first. Call :meth:`run` again with a new client to resume.
         """
+        # Every await of this task is asyncio.wait (never aiomqtt's own calls, which
+        # use asyncio.wait_for: before Python 3.12 it can lose a cancellation), so a
+        # cancellation always reaches it; the workers are cancelled until they are done.
         try:
             async with self.client:
+                workers = [asyncio.create_task(self._start(), name=f"bridge start:{self.topic}")]
                 try:  # from here on, a clean stop (cancellation) says OFFLINE
-                    await self._publish("connection", _state("ONLINE"), qos=1, retain=True)
-                    await self._publish_info()
-                    await self._subscribe()
-                    async with asyncio.TaskGroup() as tg:
-                        tg.create_task(self._commands(), name=f"bridge commands:{self.topic}")
-                        tg.create_task(self._link(), name=f"bridge link:{self.topic}")
-                        tg.create_task(self._events(), name=f"bridge events:{self.topic}")
-                        for stream in self.profile.streams:
-                            tg.create_task(self._telemetry(stream), name=f"bridge {stream}")
+                    await self._until_failure(workers)
+                    workers += [
+                        asyncio.create_task(work, name=f"bridge {name}:{self.topic}")
+                        for name, work in self._loops()
+                    ]
+                    await self._until_failure(workers)
                 except asyncio.CancelledError:
+                    await _cancel_all(workers)
                     await self._offline()
                     raise
-        except* aiomqtt.MqttError as group:
-            _log.warning("%s: broker lost (%s); the robot is stopped", self.topic, group)
-            raise _first(group) from None
-        except* ChassisError as group:  # the device is gone for good (no reconnect)
-            raise _first(group) from None
+                except BaseException:
+                    await _cancel_all(workers)
+                    raise
+        except aiomqtt.MqttError as exc:
+            _log.warning("%s: broker lost (%s); the robot is stopped", self.topic, exc)
+            raise
         finally:
             await self._stop_robot()
+
+    async def _start(self) -> None:
+        await self._publish("connection", _state("ONLINE"), qos=1, retain=True)
+        await self._publish_info()
+        await self._subscribe()
+
+    def _loops(self) -> list[tuple[str, Coroutine[Any, Any, None]]]:
+        loops = [("commands", self._commands()), ("link", self._link()), ("events", self._events())]
+        return loops + [(stream, self._telemetry(stream)) for stream in self.profile.streams]
+
+    @staticmethod
+    async def _until_failure(workers: list[asyncio.Task[None]]) -> None:
+        """Wait until every worker is done, or one fails (its error is raised)."""
+        done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_EXCEPTION)
+        for task in done:
+            if not task.cancelled() and task.exception() is not None:
+                raise cast(BaseException, task.exception())
 
     async def _offline(self) -> None:
         """Say ``OFFLINE`` (a clean stop), bounded: a broker that does not acknowledge
@@ -337,11 +357,19 @@ class MqttBridge:
         await self.client.publish(response, json.dumps(body).encode(), properties=reply)
 
 
-def _first(group: BaseExceptionGroup[Any]) -> BaseException:
-    error: BaseException = group
-    while isinstance(error, BaseExceptionGroup):
-        error = error.exceptions[0]
-    return error
+async def _cancel_all(tasks: list[asyncio.Task[None]]) -> None:
+    """Cancel ``tasks`` until every one is done: a cancellation that a library loses
+    (asyncio.wait_for before Python 3.12) is asked again."""
+    for _ in range(20):
+        pending = [t for t in tasks if not t.done()]
+        if not pending:
+            return
+        for task in pending:
+            task.cancel()
+        await asyncio.wait(pending, timeout=0.5)
+    _log.error(
+        "bridge tasks ignore cancellation: %s", [t.get_name() for t in tasks if not t.done()]
+    )
 
 
 def _plain(value: Any) -> Any:

@@ -67,7 +67,8 @@ async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | Non
             frames = robot.telemetry()
         assert not robot.is_connected
         assert robot.connection_state.value == "disconnected"
-        assert [t async for t in frames] == []  # the stream ended with the device
+        rest = [t async for t in frames]  # what was buffered, then the end: no hang
+        assert all(isinstance(t, ToyTelemetry) for t in rest)
         assert robot.stats.frames > 0
         with pytest.raises(NotConnectedError):
             await robot.ping()
