@@ -38,7 +38,6 @@ import asyncio
 import contextlib
 import json
 import logging
-import math
 import time
 from collections.abc import Awaitable, Callable, Coroutine
 from typing import Any, cast
@@ -47,9 +46,10 @@ import aiomqtt
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
-from .cli.common import jsonable
 from .core.device import Device
+from .core.plain import jsonable, plain
 from .core.simulator import next_slot
+from .core.validation import check_real
 from .devices import DeviceProfile, profile
 from .errors import ChassisError
 
@@ -81,12 +81,10 @@ class CommandError(ValueError):
 
 
 def _number(payload: dict[str, Any], key: str) -> float:
-    value = payload.get(key)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise CommandError(f"{key!r} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise CommandError(f"{key!r} must be finite, got {value!r}")
-    return float(value)
+    try:
+        return check_real(payload.get(key), repr(key))
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
 
 
 def _json_object(raw: bytes | bytearray) -> dict[str, Any]:
@@ -131,8 +129,7 @@ class MqttBridge:
         for name, value in (("robot_id", robot_id), ("prefix", prefix)):
             if not value or not all(c.isalnum() or c in "-_" for c in value):
                 raise ValueError(f"{name} must be letters, digits, '-' or '_', got {value!r}")
-        if isinstance(rate, bool) or not isinstance(rate, int | float) or not 0 < rate <= 100:
-            raise ValueError(f"rate must be a number from 0 to 100 per second, got {rate!r}")
+        rate = check_real(rate, "rate", low=0, low_open=True, high=100, unit="per second")
         self.device = device
         self.client = client
         self.robot_id = robot_id
@@ -238,7 +235,7 @@ class MqttBridge:
                 value = await getattr(self.device, name)()
             except ChassisError as exc:
                 value = {"error": str(exc)}
-            info[name.removeprefix("get_")] = _plain(value)
+            info[name.removeprefix("get_")] = plain(value)
         await self._publish("info", json.dumps(info).encode(), qos=1, retain=True)
 
     async def _subscribe(self) -> None:
@@ -351,7 +348,7 @@ class MqttBridge:
             }
         else:
             try:
-                body = {"result": _plain(await getattr(self.device, name)())}
+                body = {"result": plain(await getattr(self.device, name)())}
             except ChassisError as exc:
                 body = {"error": str(exc)}
         await self.client.publish(response, json.dumps(body).encode(), properties=reply)
@@ -370,10 +367,3 @@ async def _cancel_all(tasks: list[asyncio.Task[None]]) -> None:
     _log.error(
         "bridge tasks ignore cancellation: %s", [t.get_name() for t in tasks if not t.done()]
     )
-
-
-def _plain(value: Any) -> Any:
-    """A result as JSON-ready data (dataclasses and NamedTuples as objects, enums by
-    name, dates as ISO text)."""
-    converted = jsonable(value)
-    return converted.get("value", converted) if set(converted) == {"value"} else converted

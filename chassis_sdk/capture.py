@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from .core.transport import Link, open_link
+from .core.validation import check_real
 from .devices import profile, profiles
 from .errors import PortOpenError
 
@@ -298,10 +299,8 @@ class CaptureDevice:
         start_after: float = 0.0,
         on_done: Callable[[], None] | None = None,
     ) -> None:
-        if isinstance(speed, bool) or not isinstance(speed, int | float) or not speed > 0:
-            raise ValueError(f"speed must be a number > 0, got {speed!r}")
+        self.speed = check_real(speed, "speed", low=0, low_open=True)
         self.chunks = list(read_capture(path))
-        self.speed = float(speed)
         self.start_after = float(start_after)
         self._decoder = profile(protocol).command_decoder()
         #: What the application wrote, decoded, in order.

@@ -5,15 +5,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
-import datetime
-import enum
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from typing import Any, TypeVar
 
 from ..core.device import Device
+from ..core.plain import jsonable
 from ..errors import ChassisError, ProtocolError, RequestTimeoutError
 
 D = TypeVar("D", bound=Device[Any, Any])
@@ -177,21 +175,3 @@ def explain_silence(device: Device[Any, Any], exc: RequestTimeoutError) -> None:
         except WrongProtocolError as wrong:
             raise wrong from exc
     raise exc
-
-
-def jsonable(msg: object) -> dict[str, Any]:
-    """A message as a JSON-ready ``dict`` (enums by name, dates as ISO text)."""
-
-    def convert(value: object) -> Any:
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            return {f.name: convert(getattr(value, f.name)) for f in dataclasses.fields(value)}
-        if isinstance(value, enum.Enum):
-            return value.name if value.name else int(value.value)
-        if isinstance(value, tuple) and hasattr(value, "_asdict"):
-            return {k: convert(v) for k, v in value._asdict().items()}
-        if isinstance(value, datetime.date):
-            return value.isoformat()
-        return value
-
-    result = convert(msg)
-    return result if isinstance(result, dict) else {"value": result}
