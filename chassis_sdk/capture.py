@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .core.backoff import Backoff
 from .core.transport import Link, open_link
 from .core.validation import check_real
 from .devices import profile, profiles
@@ -156,7 +157,7 @@ async def record(
 
         link: Link[Any] | None = await _open_raw(port, baudrate, on_chunk, _setter(lost))
         try:
-            delay = _REOPEN_START
+            backoff = Backoff(_REOPEN_START, _REOPEN_CAP)
             while (now := time.monotonic()) < end:
                 report()
                 if link is not None:
@@ -167,15 +168,14 @@ async def record(
                         line({"t": round(time.monotonic() - start, 6), "event": "disconnected"})
                         await link.aclose(0.0)
                         link = None
-                        delay = _REOPEN_START
+                        backoff.reset()
                     continue
-                await asyncio.sleep(min(delay, end - now))
+                await asyncio.sleep(min(backoff.next(), end - now))
                 try:
                     # A fresh event per link: a late word from the old one cannot count.
                     lost = asyncio.Event()
                     link = await _open_raw(port, baudrate, on_chunk, _setter(lost))
                 except PortOpenError:
-                    delay = min(delay * 2, _REOPEN_CAP)
                     continue
                 line({"t": round(time.monotonic() - start, 6), "event": "reconnected"})
         finally:

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import random
 import ssl
 import urllib.parse
 from pathlib import Path
 
+from ..core.backoff import Backoff
 from ..devices import DeviceProfile
 from ..errors import ChassisError
 from .common import first_frame, out
@@ -58,7 +58,7 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
         await first_frame(dev, 3.0, device.recognised_by)
         where = f"{args.prefix}/{args.robot_id}"
         out(f"bridging {port} ({device.name}) as {where} on {args.broker}")
-        delay = _BACKOFF_START
+        backoff = Backoff(_BACKOFF_START, _BACKOFF_CAP)
         while True:
             client = aiomqtt.Client(
                 host,
@@ -85,7 +85,9 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 await bridge.run()
             except aiomqtt.MqttError as exc:
                 if asyncio.get_running_loop().time() - started > 5.0:
-                    delay = _BACKOFF_START  # it had been up: start the backoff over
+                    backoff.reset()  # it had been up: start the backoff over
+                delay = backoff.next()
                 out(f"broker {args.broker}: {exc}; the robot is stopped; retrying in {delay:.1f} s")
-            await asyncio.sleep(delay * random.uniform(0.5, 1.0))
-            delay = min(delay * 2, _BACKOFF_CAP)
+                await asyncio.sleep(delay)
+                continue
+            await asyncio.sleep(backoff.next())

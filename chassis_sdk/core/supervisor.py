@@ -34,7 +34,6 @@ import asyncio
 import contextlib
 import enum
 import logging
-import random
 import time
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any, Generic, Protocol, TypeVar
@@ -42,6 +41,7 @@ from typing import Any, Generic, Protocol, TypeVar
 import anyio
 
 from ..errors import ChassisError, ConnectionLostError, NotConnectedError, PortOpenError
+from .backoff import Backoff
 from .dispatch import Broadcast, Subscription
 from .transport import BACKEND, QUEUE_LIMIT, Decoder, Link, open_link
 
@@ -434,15 +434,13 @@ class LinkSupervisor(Generic[M]):
             await self._reopen()
 
     async def _reopen(self) -> None:
-        delay = BACKOFF_START
+        backoff = Backoff(BACKOFF_START, BACKOFF_CAP, BACKOFF_FACTOR)
         while not self._closing.is_set():
-            # Full jitter keeps a fleet of clients from retrying in lockstep.
-            await anyio.sleep(delay * random.uniform(0.5, 1.0))
+            await anyio.sleep(backoff.next())
             try:
                 await self._open()
             except PortOpenError as exc:
                 self._log.debug("%s: reconnect failed: %s", self.port, exc)
-                delay = min(delay * BACKOFF_FACTOR, BACKOFF_CAP)
                 continue
             if self.writer.link is None:  # closing
                 return
