@@ -11,8 +11,9 @@ Plain text, so captures can be diffed, trimmed and attached to bug reports.
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
-import datetime
+import itertools
 import json
 import logging
 import math
@@ -23,10 +24,11 @@ from pathlib import Path
 from typing import Any
 
 from .core.backoff import Backoff
+from .core.recording import JsonlRecording, McapRecording, Recording
 from .core.transport import Link, open_link
 from .core.validation import check_real
 from .devices import profile, profiles
-from .errors import PortOpenError
+from .errors import ChassisError, PortOpenError
 
 __all__ = [
     "Capture",
@@ -35,6 +37,8 @@ __all__ = [
     "decode_capture",
     "detect_in",
     "detect_protocol",
+    "is_mcap",
+    "mcap_metadata",
     "read_capture",
     "record",
 ]
@@ -106,8 +110,15 @@ async def record(
     seconds: float,
     baudrate: int = 115200,
     progress: Progress | None = None,
+    protocol: str | None = None,
 ) -> Capture:
-    """Record what the device sends for ``seconds`` into a capture file.
+    """Record what the device sends for ``seconds`` into a capture file; it never
+    writes to the port.
+
+    The format is the file's suffix: ``.mcap`` (raw bytes with receive times, every
+    stream decoded, odometry and events; see :mod:`chassis_sdk.core.recording`; needs
+    the ``foxglove`` extra and the device's protocol, heard on the port if not given),
+    or a JSON-lines capture (raw bytes with receive times) for any other name.
 
     If the link drops (the cable is pulled), the recording goes on: the drop is written
     to the file, the port is reopened with backoff until ``seconds`` are up, and a
@@ -115,47 +126,57 @@ async def record(
 
     Args:
         port: Device path, pty path or ``socket://host:port``.
-        path: The capture file to write.
+        path: The capture file to write (``.mcap``, else JSON lines).
         seconds: How long to listen.
         baudrate: Serial speed.
         progress: Called about twice a second, and at once when the link drops or
             comes back, with (bytes so far, seconds so far, link up).
+        protocol: The device's name, for ``.mcap``.
 
     Raises:
         PortOpenError: The port cannot be opened at the start.
+        ChassisError: ``.mcap`` without a protocol, and none heard on the port.
+        ValueError: An unknown protocol.
     """
     path = Path(path)
+    device: Any = None
+    if path.suffix.lower() == ".mcap":
+        if protocol is None:
+            protocol = await detect_protocol(port, seconds=2.0, baudrate=baudrate)
+            if protocol is None:
+                raise ChassisError(
+                    f"no frames of a known device on {port} within 2 s; "
+                    "give its protocol (--protocol) to record MCAP"
+                )
+        # The device, never connected: it decodes, integrates and raises events from
+        # the bytes this recorder hands it, and its recording holds them all.
+        device = profile(protocol).device(port, baudrate=baudrate)
     start = time.monotonic()
     end = start + seconds
     total = chunks = disconnects = 0
     lost = asyncio.Event()
-    # Local file writes are small and buffered; a thread per chunk would cost more.
-    with path.open("w", encoding="utf-8") as f:  # noqa: ASYNC230
-
-        def line(item: dict[str, object]) -> None:
-            f.write(json.dumps(item) + "\n")
-
-        line(
-            {
-                "capture": 1,
-                "port": port,
-                "baudrate": baudrate,
-                "started": datetime.datetime.now(datetime.UTC).isoformat(),
-            }
-        )
+    writer: Recording
+    if device is not None:
+        writer = McapRecording(path, device)
+        feed: Callable[[bytes, float], None] = device._ingest
+    else:
+        writer = JsonlRecording(path, port, baudrate)
+        feed = writer.rx
+    try:
 
         def on_chunk(item: tuple[float, bytes]) -> None:
             nonlocal total, chunks
             t, data = item
             total += len(data)
             chunks += 1
-            line({"t": round(t - start, 6), "data": data.hex()})
+            feed(data, t)
 
         def report() -> None:
             if progress is not None:
                 progress(total, time.monotonic() - start, link is not None)
 
         link: Link[Any] | None = await _open_raw(port, baudrate, on_chunk, _setter(lost))
+        writer.link_state("connected", time.monotonic())
         try:
             backoff = Backoff(_REOPEN_START, _REOPEN_CAP)
             while (now := time.monotonic()) < end:
@@ -165,7 +186,7 @@ async def record(
                         await asyncio.wait_for(lost.wait(), min(0.5, end - now))
                     if lost.is_set():
                         disconnects += 1
-                        line({"t": round(time.monotonic() - start, 6), "event": "disconnected"})
+                        writer.link_state("lost", time.monotonic())
                         await link.aclose(0.0)
                         link = None
                         backoff.reset()
@@ -177,39 +198,115 @@ async def record(
                     link = await _open_raw(port, baudrate, on_chunk, _setter(lost))
                 except PortOpenError:
                     continue
-                line({"t": round(time.monotonic() - start, 6), "event": "reconnected"})
+                writer.link_state("connected", time.monotonic())
         finally:
             if link is not None:
                 await link.aclose(1.0)
         report()
+    finally:
+        writer.close()
     return Capture(
         path, chunks, total, time.monotonic() - start, disconnects, connected=link is not None
     )
 
 
-def read_capture(path: str | Path) -> Iterator[tuple[float, bytes]]:
-    """Yield ``(seconds since start, bytes)`` for each chunk of a capture file.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def is_mcap(path: str | Path) -> bool:
+    """Whether ``path`` is an MCAP file (by its first bytes, whatever its name)."""
+    with Path(path).open("rb") as f:
+        return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def read_capture(path: str | Path, *, sent: bool = False) -> Iterator[tuple[float, bytes]]:
+    """Yield ``(seconds since start, bytes)`` for each chunk of a capture: a JSON-lines
+    capture or an MCAP recording (its ``/{device}/raw/rx`` topic).
+
+    Args:
+        path: The file.
+        sent: The frames the host wrote instead (``{"t", "tx"}`` lines, the MCAP's
+            ``raw/tx`` topic), where the recording has them.
 
     Raises:
-        ValueError: The file is not a capture.
+        ValueError: The file is neither.
     """
+    if is_mcap(path):
+        yield from _read_mcap_bytes(Path(path), "/raw/tx" if sent else "/raw/rx")
+        return
+    key = "tx" if sent else "data"
     with Path(path).open(encoding="utf-8") as f:
         header = f.readline()
         try:
             if json.loads(header).get("capture") != 1:
                 raise ValueError
         except (ValueError, AttributeError):
-            raise ValueError(f"{path} is not a chassis-sdk capture file") from None
+            raise ValueError(f"{path} is not a chassis-sdk capture or MCAP file") from None
         for n, line in enumerate(f, start=2):
             if not line.strip():
                 continue
             try:
                 item = json.loads(line)
-                if "event" in item:  # the link dropped or came back: no bytes
-                    continue
-                yield float(item["t"]), bytes.fromhex(item["data"])
+                if key in item:
+                    yield float(item["t"]), bytes.fromhex(item[key])
+                elif "data" not in item and "tx" not in item and "event" not in item:
+                    raise ValueError
             except (ValueError, KeyError, TypeError):
                 raise ValueError(f"{path}:{n}: not a capture line") from None
+
+
+def _read_mcap_bytes(path: Path, suffix: str) -> Iterator[tuple[float, bytes]]:
+    """The raw bytes of one direction of an MCAP recording, in file order; a file cut
+    off by a hard kill is read up to where it stops (with a warning)."""
+    _need_mcap()
+    from mcap.exceptions import McapError
+    from mcap.records import Channel as McapChannel
+    from mcap.records import Message
+    from mcap.stream_reader import StreamReader
+
+    wanted: set[int] = set()
+    t0: int | None = None
+    with path.open("rb") as f:
+        records = StreamReader(f, record_size_limit=1 << 30).records
+        try:
+            for record in records:
+                if isinstance(record, Message):
+                    if t0 is None:
+                        t0 = record.log_time
+                    if record.channel_id in wanted:
+                        data = base64.b64decode(json.loads(record.data)["data"])
+                        yield (record.log_time - t0) / 1e9, data
+                elif isinstance(record, McapChannel) and record.topic.endswith(suffix):
+                    wanted.add(record.id)
+        except McapError as exc:
+            _log.warning("%s ends early (%s): read up to there", path, exc)
+
+
+def _need_mcap() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("mcap") is None:
+        raise ImportError(
+            "reading MCAP needs the mcap package: pip install 'chassis-sdk[foxglove]'"
+        )
+
+
+def mcap_metadata(path: str | Path) -> dict[str, str]:
+    """The ``chassis_sdk`` metadata of an MCAP recording (device, port, baud rate,
+    versions; see :func:`chassis_sdk.core.recording.session_metadata`), or ``{}``."""
+    _need_mcap()
+    from mcap.exceptions import McapError
+    from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+
+    with Path(path).open("rb") as f:
+        try:
+            for record in StreamReader(f, record_size_limit=1 << 30).records:
+                if isinstance(record, Metadata) and record.name == "chassis_sdk":
+                    return dict(record.metadata)
+        except McapError:
+            pass
+    return {}
 
 
 def decode_capture(
@@ -218,17 +315,24 @@ def decode_capture(
     """Decode a capture: yield ``(seconds since start, message)`` in order.
 
     Args:
-        path: The capture file.
+        path: The capture (JSON lines or MCAP).
         protocol: The device's name (see :func:`chassis_sdk.devices.profiles`).
-        commands: Decode what the *host* sent instead (a capture taken on a tap that
-            sees both directions holds both; one from ``record`` holds none).
+        commands: Decode what the *host* sent instead: the frames written where the
+            recording holds them (an application's ``record=``), else the received
+            bytes (a capture taken on a tap that sees both directions).
 
     Raises:
         ValueError: An unknown device, or a file that is not a capture.
     """
     device = profile(protocol)
     decoder = device.command_decoder() if commands else device.decoder()
-    for t, data in read_capture(path):
+    chunks: Iterator[tuple[float, bytes]] = read_capture(path)
+    if commands:
+        sent = read_capture(path, sent=True)
+        first = next(sent, None)
+        if first is not None:
+            chunks = itertools.chain([first], sent)
+    for t, data in chunks:
         for msg in decoder.feed(data, t):
             yield t, msg
 

@@ -189,7 +189,7 @@ class Toy(Device[ToyMessage, int]):
         return ToyDecoder()
 
     def _init_protocol(self) -> None:
-        self._telemetry = self._stream()
+        self._telemetry = self._stream("telemetry")
         self._next_token = 0
         self._handlers = {
             ToyTelemetry: self._on_telemetry,

@@ -197,14 +197,18 @@ async def _follow_link(dev: Any, as_json: bool) -> None:
         )
 
 
-async def _record(port: str, path: str, seconds: float, baudrate: int) -> None:
+async def _record(
+    port: str, path: str, seconds: float, baudrate: int, protocol: str | None
+) -> None:
     show = progress_line(f"recording {path}")
 
     def progress(n_bytes: int, elapsed: float, up: bool) -> None:
         link = "" if up else "  LINK LOST, reconnecting"
         show(f"{n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s{link}", not up)
 
-    cap = await capture.record(port, path, seconds=seconds, baudrate=baudrate, progress=progress)
+    cap = await capture.record(
+        port, path, seconds=seconds, baudrate=baudrate, progress=progress, protocol=protocol
+    )
     show.done(
         f"recorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s "
         f"to {path}" + (f"; the link dropped {cap.disconnects} time(s)" if cap.disconnects else "")
@@ -260,6 +264,10 @@ def _no_messages(path: str, proto: str) -> None:
 
 
 def _detect_file(path: str) -> str:
+    if capture.is_mcap(path):
+        recorded = capture.mcap_metadata(path).get("device")
+        if recorded in profiles():
+            return recorded
     data = b"".join(chunk for _, chunk in capture.read_capture(path))
     found = capture.detect_in(data)
     if found is None:
@@ -310,6 +318,23 @@ def _plot_fields(rows: list[tuple[float, object]], fig: Any) -> None:
         ax.set_ylabel(name, fontsize=8)
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("time since start of capture (s)")
+
+
+def _export(path: str, directory: str, protocol: str | None) -> None:
+    from ..export import export_csv
+
+    proto = protocol or _detect_file(path)
+    written = export_csv(path, directory, proto)
+    if not written:
+        _no_messages(path, proto)
+    for name, table in sorted(written.items()):
+        out(f"{table.path}: {table.rows:,} rows ({name})")
+
+
+async def _serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    from .serve_command import serve
+
+    await serve(device, port, args)
 
 
 async def _bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
@@ -464,10 +489,39 @@ def _parser() -> argparse.ArgumentParser:
     br.add_argument("--tls", action="store_true", help="TLS (implied by mqtts://)")
     br.add_argument("--cafile", help="CA certificates for TLS (default: the system's)")
 
-    r = sub.add_parser("record", help="capture timestamped raw bytes from a port")
+    r = sub.add_parser("record", help="record a port: FILE.jsonl (raw bytes) or FILE.mcap")
     _port_args(r)
-    r.add_argument("file")
+    r.add_argument("file", help="FILE.jsonl: raw bytes; FILE.mcap: also decoded (Foxglove)")
     r.add_argument("--seconds", type=_positive("seconds"), default=10.0)
+    _protocol_arg(r, names, detected=True)
+
+    ex = sub.add_parser("export", help="write a capture's streams as CSV files, one per stream")
+    ex.add_argument("file", help="a .jsonl capture or a .mcap recording")
+    ex.add_argument("--csv", required=True, metavar="DIR", help="directory for the CSV files")
+    _protocol_arg(ex, names, detected=True)
+
+    sv = sub.add_parser("serve", help="serve the device live to the Foxglove app (WebSocket)")
+    _port_args(sv)
+    _protocol_arg(sv, names, detected=False)
+    sv.add_argument("--foxglove-port", type=int, default=8765, help="TCP port (default 8765)")
+    sv.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default: this computer only)"
+    )
+    sv.add_argument("--read-only", action="store_true", help="no Teleop; only stop services")
+    sv.add_argument("--record", metavar="FILE.mcap", help="also record the session")
+    sv.add_argument(
+        "--max-linear", type=_positive("max_linear"), default=DRIVE_MAX_LINEAR, help="m/s"
+    )
+    sv.add_argument(
+        "--max-angular", type=_positive("max_angular"), default=DRIVE_MAX_ANGULAR, help="rad/s"
+    )
+    sv.add_argument(
+        "--command-timeout",
+        type=_positive("command_timeout"),
+        default=0.5,
+        help="stop this long after Teleop's last message (s)",
+    )
+    sv.add_argument("--seconds", type=_positive("seconds"), help="stop after this long")
 
     rp = sub.add_parser("replay", help="decode a capture and print its messages")
     rp.add_argument("file")
@@ -509,7 +563,7 @@ def _job(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Coroutine
     if args.port is None:
         parser.error(f"{command}: no port given (give PORT, or set {ENV_PORT})")
     if command == "record":
-        return _record(args.port, args.file, args.seconds, args.baudrate)
+        return _record(args.port, args.file, args.seconds, args.baudrate, args.protocol)
     device = profile(args.protocol)
     if command == "info":
         return _info(device, args.port, args.baudrate, args.timeout)
@@ -517,6 +571,8 @@ def _job(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Coroutine
         return _monitor(device, args.port, args.baudrate, args.seconds, args.json)
     if command == "bridge":
         return _bridge(device, args.port, args)
+    if command == "serve":
+        return _serve(device, args.port, args)
     return _drive(device, args.port, args)
 
 
@@ -542,9 +598,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         if args.command == "replay" and args.as_device:
             job = _replay_as_device(args)
-        elif args.command in ("replay", "plot"):
+        elif args.command in ("replay", "plot", "export"):
             if args.command == "replay":
                 _replay(args.file, args.protocol, args.json)
+            elif args.command == "export":
+                _export(args.file, args.csv, args.protocol)
             else:
                 _plot(args.file, args.output, args.protocol)
             return 0

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import abc
 import logging
+import os
 import time
 from collections.abc import Callable, Hashable
+from pathlib import Path
 from types import TracebackType
-from typing import Any, ClassVar, Generic, Self, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Self, TypeVar
 
 import anyio
 import anyio.lowlevel
@@ -42,6 +44,9 @@ from .transport import BACKEND, Decoder
 from .validation import check_int, check_optional, check_real
 from .watchdog import MotionLimits, VelocityWatchdog
 
+if TYPE_CHECKING:
+    from .recording import Recording
+
 __all__ = ["ConnectionState", "Device", "LinkStats"]
 
 M = TypeVar("M")
@@ -56,6 +61,26 @@ _LINK_EVENTS = {
     ConnectionState.LOST: EventKind.LINK_LOST,
     ConnectionState.CONNECTED: EventKind.LINK_RESTORED,
 }
+
+
+def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
+    """The ``record`` option checked: ``None``, or a file path (``.mcap``: MCAP, which
+    needs foxglove-sdk; any other name: a JSON-lines capture)."""
+    if record is None:
+        return None
+    if not isinstance(record, str | os.PathLike) or not str(record):
+        raise ValueError(f"record must be a file path, got {record!r}")
+    path = Path(record)
+    if path.is_dir():
+        raise ValueError(f"record must be a file path, got the directory {str(path)!r}")
+    if path.suffix.lower() == ".mcap":
+        import importlib.util
+
+        if importlib.util.find_spec("foxglove") is None:
+            raise ValueError(
+                "record='*.mcap' needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
+            )
+    return path
 
 
 class Device(Motion, Observation, Generic[M, K]):
@@ -92,6 +117,7 @@ class Device(Motion, Observation, Generic[M, K]):
         battery_low: float | None = None,
         connect_timeout: float = 2.0,
         logger: logging.Logger | None = None,
+        record: str | os.PathLike[str] | None = None,
     ) -> None:
         if not isinstance(port, str) or not port:
             raise ValueError(f"port must be a device path or URL string, got {port!r}")
@@ -103,6 +129,8 @@ class Device(Motion, Observation, Generic[M, K]):
         self.queue_size = check_int(queue_size, "queue_size", low=1)
         link_timeout = check_optional(link_timeout, "link_timeout", **_POSITIVE)
         connect_timeout = check_real(connect_timeout, "connect_timeout", **_POSITIVE)
+        self._record_path = _recording_path(record)
+        self._recording: Recording | None = None
         self.port = port
         self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
         self._decoder = self._make_decoder()
@@ -137,8 +165,8 @@ class Device(Motion, Observation, Generic[M, K]):
         #: synchronously from the link's ``data_received``, in wire order.
         self._handlers: dict[type, Callable[[Any], None]] = {}
         self._pose = OdometryIntegrator()
-        self._odometry: Broadcast[Odometry] = self._stream()
-        self._events: Broadcast[RobotEvent] = self._stream()
+        self._odometry: Broadcast[Odometry] = self._stream("odometry")
+        self._events: Broadcast[RobotEvent] = self._stream("events")
         self._battery_monitor = BatteryMonitor(battery_low)
         self._init_protocol()
 
@@ -154,6 +182,11 @@ class Device(Motion, Observation, Generic[M, K]):
 
     def _on_link_up(self) -> None:
         """Reset per-connection state (called on connect and each reconnect)."""
+
+    def _make_command_decoder(self) -> FrameDecoder[Any] | None:
+        """A decoder of what the *host* writes, so recordings show the commands
+        decoded (``None``: they hold the raw bytes only)."""
+        return None
 
     def _reply_quarantine(self) -> float:
         """How long a key whose reply is overdue stays out of use (see RequestTable):
@@ -270,7 +303,15 @@ class Device(Motion, Observation, Generic[M, K]):
             self._requests.table.quarantine = self._reply_quarantine()
             self._streams.reopen()
 
-        await self._link.connect(connecting)
+        if self._record_path is not None and self._recording is None:
+            from .recording import open_recording
+
+            self._recording = open_recording(self._record_path, self)
+        try:
+            await self._link.connect(connecting)
+        except BaseException:
+            self._stop_recording()
+            raise
 
     async def close(self) -> None:
         """Stop the robot, close the port and stop the background tasks.
@@ -279,8 +320,34 @@ class Device(Motion, Observation, Generic[M, K]):
         port closes. Safe to call more than once, and from any task; a second call
         waits for the first to finish. Cancelling it does not interrupt it: the port is
         closed (within about a second) before the cancellation goes on.
+        With ``record``, the recording ends after the zero frame, which it holds.
         """
-        await self._link.close()
+        try:
+            await self._link.close()
+        finally:
+            self._stop_recording()
+
+    @property
+    def recording(self) -> Path | None:
+        """The file this session is being recorded to (the ``record`` option), or
+        ``None``. Connecting again after :meth:`close` starts the file anew."""
+        return self._record_path
+
+    def _stop_recording(self) -> None:
+        recording, self._recording = self._recording, None
+        if recording is not None:
+            recording.close()
+
+    def _ingest(self, data: bytes, now: float) -> None:
+        """Take bytes that reached this device other than through its own link (a
+        passive recorder, a conversion): recorded, decoded and handled as if they had
+        come through it (streams, odometry, events)."""
+        tap = self._link.tap
+        if tap is not None:
+            tap.rx(data, now)
+        messages = self._decoder.feed(data, now)
+        if messages:
+            self._received(messages, now)
 
     async def __aenter__(self) -> Self:
         await self.connect()
@@ -327,9 +394,11 @@ class Device(Motion, Observation, Generic[M, K]):
         """A reply arrived for ``key``: answer its call, or count it late or unmatched."""
         self._requests.reply(key, msg)
 
-    def _stream(self) -> Broadcast[Any]:
-        """A new stream (with its latest value) of this device."""
-        return self._streams.new()
+    def _stream(self, name: str | None = None) -> Broadcast[Any]:
+        """A new stream (with its latest value) of this device; ``name``, the name of
+        the method that subscribes to it, makes it a topic of recordings and live
+        views."""
+        return self._streams.new(name)
 
     def _subscribe(self, stream: Broadcast[Any]) -> Subscription[Any]:
         if self._link.state is ConnectionState.DISCONNECTED:

@@ -18,7 +18,7 @@ from collections.abc import Callable, Coroutine, Hashable
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
-__all__ = ["Broadcast", "Reply", "RequestTable", "Streams", "Subscription"]
+__all__ = ["Broadcast", "Listener", "Reply", "RequestTable", "Streams", "Subscription"]
 
 T = TypeVar("T")
 K = TypeVar("K", bound=Hashable)
@@ -106,6 +106,22 @@ class Subscription(Generic[T]):
         self.close()
 
 
+class Listener(Subscription[T]):
+    """A synchronous subscriber: ``callback(item)`` runs inside :meth:`Broadcast.publish`
+    (in wire order, nothing buffered, no task woken). For recorders and live sinks,
+    which must see every message and cost nothing when absent. Held weakly like any
+    subscription: keep it, and :meth:`close` it to stop listening."""
+
+    __slots__ = ("_callback",)
+
+    def __init__(self, broadcast: Broadcast[T], callback: Callable[[T], None]) -> None:
+        super().__init__(broadcast, 1)
+        self._callback = callback
+
+    def _push(self, item: T) -> None:
+        self._callback(item)
+
+
 class _Iteration(Generic[T]):
     """What ``async for`` holds while it iterates a :class:`Subscription`; when the
     loop ends, however it ends, the loop drops it and it ends the subscription."""
@@ -163,15 +179,25 @@ class Broadcast(Generic[T]):
         if self._closed:
             sub._finish(copy.copy(self._error))
         else:
-            this = weakref.ref(self)
-
-            def gone(ref: weakref.ref[Subscription[T]]) -> None:
-                broadcast = this()
-                if broadcast is not None:
-                    broadcast._refs = tuple(r for r in broadcast._refs if r is not ref)
-
-            self._refs = (*self._refs, weakref.ref(sub, gone))
+            self._add(sub)
         return sub
+
+    def listen(self, callback: Callable[[T], None]) -> Listener[T]:
+        """Call ``callback(item)`` synchronously for every item published from now on,
+        until the returned :class:`Listener` is closed or dropped."""
+        listener = Listener(self, callback)
+        self._add(listener)
+        return listener
+
+    def _add(self, sub: Subscription[T]) -> None:
+        this = weakref.ref(self)
+
+        def gone(ref: weakref.ref[Subscription[T]]) -> None:
+            broadcast = this()
+            if broadcast is not None:
+                broadcast._refs = tuple(r for r in broadcast._refs if r is not ref)
+
+        self._refs = (*self._refs, weakref.ref(sub, gone))
 
     def publish(self, item: T) -> None:
         """Deliver ``item`` to every subscriber (synchronous, never blocks)."""
@@ -184,11 +210,12 @@ class Broadcast(Generic[T]):
     def fail(self, error: BaseException | None) -> None:
         """End every subscription after its buffered items: with ``error`` raised, or,
         if it is ``None``, with a normal end of iteration. Later subscriptions end the
-        same way at once, until :meth:`reopen`."""
+        same way at once, until :meth:`reopen`. Listeners stay (they are not
+        iterations that could end)."""
         self._closed = True
         self._error = error
         subs = [sub for ref in self._refs if (sub := ref()) is not None]
-        self._refs = ()
+        self._refs = tuple(ref for ref in self._refs if isinstance(ref(), Listener))
         for sub in subs:
             # One instance each: an exception raised in several tasks would collect
             # all their tracebacks.
@@ -206,16 +233,23 @@ class Broadcast(Generic[T]):
 class Streams:
     """Every stream of one device: made alike, reopened on connect, ended together."""
 
-    __slots__ = ("_all", "maxlen")
+    __slots__ = ("_all", "maxlen", "named")
 
     def __init__(self, maxlen: int) -> None:
         self.maxlen = maxlen
         self._all: list[Broadcast[Any]] = []
+        #: The streams made with a name (what recorders and live views publish).
+        self.named: dict[str, Broadcast[Any]] = {}
 
-    def new(self) -> Broadcast[Any]:
-        """A new stream of this device."""
+    def new(self, name: str | None = None) -> Broadcast[Any]:
+        """A new stream of this device; ``name`` (its method's name, such as
+        ``"telemetry"``) makes it a topic of recordings and live views."""
         stream: Broadcast[Any] = Broadcast(self.maxlen)
         self._all.append(stream)
+        if name is not None:
+            if name in self.named:
+                raise ValueError(f"two streams named {name!r}")
+            self.named[name] = stream
         return stream
 
     def reopen(self) -> None:

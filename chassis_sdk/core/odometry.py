@@ -103,16 +103,15 @@ class OdometryIntegrator:
     def _advance(self, v: float, w: float, dt: float, heading: float | None) -> None:
         h0 = self._heading
         h1 = h0 + w * dt if heading is None else heading
-        turned = h1 - h0
-        if abs(turned) < 1e-9:
-            # Straight: the arc formula divides by the turn.
-            mid = h0 + turned / 2
-            self.x += v * dt * math.cos(mid)
-            self.y += v * dt * math.sin(mid)
-        else:
-            radius = v * dt / turned  # arc length over the angle turned
-            self.x += radius * (math.sin(h1) - math.sin(h0))
-            self.y -= radius * (math.cos(h1) - math.cos(h0))
+        # The exact arc, written as its chord: length v*dt*sin(a)/a with a half the
+        # turn, along the mid heading. The same as (v*dt/turn)*(sin h1 - sin h0) but
+        # without its cancellation, which lost nanometres on a nearly straight arc
+        # (and so made one sample and three of the same motion disagree).
+        half = (h1 - h0) / 2
+        chord = v * dt * (math.sin(half) / half if half else 1.0)
+        mid = h0 + half
+        self.x += chord * math.cos(mid)
+        self.y += chord * math.sin(mid)
         self._heading = h1
 
     @property

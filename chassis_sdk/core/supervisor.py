@@ -42,8 +42,8 @@ import anyio
 
 from ..errors import ChassisError, ConnectionLostError, NotConnectedError, PortOpenError
 from .backoff import Backoff
-from .dispatch import Broadcast, Subscription
-from .transport import BACKEND, QUEUE_LIMIT, Decoder, Link, open_link
+from .dispatch import Broadcast, Listener, Subscription
+from .transport import BACKEND, QUEUE_LIMIT, Decoder, Link, Tap, open_link
 
 __all__ = ["ConnectionState", "ConnectionStates", "LinkSupervisor", "Supervised", "Writer"]
 
@@ -150,6 +150,11 @@ class ConnectionStates:
     def subscribe(self) -> Subscription[ConnectionState]:
         """An async iterator of state changes, from the next one on."""
         return self._stream.subscribe()
+
+    def listen(self, callback: Callable[[ConnectionState], None]) -> Listener[ConnectionState]:
+        """Call ``callback(state)`` synchronously on every change (see
+        :meth:`Broadcast.listen`)."""
+        return self._stream.listen(callback)
 
     def end_subscriptions(self) -> None:
         """End the iterators (after ``DISCONNECTED``); new ones may subscribe again."""
@@ -281,6 +286,18 @@ class LinkSupervisor(Generic[M]):
         self._connecting: asyncio.Future[None] | None = None
         self.reconnects = 0
         self._discarded = 0  # by links already closed
+        self._tap: Tap | None = None
+
+    @property
+    def tap(self) -> Tap | None:
+        """What sees every byte of every link of this device, both ways (a recorder)."""
+        return self._tap
+
+    @tap.setter
+    def tap(self, tap: Tap | None) -> None:
+        self._tap = tap
+        if self.writer.link is not None:
+            self.writer.link.tap = tap
 
     # --- state --------------------------------------------------------------------------
 
@@ -345,6 +362,7 @@ class LinkSupervisor(Generic[M]):
 
         def make_link() -> Link[M]:
             link: Link[M] = Link(decoder, received, lambda exc: self._on_lost(link, exc), self._log)
+            link.tap = self._tap
             return link
 
         link = await open_link(self.port, self.baudrate, make_link, timeout=self.connect_timeout)

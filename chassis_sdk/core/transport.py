@@ -94,7 +94,7 @@ def _load_backend() -> tuple[Any, str]:
 
 _serial_asyncio, BACKEND = _load_backend()
 
-__all__ = ["BACKEND", "Link", "open_link"]
+__all__ = ["BACKEND", "Link", "Tap", "open_link"]
 
 M = TypeVar("M")
 
@@ -109,6 +109,17 @@ class Decoder(Protocol[M]):
     def feed(self, data: bytes, timestamp: float = 0.0) -> list[M]: ...
 
     def reset(self) -> None: ...
+
+
+class Tap(Protocol):
+    """Sees every byte of a link, both ways (a recorder): called synchronously, so it
+    must be quick and must not raise."""
+
+    def rx(self, data: bytes, now: float) -> None:
+        """``data`` arrived at ``now`` (``time.monotonic()``)."""
+
+    def tx(self, data: bytes, now: float) -> None:
+        """The frame ``data`` began to leave at ``now``."""
 
 
 class Link(asyncio.Protocol, Generic[M]):
@@ -156,6 +167,8 @@ class Link(asyncio.Protocol, Generic[M]):
         self.discarded = 0
         #: Set by the owner once it has counted this link's losses.
         self.accounted = False
+        #: Sees every byte both ways (a recorder), or ``None``.
+        self.tap: Tap | None = None
 
     # --- asyncio.Protocol ---------------------------------------------------------------
 
@@ -175,6 +188,8 @@ class Link(asyncio.Protocol, Generic[M]):
         now = time.monotonic()
         if self._log.isEnabledFor(logging.DEBUG):
             self._log.debug("rx %s", data.hex(" "))
+        if self.tap is not None:
+            self.tap.rx(data, now)
         messages = self._decoder.feed(data, now)
         if messages:
             self._on_messages(messages, now)
@@ -269,8 +284,11 @@ class Link(asyncio.Protocol, Generic[M]):
                 self._blocked = True
                 self._partial = frame[n:] if n else b""
                 self._loop.add_writer(wfd, self._writable)
-        if n > 0 and self._log.isEnabledFor(logging.DEBUG):
-            self._log.debug("tx %s", frame.hex(" "))
+        if n > 0:
+            if self._log.isEnabledFor(logging.DEBUG):
+                self._log.debug("tx %s", frame.hex(" "))
+            if self.tap is not None:
+                self.tap.tx(frame, time.monotonic())
         return n != 0
 
     def _write_fd(self, wfd: int, data: bytes) -> int:

@@ -15,6 +15,7 @@ from ...core.watchdog import FrameBuilder
 from ...errors import ChassisError, RequestTimeoutError
 from .protocol import (
     BatteryReading,
+    BoardCommandDecoder,
     BoardDecoder,
     BoardEncoder,
     BoardMessage,
@@ -74,10 +75,10 @@ class Board(Device[BoardMessage, _Key]):
     def _init_protocol(self) -> None:
         self._encoder = BoardEncoder()
         self._next_id = 0
-        self._imu: Broadcast[ImuSample] = self._stream()
-        self._velocity: Broadcast[VelocityFeedback] = self._stream()
-        self._battery_stream: Broadcast[BatteryReading] = self._stream()
-        self._logs: Broadcast[str] = self._stream()
+        self._imu: Broadcast[ImuSample] = self._stream("imu")
+        self._velocity: Broadcast[VelocityFeedback] = self._stream("velocity")
+        self._battery_stream: Broadcast[BatteryReading] = self._stream("battery")
+        self._logs: Broadcast[str] = self._stream("logs")
         self._gyro_heading: float | None = None  # unwrapped, rad, when heading="imu"
         self._last_imu_time: float | None = None
         self._handlers = {
@@ -94,6 +95,9 @@ class Board(Device[BoardMessage, _Key]):
 
     def _make_decoder(self) -> BoardDecoder:
         return BoardDecoder()
+
+    def _make_command_decoder(self) -> BoardCommandDecoder:
+        return BoardCommandDecoder()
 
     def _on_imu(self, m: ImuSample) -> None:
         if self._imu_scale is not None and m.raw is not None:

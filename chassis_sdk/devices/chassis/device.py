@@ -17,6 +17,7 @@ from .commands import ChassisCommands
 from .health import ChassisDiagnosis, StatusEdges, driver_findings, status_findings
 from .protocol import (
     REPLY_TO,
+    ChassisCommandDecoder,
     ChassisDecoder,
     ChassisEncoder,
     ChassisInfo,
@@ -72,6 +73,12 @@ class Chassis(ChassisCommands):
         connect_timeout: Seconds each open (and reconnect attempt) may take; the port
             is opened off the event loop, so nothing else waits for it.
         logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
+        record: Record the session to this file while connected: ``.mcap`` (raw
+            bytes both ways, every stream, the commands written, odometry and events;
+            open it in Foxglove; needs the ``foxglove`` extra) or, any other name, a
+            JSON-lines capture (raw bytes both ways). Everything the application and
+            the watchdog write is in it, up to the zero frame of :meth:`close`, so a
+            bug report is one file.
 
     Raises:
         ValueError: An option is out of range.
@@ -82,8 +89,8 @@ class Chassis(ChassisCommands):
 
     def _init_protocol(self) -> None:
         self._encoder = ChassisEncoder()
-        self._telemetry: Broadcast[Telemetry] = self._stream()
-        self._power: Broadcast[PowerTelemetry] = self._stream()
+        self._telemetry: Broadcast[Telemetry] = self._stream("telemetry")
+        self._power: Broadcast[PowerTelemetry] = self._stream("power")
         self._edges = StatusEdges()
         self._wheel_track: float | None = None  # effective track, when odometry uses wheels
         self._handlers = {
@@ -100,6 +107,9 @@ class Chassis(ChassisCommands):
 
     def _make_decoder(self) -> ChassisDecoder:
         return ChassisDecoder()
+
+    def _make_command_decoder(self) -> ChassisCommandDecoder:
+        return ChassisCommandDecoder()
 
     def _sequence_gaps(self) -> int:
         return self._decoder.sequence.gaps

@@ -1,0 +1,520 @@
+"""Recording a device's session, and showing it live: one sink for both.
+
+:class:`FoxgloveSink` publishes everything one device does into a ``foxglove.Context``
+(the `foxglove-sdk <https://docs.foxglove.dev/docs/sdk>`_): the raw bytes both ways,
+every named stream decoded, the commands the host wrote decoded, odometry as a pose
+and a transform, events as log lines, the link state. Whatever listens to that context
+gets it: an MCAP file (:func:`open_recording`) or the Foxglove WebSocket server
+(``chassis-sdk serve``), or both at once.
+
+Topics, for a device named ``chassis``::
+
+    /chassis/raw/rx      bytes as they arrived, with their receive time  (JSON, base64)
+    /chassis/raw/tx      every frame the host wrote, when it began to leave
+    /chassis/commands    those frames decoded
+    /chassis/{stream}    each stream (telemetry, power, odometry, events, ...) as JSON
+    /chassis/pose        foxglove.PoseInFrame in frame "odom"
+    /tf                  foxglove.FrameTransforms odom -> base_link
+    /chassis/log         events as foxglove.Log
+    /chassis/link        the link state ({"state": "connected"}, ...)
+
+A JSON-lines capture (:class:`JsonlRecording`) holds the raw bytes both ways and the
+link's drops; everything else can be decoded from it again.
+
+What a hard kill loses: the MCAP writer finishes a chunk and flushes it to the file
+every ``flush_interval`` seconds (1 s), so ``kill -9`` or a power cut loses at most the
+last second, and the file lacks its summary (``chassis-sdk replay``, ``export`` and the
+``mcap`` tools' ``recover`` read such a file up to where it stops). A normal exit,
+an exception, Ctrl-C and SIGTERM (via :func:`chassis_sdk.run`) close it properly.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import datetime
+import enum
+import json
+import math
+import os
+import platform
+import socket
+import time
+import types
+import typing
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any, Protocol
+
+from .plain import plain
+
+if TYPE_CHECKING:
+    import foxglove
+
+    from .device import Device
+
+__all__ = [
+    "FoxgloveSink",
+    "JsonlRecording",
+    "McapRecording",
+    "Recording",
+    "json_schema",
+    "open_recording",
+    "session_metadata",
+]
+
+#: How often (seconds) an MCAP recording finishes its chunk and flushes it to disk.
+FLUSH_INTERVAL = 1.0
+_NS = 1_000_000_000
+_BYTES_SCHEMA = {
+    "type": "object",
+    "properties": {"data": {"type": "string", "contentEncoding": "base64"}},
+    "required": ["data"],
+}
+_LINK_SCHEMA = {"type": "object", "properties": {"state": {"type": "string"}}}
+#: Event kinds logged as warnings (the rest are information).
+_WARNINGS = ("engaged", "hit", "offline", "error", "low", "stale", "lost")
+
+
+def _needs_foxglove(what: str) -> ImportError:
+    return ImportError(
+        f"{what} needs the foxglove-sdk package: pip install 'chassis-sdk[foxglove]'"
+    )
+
+
+# --- JSON schemas of messages -------------------------------------------------------------
+
+
+def json_schema(tp: Any) -> dict[str, Any]:
+    """A JSON schema for how :func:`~chassis_sdk.core.plain.plain` renders a value of
+    type ``tp`` (a message dataclass, a NamedTuple, an enum, a number, ...)."""
+    if tp is bool:
+        return {"type": "boolean"}
+    if tp is int:
+        return {"type": "integer"}
+    if tp is float:
+        return {"type": "number"}
+    if tp is str:
+        return {"type": "string"}
+    if tp is bytes:
+        return {"type": "string", "contentEncoding": "base64"}
+    if tp is type(None):
+        return {"type": "null"}
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return {"anyOf": [json_schema(a) for a in args]}
+    if origin in (tuple, list) or tp in (tuple, list):
+        items = [a for a in args if a is not Ellipsis]
+        if len(set(items)) == 1:
+            return {"type": "array", "items": json_schema(items[0])}
+        return {"type": "array"}
+    if isinstance(tp, type):
+        if issubclass(tp, enum.Flag):  # by name, "A|B" for several, a number if none
+            return {"type": ["string", "integer"]}
+        if issubclass(tp, enum.Enum):
+            return {"type": ["string", "integer"], "enum": [m.name for m in tp]}
+        if issubclass(tp, datetime.date):
+            return {"type": "string", "format": "date"}
+        if dataclasses.is_dataclass(tp) or (issubclass(tp, tuple) and hasattr(tp, "_fields")):
+            return _object_schema(tp)
+    return {}
+
+
+def _object_schema(cls: type) -> dict[str, Any]:
+    try:
+        hints = typing.get_type_hints(cls)
+    except (NameError, TypeError):
+        hints = {}
+    if dataclasses.is_dataclass(cls):
+        names = [f.name for f in dataclasses.fields(cls)]
+    else:
+        names = list(getattr(cls, "_fields", ()))
+    return {
+        "title": cls.__qualname__,
+        "type": "object",
+        "properties": {name: json_schema(hints.get(name, Any)) for name in names},
+    }
+
+
+def _message_schema(msg: object) -> dict[str, Any]:
+    schema = json_schema(type(msg))
+    if schema.get("type") == "object":
+        return schema
+    return {"type": "object", "properties": {"value": schema}}
+
+
+def session_metadata(device: Device[Any, Any]) -> dict[str, str]:
+    """What a recording says of its session: device, port, baud rate, versions, host."""
+    from .. import __version__
+    from .transport import BACKEND
+
+    return {
+        "device": device.kind,
+        "device_class": f"{type(device).__module__}.{type(device).__qualname__}",
+        "port": device.port,
+        "baudrate": str(device.baudrate),
+        "sdk_version": __version__,
+        "transport": BACKEND,
+        "python": platform.python_version(),
+        "host": socket.gethostname(),
+        "started": datetime.datetime.now(datetime.UTC).isoformat(),
+    }
+
+
+# --- the sink ------------------------------------------------------------------------------
+
+
+class FoxgloveSink:
+    """Publishes one device's session into a ``foxglove.Context`` (see the module
+    docstring for the topics). It is the device's :class:`~chassis_sdk.core.transport.Tap`
+    and listens to its streams synchronously, so nothing is missed and nothing waits;
+    encoding is skipped on a channel nobody listens to.
+
+    Args:
+        context: The context an MCAP writer or WebSocket server listens to.
+        device: The device whose session this is.
+        after_log: Called with the time after every message logged (an MCAP
+            recording's periodic flush).
+    """
+
+    def __init__(
+        self,
+        context: foxglove.Context,
+        device: Device[Any, Any],
+        *,
+        after_log: Callable[[float], None] | None = None,
+    ) -> None:
+        try:
+            import foxglove
+            import foxglove.channels as fc
+            import foxglove.messages as fm
+        except ImportError:
+            raise _needs_foxglove("recording to MCAP or serving to Foxglove") from None
+        self._fg, self._fm = foxglove, fm
+        self._context = context
+        self.device = device
+        name = device.kind
+        self._prefix = f"/{name}"
+        # Monotonic seconds -> epoch nanoseconds, fixed once per session.
+        self._epoch_offset = time.time_ns() - int(time.monotonic() * _NS)
+        self._after_log = after_log
+        self._rx = self._json_channel("raw/rx", _BYTES_SCHEMA, "chassis_sdk.RawBytes")
+        self._tx = self._json_channel("raw/tx", _BYTES_SCHEMA, "chassis_sdk.RawBytes")
+        self._link = self._json_channel("link", _LINK_SCHEMA, "chassis_sdk.LinkState")
+        self._commands: foxglove.Channel | None = None
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._pose = fc.PoseInFrameChannel(f"{self._prefix}/pose", context=context)
+        self._tf = fc.FrameTransformsChannel("/tf", context=context)
+        self._log = fc.LogChannel(f"{self._prefix}/log", context=context)
+        self._command_decoder = device._make_command_decoder()
+        self._listeners: list[Any] = []
+        self.messages = 0
+
+    # --- attaching ---------------------------------------------------------------------------
+
+    def attach(self) -> None:
+        """Start: see every byte of the device's links, every message of its named
+        streams and every change of its link state."""
+        device = self.device
+        for stream_name, stream in device._streams.named.items():
+            self._listeners.append(stream.listen(self._stream_logger(stream_name)))
+        self._listeners.append(device._link.states.listen(self._on_state))
+        device._link.tap = self
+        self.link_state(device.connection_state.value, time.monotonic())
+
+    def detach(self) -> None:
+        """Stop (the device goes on, unrecorded)."""
+        if self.device._link.tap is self:
+            self.device._link.tap = None
+        for listener in self._listeners:
+            listener.close()
+        self._listeners.clear()
+
+    # --- what is logged -----------------------------------------------------------------------
+
+    def rx(self, data: bytes, now: float) -> None:
+        """Bytes arrived (the device's :class:`Tap`)."""
+        self._bytes(self._rx, data, now)
+
+    def tx(self, data: bytes, now: float) -> None:
+        """A frame began to leave (the device's :class:`Tap`)."""
+        self._bytes(self._tx, data, now)
+        decoder = self._command_decoder
+        if decoder is not None:
+            for command in decoder.feed(data, now):
+                if self._commands is None:
+                    name = f"chassis_sdk.{self.device.kind}.Command"
+                    self._commands = self._json_channel("commands", {"type": "object"}, name)
+                payload = {"type": type(command).__name__, **_fields(command)}
+                self._json(self._commands, payload, now)
+
+    def link_state(self, state: str, now: float) -> None:
+        """The link went to ``state`` (also for a recorder that opens links itself)."""
+        self._json(self._link, {"state": state}, now)
+
+    def _on_state(self, state: Any) -> None:
+        self.link_state(str(state.value), time.monotonic())
+
+    def _bytes(self, channel: foxglove.Channel, data: bytes, now: float) -> None:
+        if channel.has_sinks():
+            self._emit(channel, {"data": base64.b64encode(data).decode("ascii")}, now)
+
+    def _stream_logger(self, stream: str) -> Callable[[Any], None]:
+        def log(msg: Any) -> None:
+            now = time.monotonic()
+            channel = self._channels.get(stream)
+            if channel is None:
+                channel = self._channels[stream] = self._json_channel(
+                    stream, _message_schema(msg), _schema_name(self.device.kind, msg)
+                )
+            self._json(channel, _fields(msg), now)
+            if stream == "odometry":
+                self._odometry(msg, now)
+            elif stream == "events":
+                self._event(msg, now)
+
+        return log
+
+    def _json(self, channel: foxglove.Channel, payload: dict[str, Any], now: float) -> None:
+        if channel.has_sinks():
+            self._emit(channel, payload, now)
+
+    def _emit(self, channel: foxglove.Channel, payload: dict[str, Any], now: float) -> None:
+        channel.log(
+            json.dumps(payload, default=_jsonify, allow_nan=True).encode(),
+            log_time=self._ns(now),
+        )
+        self._logged(now)
+
+    def _logged(self, now: float) -> None:
+        self.messages += 1
+        if self._after_log is not None:
+            self._after_log(now)
+
+    def _odometry(self, odom: Any, now: float) -> None:
+        fm = self._fm
+        stamp = self._stamp(getattr(odom, "timestamp", 0.0) or now)
+        half = odom.heading / 2.0
+        rotation = fm.Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+        position = fm.Vector3(x=odom.x, y=odom.y, z=0.0)
+        log_time = self._ns(now)
+        if self._pose.has_sinks():
+            pose = fm.Pose(position=position, orientation=rotation)
+            self._pose.log(
+                fm.PoseInFrame(timestamp=stamp, frame_id="odom", pose=pose), log_time=log_time
+            )
+            self._logged(now)
+        if self._tf.has_sinks():
+            transform = fm.FrameTransform(
+                timestamp=stamp,
+                parent_frame_id="odom",
+                child_frame_id="base_link",
+                translation=position,
+                rotation=rotation,
+            )
+            self._tf.log(fm.FrameTransforms(transforms=[transform]), log_time=log_time)
+            self._logged(now)
+
+    def _event(self, event: Any, now: float) -> None:
+        if not self._log.has_sinks():
+            return
+        fm = self._fm
+        kind = str(getattr(getattr(event, "kind", None), "value", ""))
+        level = fm.LogLevel.Warning if kind.endswith(_WARNINGS) else fm.LogLevel.Info
+        self._log.log(
+            fm.Log(
+                timestamp=self._stamp(getattr(event, "timestamp", 0.0) or now),
+                level=level,
+                message=str(event),
+                name=f"{self.device.kind} {self.device.port}",
+            ),
+            log_time=self._ns(now),
+        )
+        self._logged(now)
+
+    # --- helpers --------------------------------------------------------------------------------
+
+    def _json_channel(self, topic: str, schema: dict[str, Any], name: str) -> foxglove.Channel:
+        fg = self._fg
+        channel: foxglove.Channel = fg.Channel(
+            f"{self._prefix}/{topic}",
+            schema=fg.Schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode()),
+            message_encoding="json",
+            context=self._context,
+        )
+        return channel
+
+    def _ns(self, monotonic: float) -> int:
+        return int(monotonic * _NS) + self._epoch_offset
+
+    def _stamp(self, monotonic: float) -> Any:
+        ns = self._ns(monotonic)
+        return self._fm.Timestamp(sec=ns // _NS, nsec=ns % _NS)
+
+
+def _fields(msg: object) -> dict[str, Any]:
+    value = plain(msg)
+    return value if isinstance(value, dict) else {"value": value}
+
+
+def _jsonify(value: object) -> Any:
+    if isinstance(value, bytes | bytearray):
+        return base64.b64encode(value).decode("ascii")
+    return str(value)
+
+
+def _schema_name(device: str, msg: object) -> str:
+    return f"chassis_sdk.{device}.{type(msg).__qualname__}"
+
+
+# --- recordings ---------------------------------------------------------------------------
+
+
+class Recording(Protocol):
+    """A device's session being written to a file (see :func:`open_recording`)."""
+
+    path: Path
+
+    def rx(self, data: bytes, now: float) -> None:
+        """Bytes arrived at ``now`` (``time.monotonic()``)."""
+
+    def link_state(self, state: str, now: float) -> None:
+        """The link went to ``state``."""
+
+    def close(self) -> None:
+        """Finish the file (safe to call twice)."""
+
+
+class McapRecording:
+    """A session written to an MCAP file by a :class:`FoxgloveSink`; see the module
+    docstring for what it holds and what a hard kill can lose."""
+
+    def __init__(
+        self,
+        path: Path,
+        device: Device[Any, Any],
+        *,
+        flush_interval: float = FLUSH_INTERVAL,
+        metadata: dict[str, str] | None = None,
+    ) -> None:
+        try:
+            import foxglove
+            from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+        except ImportError:
+            raise _needs_foxglove("recording to MCAP") from None
+        self.path = path
+        self._flush_interval = flush_interval
+        self._last_flush = time.monotonic()
+        context = foxglove.Context()
+        options = MCAPWriteOptions(compression=MCAPCompression.Zstd, profile="")
+        self._writer = foxglove.open_mcap(
+            path, allow_overwrite=True, context=context, writer_options=options
+        )
+        info = session_metadata(device)
+        info.update(metadata or {})
+        self._writer.write_metadata("chassis_sdk", info)
+        self.sink = FoxgloveSink(context, device, after_log=self._maybe_flush)
+        self.sink.attach()
+        self._closed = False
+
+    def _maybe_flush(self, now: float) -> None:
+        if now - self._last_flush >= self._flush_interval:
+            self._last_flush = now
+            self._writer.flush()
+
+    def rx(self, data: bytes, now: float) -> None:
+        self.sink.rx(data, now)
+
+    def link_state(self, state: str, now: float) -> None:
+        self.sink.link_state(state, now)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.sink.detach()
+            self._writer.close()
+
+
+class JsonlRecording:
+    """A session written as a JSON-lines capture (see :mod:`chassis_sdk.capture`):
+    the bytes received (``{"t", "data"}``), the frames written (``{"t", "tx"}``) and
+    the link's drops (``{"t", "event"}``), ``t`` in seconds since the start.
+
+    Args:
+        path: The file (overwritten).
+        port, baudrate: For the header.
+        device: The device whose links to tap (``None``: the caller feeds :meth:`rx`).
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        port: str,
+        baudrate: int,
+        device: Device[Any, Any] | None = None,
+    ) -> None:
+        self.path = path
+        self._start = time.monotonic()
+        # Small buffered local writes; a thread per chunk would cost more.
+        self._file: IO[str] = path.open("w", encoding="utf-8")
+        self._line(
+            {
+                "capture": 1,
+                "port": port,
+                "baudrate": baudrate,
+                "started": datetime.datetime.now(datetime.UTC).isoformat(),
+            }
+        )
+        self._device = device
+        self._listener: Any = None
+        self._up = True
+        if device is not None:
+            device._link.tap = self
+            self._listener = device._link.states.listen(self._on_state)
+
+    def _line(self, item: dict[str, object]) -> None:
+        self._file.write(json.dumps(item) + "\n")
+
+    def _t(self, now: float) -> float:
+        return round(now - self._start, 6)
+
+    def rx(self, data: bytes, now: float) -> None:
+        self._line({"t": self._t(now), "data": data.hex()})
+
+    def tx(self, data: bytes, now: float) -> None:
+        self._line({"t": self._t(now), "tx": data.hex()})
+
+    def link_state(self, state: str, now: float) -> None:
+        up = state in ("connected", "stale")
+        if up != self._up:  # only drops and comebacks are lines of a capture
+            self._up = up
+            self._line({"t": self._t(now), "event": "reconnected" if up else "disconnected"})
+
+    def _on_state(self, state: Any) -> None:
+        if state.value != "disconnected":  # close() is not a drop
+            self.link_state(str(state.value), time.monotonic())
+
+    def close(self) -> None:
+        if self._file.closed:
+            return
+        if self._device is not None and self._device._link.tap is self:
+            self._device._link.tap = None
+        if self._listener is not None:
+            self._listener.close()
+        self._file.close()
+
+
+def open_recording(
+    path: str | os.PathLike[str], device: Device[Any, Any], **mcap_options: Any
+) -> Recording:
+    """Start recording ``device``'s session to ``path``: an MCAP file for ``.mcap``
+    (needs the ``foxglove`` extra), a JSON-lines capture for any other name.
+
+    Raises:
+        ImportError: ``.mcap`` without foxglove-sdk installed.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".mcap":
+        return McapRecording(path, device, **mcap_options)
+    return JsonlRecording(path, device.port, device.baudrate, device)

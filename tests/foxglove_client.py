@@ -1,0 +1,133 @@
+"""A small client of the Foxglove WebSocket protocol, written from its specification
+(github.com/foxglove/ws-protocol, docs/spec.md) on the ``websockets`` package: an
+independent check of what ``chassis-sdk serve`` puts on the wire.
+
+It offers both subprotocol names: ``foxglove.sdk.v1`` (what foxglove-sdk servers
+accept) and ``foxglove.websocket.v1`` (the protocol's original name; same messages).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+from collections import defaultdict
+from typing import Any
+
+import websockets
+
+SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+
+# Binary opcodes.
+_MESSAGE_DATA = 0x01  # server -> client: subscription id, receive time, payload
+_CLIENT_MESSAGE = 0x01  # client -> server: client channel id, payload
+_SERVICE_CALL = 0x02  # client -> server
+_SERVICE_RESPONSE = 0x03  # server -> client
+
+
+class FoxgloveClient:
+    """Connects, records what the server advertises, subscribes, calls services and
+    publishes on channels of its own."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.server_info: dict[str, Any] = {}
+        self.channels: dict[str, dict[str, Any]] = {}  # by topic
+        self.services: dict[str, dict[str, Any]] = {}  # by name
+        self.statuses: list[dict[str, Any]] = []
+        self.received: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
+        self._subs: dict[int, str] = {}
+        self._next_sub = 1
+        self._next_call = 1
+        self._calls: dict[int, asyncio.Future[bytes]] = {}
+        self._arrived = asyncio.Event()
+        self._ws: Any = None
+        self._reader: asyncio.Task[None] | None = None
+
+    async def __aenter__(self) -> FoxgloveClient:
+        self._ws = await websockets.connect(self.url, subprotocols=SUBPROTOCOLS)
+        self._reader = asyncio.create_task(self._read())
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self._ws.close()
+        if self._reader is not None:
+            self._reader.cancel()
+
+    @property
+    def subprotocol(self) -> str:
+        return str(self._ws.subprotocol)
+
+    async def _read(self) -> None:
+        async for frame in self._ws:
+            if isinstance(frame, str):
+                self._on_text(json.loads(frame))
+            elif frame[0] == _MESSAGE_DATA:
+                sub, ts = struct.unpack_from("<IQ", frame, 1)
+                self.received[self._subs[sub]].append((ts, bytes(frame[13:])))
+            elif frame[0] == _SERVICE_RESPONSE:
+                _, call, n = struct.unpack_from("<III", frame, 1)
+                future = self._calls.pop(call)
+                if not future.done():
+                    future.set_result(bytes(frame[13 + n :]))
+            self._arrived.set()
+
+    def _on_text(self, msg: dict[str, Any]) -> None:
+        op = msg["op"]
+        if op == "serverInfo":
+            self.server_info = msg
+        elif op == "advertise":
+            for channel in msg["channels"]:
+                self.channels[channel["topic"]] = channel
+        elif op == "advertiseServices":
+            for service in msg["services"]:
+                self.services[service["name"]] = service
+        elif op == "status":
+            self.statuses.append(msg)
+        elif op == "serviceCallFailure":
+            future = self._calls.pop(msg["callId"])
+            if not future.done():
+                future.set_exception(RuntimeError(msg["message"]))
+
+    async def wait_for(self, predicate: Any, timeout: float = 5.0) -> None:
+        """Wait until ``predicate()`` holds (checked whenever something arrives)."""
+
+        async def loop() -> None:
+            while not predicate():
+                self._arrived.clear()
+                await self._arrived.wait()
+
+        await asyncio.wait_for(loop(), timeout)
+
+    async def subscribe(self, *topics: str) -> None:
+        subs = []
+        for topic in topics:
+            sub = self._next_sub
+            self._next_sub += 1
+            self._subs[sub] = topic
+            subs.append({"id": sub, "channelId": self.channels[topic]["id"]})
+        await self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+    async def call(self, service: str, request: bytes = b"{}", timeout: float = 5.0) -> Any:
+        spec = self.services[service]
+        call = self._next_call
+        self._next_call += 1
+        future: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
+        self._calls[call] = future
+        encoding = b"json"
+        header = struct.pack("<BIII", _SERVICE_CALL, spec["id"], call, len(encoding))
+        await self._ws.send(header + encoding + request)
+        return json.loads(await asyncio.wait_for(future, timeout))
+
+    async def advertise(self, channel_id: int, topic: str, schema_name: str) -> None:
+        channel = {"id": channel_id, "topic": topic, "encoding": "json", "schemaName": schema_name}
+        await self._ws.send(json.dumps({"op": "advertise", "channels": [channel]}))
+
+    async def unadvertise(self, channel_id: int) -> None:
+        await self._ws.send(json.dumps({"op": "unadvertise", "channelIds": [channel_id]}))
+
+    async def publish(self, channel_id: int, payload: bytes) -> None:
+        await self._ws.send(struct.pack("<BI", _CLIENT_MESSAGE, channel_id) + payload)
+
+    def messages(self, topic: str) -> list[Any]:
+        return [json.loads(data) for _, data in self.received[topic]]
