@@ -15,8 +15,9 @@ from collections import defaultdict
 from typing import Any
 
 import websockets
+from websockets.typing import Subprotocol
 
-SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+SUBPROTOCOLS = [Subprotocol("foxglove.websocket.v1"), Subprotocol("foxglove.sdk.v1")]
 
 # Binary opcodes.
 _MESSAGE_DATA = 0x01  # server -> client: subscription id, receive time, payload

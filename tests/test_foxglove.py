@@ -112,7 +112,8 @@ async def test_an_application_recording_holds_both_directions_streams_and_metada
     assert channels["/chassis/commands"][3] == len(written)
     assert channels["/chassis/raw/tx"][3] == len(written)
     drives = [c for c in sent if isinstance(c, DriveVelocity)]
-    assert drives[0] == DriveVelocity(300, pytest.approx(0.2))
+    assert drives[0].linear_mm == 300
+    assert drives[0].angular == pytest.approx(0.2)
     assert drives[-1] == DriveVelocity(0, 0.0)
     commands = [json.loads(d) for _, d in messages(path, "/chassis/commands")]
     assert commands[-1] == {"type": "DriveVelocity", "linear_mm": 0, "angular": 0.0}

@@ -30,11 +30,13 @@ an exception, Ctrl-C and SIGTERM (via :func:`chassis_sdk.run`) close it properly
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import dataclasses
 import datetime
 import enum
 import json
+import logging
 import math
 import os
 import platform
@@ -63,6 +65,7 @@ __all__ = [
     "session_metadata",
 ]
 
+_log = logging.getLogger("chassis_sdk.recording")
 #: How often (seconds) an MCAP recording finishes its chunk and flushes it to disk.
 FLUSH_INTERVAL = 1.0
 _NS = 1_000_000_000
@@ -210,6 +213,10 @@ class FoxgloveSink:
         self._command_decoder = device._make_command_decoder()
         self._listeners: list[Any] = []
         self.messages = 0
+        # Work is queued and done in one batch after the loop's current callbacks, so
+        # the application's task woken by a frame runs before the frame is recorded.
+        self._pending: list[tuple[Callable[..., None], tuple[Any, ...]]] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     # --- attaching ---------------------------------------------------------------------------
 
@@ -217,6 +224,10 @@ class FoxgloveSink:
         """Start: see every byte of the device's links, every message of its named
         streams and every change of its link state."""
         device = self.device
+        try:
+            self._loop = asyncio.get_running_loop()
+        except RuntimeError:  # converting a file: no loop, nothing to wait for
+            self._loop = None
         for stream_name, stream in device._streams.named.items():
             self._listeners.append(stream.listen(self._stream_logger(stream_name)))
         self._listeners.append(device._link.states.listen(self._on_state))
@@ -224,7 +235,8 @@ class FoxgloveSink:
         self.link_state(device.connection_state.value, time.monotonic())
 
     def detach(self) -> None:
-        """Stop (the device goes on, unrecorded)."""
+        """Stop (the device goes on, unrecorded); what is queued is logged first."""
+        self._drain()
         if self.device._link.tap is self:
             self.device._link.tap = None
         for listener in self._listeners:
@@ -235,10 +247,35 @@ class FoxgloveSink:
 
     def rx(self, data: bytes, now: float) -> None:
         """Bytes arrived (the device's :class:`Tap`)."""
-        self._bytes(self._rx, data, now)
+        self._later(self._bytes, self._rx, data, now)
 
     def tx(self, data: bytes, now: float) -> None:
         """A frame began to leave (the device's :class:`Tap`)."""
+        self._later(self._sent, data, now)
+
+    def link_state(self, state: str, now: float) -> None:
+        """The link went to ``state`` (also for a recorder that opens links itself)."""
+        self._later(self._json, self._link, {"state": state}, now)
+
+    def _later(self, work: Callable[..., None], *args: Any) -> None:
+        pending = self._pending
+        pending.append((work, args))
+        if self._loop is None:
+            self._drain()
+        elif len(pending) == 1:
+            # Two hops: the tasks this frame wakes are queued behind the first, so
+            # they run before the drain.
+            self._loop.call_soon(self._loop.call_soon, self._drain)
+
+    def _drain(self) -> None:
+        batch, self._pending = self._pending, []
+        for work, args in batch:
+            try:
+                work(*args)
+            except Exception:  # a recording must never take the device down
+                _log.exception("recording %s: cannot log a message", self.device.port)
+
+    def _sent(self, data: bytes, now: float) -> None:
         self._bytes(self._tx, data, now)
         decoder = self._command_decoder
         if decoder is not None:
@@ -249,10 +286,6 @@ class FoxgloveSink:
                 payload = {"type": type(command).__name__, **_fields(command)}
                 self._json(self._commands, payload, now)
 
-    def link_state(self, state: str, now: float) -> None:
-        """The link went to ``state`` (also for a recorder that opens links itself)."""
-        self._json(self._link, {"state": state}, now)
-
     def _on_state(self, state: Any) -> None:
         self.link_state(str(state.value), time.monotonic())
 
@@ -261,8 +294,10 @@ class FoxgloveSink:
             self._emit(channel, {"data": base64.b64encode(data).decode("ascii")}, now)
 
     def _stream_logger(self, stream: str) -> Callable[[Any], None]:
-        def log(msg: Any) -> None:
-            now = time.monotonic()
+        def listener(msg: Any) -> None:
+            self._later(log, msg, time.monotonic())
+
+        def log(msg: Any, now: float) -> None:
             channel = self._channels.get(stream)
             if channel is None:
                 channel = self._channels[stream] = self._json_channel(
@@ -274,7 +309,7 @@ class FoxgloveSink:
             elif stream == "events":
                 self._event(msg, now)
 
-        return log
+        return listener
 
     def _json(self, channel: foxglove.Channel, payload: dict[str, Any], now: float) -> None:
         if channel.has_sinks():

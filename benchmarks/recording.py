@@ -1,0 +1,238 @@
+"""What recording costs: the recorder's CPU at 50 Hz, the size of an hour, and reading
+an hour back (about 1.5 minutes; --quick: about 30 s, a tenth of an hour).
+
+    pip install ".[bench,fast]"
+    python benchmarks/recording.py [--quick]
+
+1. **CPU at 50 Hz**, one chassis streaming into an ``async for`` (the simulator in
+   another process, as in load.py), each in a fresh process: the raw ``os.read``
+   floor, ``Chassis``, ``Chassis(record="run.jsonl")``, ``Chassis(record="run.mcap")``.
+2. **An hour**: 180,000 telemetry frames from the chassis firmware model while the host
+   drives a slow circle (its velocity every 50 ms: 72,000 frames the other way), through
+   a ``Chassis`` that is never connected, recording to MCAP and to JSON lines at
+   simulated times, as fast as it goes: the file per hour, and the recorder's CPU per
+   frame.
+3. **Reading that hour back**: ``decode_capture`` (every telemetry frame), ``chassis-sdk
+   replay`` into /dev/null, ``chassis-sdk export --csv``; beside them the floor, the
+   ``mcap`` reader alone over the file (no decoding) and reading the JSON lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from load import measure_floor, rss_bytes, start_simulators
+
+WINDOW = 10.0
+HOUR = 3600.0
+
+
+async def measure_cpu(record: str | None) -> dict[str, object]:
+    """One chassis at 50 Hz, recorded to ``record`` (a suffix) or not."""
+    from chassis_sdk import Chassis
+
+    proc, ports = await start_simulators(1)
+    assert proc.stdin is not None
+    frames = 0
+    lags: list[float] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"run{record}" if record else None
+        base = rss_bytes()
+
+        async def consume(robot: Chassis) -> None:
+            nonlocal frames
+            async for t in robot.telemetry():
+                frames += 1
+                lags.append(time.monotonic() - t.timestamp)  # read -> the application
+
+        try:
+            async with Chassis(ports[0], record=path) as robot:
+                task = asyncio.ensure_future(consume(robot))
+                await asyncio.sleep(1.0)
+                f0, c0, t0 = frames, time.process_time(), time.monotonic()
+                lags.clear()
+                size0 = path.stat().st_size if path else 0
+                await asyncio.sleep(WINDOW)
+                f1, c1, t1 = frames, time.process_time(), time.monotonic()
+                size1 = path.stat().st_size if path else 0
+                rss = rss_bytes()
+                task.cancel()
+        finally:
+            proc.stdin.close()
+            await proc.wait()
+    return {
+        "record": record or "-",
+        "cpu_percent": (c1 - c0) / (t1 - t0) * 100,
+        "frames_per_s": (f1 - f0) / (t1 - t0),
+        "file_bytes_per_s": (size1 - size0) / (t1 - t0),
+        "rss_growth_mb": (rss - base) / 1e6,
+        "lag_p50_us": statistics.median(lags) * 1e6,
+        "lag_p99_us": statistics.quantiles(lags, n=100)[98] * 1e6,
+    }
+
+
+def simulate(seconds: float) -> list[tuple[float, bool, bytes]]:
+    """``seconds`` of a chassis driving a slow circle: ``(time, sent by the host,
+    bytes)``, telemetry from the firmware model at 50 Hz and the host's velocity
+    every 50 ms, at simulated times from now on."""
+    from chassis_sdk.devices.chassis.firmware import ChassisFirmware
+    from chassis_sdk.devices.chassis.protocol import ChassisEncoder
+
+    firmware = ChassisFirmware()
+    encoder = ChassisEncoder()
+    t0 = time.monotonic()
+    firmware.on_connect(t0)
+    session = []
+    step = 0.01
+    for i in range(int(seconds / step) + 1):
+        now = t0 + i * step
+        if i % 5 == 0:
+            frame = encoder.drive_velocity(0.3, 0.2)
+            firmware.receive(frame, now)
+            session.append((now, True, frame))
+        data = firmware.poll(now)
+        if data:
+            session.append((now, False, data))
+    return session
+
+
+def write_hour(path: Path | None, session: list[tuple[float, bool, bytes]]) -> dict[str, float]:
+    """The session through a ``Chassis`` that is never connected, as fast as it goes,
+    recorded to ``path`` (or not: the cost of decoding and handling alone)."""
+    from chassis_sdk import Chassis
+    from chassis_sdk.core.recording import open_recording
+
+    device: Any = Chassis("/dev/bench")
+    recording = open_recording(path, device) if path is not None else None
+    tap = device._link.tap
+    c0 = time.process_time()
+    try:
+        for now, sent, data in session:
+            if not sent:
+                device._ingest(data, now)
+            elif tap is not None:
+                tap.tx(data, now)
+    finally:
+        if recording is not None:
+            recording.close()
+    return {
+        "cpu_s": time.process_time() - c0,
+        "bytes": path.stat().st_size if path is not None else 0,
+        "frames": len(session),
+        "rx_chunks": sum(not sent for _, sent, _ in session),
+    }
+
+
+def timed(command: list[str]) -> float:
+    start = time.monotonic()
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    return time.monotonic() - start
+
+
+def read_floor(path: Path) -> float:
+    """Reading the file with no decoding: the mcap reader's records, or the lines."""
+    start = time.monotonic()
+    if path.suffix == ".mcap":
+        from mcap.stream_reader import StreamReader
+
+        with path.open("rb") as f:
+            for _ in StreamReader(f).records:
+                pass
+    else:
+        with path.open() as f:
+            for line in f:
+                json.loads(line)
+    return time.monotonic() - start
+
+
+def decode_all(path: Path) -> tuple[float, int]:
+    from chassis_sdk import Telemetry, capture
+
+    start = time.monotonic()
+    n = sum(isinstance(m, Telemetry) for _, m in capture.decode_capture(path, "chassis"))
+    return time.monotonic() - start, n
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="3 s windows, a tenth of an hour")
+    parser.add_argument("--cpu", metavar="SUFFIX", help="(internal) one CPU measurement")
+    args = parser.parse_args()
+    global WINDOW
+    if args.quick:
+        WINDOW = 3.0
+    if args.cpu is not None:
+        job = measure_floor(1) if args.cpu == "floor" else measure_cpu(args.cpu or None)
+        print(json.dumps(asyncio.run(job)))
+        return
+    quick = ["--quick"] if args.quick else []
+    print("recording one chassis at 50 Hz into an async for (a fresh process each)")
+    print(f"{'recording':<24}{'CPU %':>7}{'x floor':>9}{'frames/s':>10}{'file KB/s':>11}"
+          f"{'lag p50 us':>12}{'p99 us':>8}")  # fmt: skip
+    floor = None
+    for suffix in ("floor", "", ".jsonl", ".mcap"):
+        out = subprocess.run(
+            [sys.executable, __file__, "--cpu", suffix, *quick],
+            check=True, capture_output=True, text=True,
+        )  # fmt: skip
+        r = json.loads(out.stdout)
+        cpu = float(r["cpu_percent"])
+        floor = cpu if suffix == "floor" else floor
+        name = {"floor": "floor: raw os.read", "": "Chassis, no recording"}.get(
+            suffix, f"Chassis(record=*{suffix})"
+        )
+        rest = ""
+        if "frames_per_s" in r:
+            rest = (f"{r['frames_per_s']:>10.1f}{r['file_bytes_per_s'] / 1e3:>11.2f}"
+                    f"{r['lag_p50_us']:>12.0f}{r['lag_p99_us']:>8.0f}")  # fmt: skip
+        print(f"{name:<24}{cpu:>7.2f}{cpu / floor if floor else 1.0:>8.2f}x{rest}")
+    print(f"({WINDOW:.0f} s window; 100 % = one core; lag: frame read -> the application's "
+          "async for)")  # fmt: skip
+
+    seconds = HOUR / 10 if args.quick else HOUR
+    scale = HOUR / seconds
+    print()
+    what = "an hour" if scale == 1 else f"{seconds / 60:.0f} minutes, scaled to an hour"
+    print(f"{what} of a chassis driving (50 Hz telemetry, velocity every 50 ms)")
+    print(f"{'file':<8}{'MB/hour':>9}{'write s':>9}{'us/frame':>10}"
+          f"{'decode s':>10}{'replay s':>10}{'export s':>10}{'floor s':>9}")  # fmt: skip
+    session = simulate(seconds)
+    bare = write_hour(None, session)
+    with tempfile.TemporaryDirectory() as tmp:
+        for suffix in (".mcap", ".jsonl"):
+            path = Path(tmp) / f"hour{suffix}"
+            w = write_hour(path, session)
+            decode, n = decode_all(path)
+            cli = [sys.executable, "-m", "chassis_sdk.cli"]
+            replay = timed([*cli, "replay", str(path), "--protocol", "chassis"])
+            export = timed([*cli, "export", str(path), "--csv", str(Path(tmp) / "csv")])
+            floor_s = read_floor(path)
+            per_frame = (w["cpu_s"] - bare["cpu_s"]) / w["frames"] * 1e6
+            print(f"{suffix[1:]:<8}{w['bytes'] * scale / 1e6:>9.1f}{w['cpu_s'] * scale:>9.1f}"
+                  f"{per_frame:>10.1f}{decode * scale:>10.1f}{replay * scale:>10.1f}"
+                  f"{export * scale:>10.1f}{floor_s * scale:>9.1f}")  # fmt: skip
+            assert n == w["rx_chunks"], (n, w)
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(path)
+    print(f"{'none':<8}{'':>9}{bare['cpu_s'] * scale:>9.1f}   (decoding, odometry, events alone)")
+    print(
+        "(write: CPU to decode and record the hour as fast as it goes; us/frame: the "
+        "recorder's own, per frame either way; "
+        "decode: decode_capture of every frame; replay: `chassis-sdk replay` into /dev/null; "
+        "export: `export --csv`; floor: the file read with no decoding)"
+    )
+
+
+if __name__ == "__main__":
+    main()
