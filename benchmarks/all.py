@@ -1,4 +1,4 @@
-"""Run every benchmark and print its table (about 2.5 minutes; --quick: about 40 s).
+"""Run every benchmark and print its table (about 4 minutes; --quick: about 70 s).
 
     pip install ".[bench,fast]"
     python benchmarks/all.py [--quick]
@@ -19,7 +19,14 @@ from importlib import metadata
 from pathlib import Path
 
 HERE = Path(__file__).parent
-SCRIPTS = ["decoder_throughput.py", "latency.py", "load.py", "phantoms.py", "mqtt_fleet.py"]
+SCRIPTS = [
+    "decoder_throughput.py",
+    "latency.py",
+    "load.py",
+    "phantoms.py",
+    "mqtt_fleet.py",
+    "recording.py",
+]
 
 
 PACKAGES = [
@@ -29,6 +36,8 @@ PACKAGES = [
     "pyserial-asyncio-fast",
     "pymavlink",
     "aiomqtt",
+    "foxglove-sdk",
+    "mcap",
 ]
 
 
