@@ -260,3 +260,22 @@ def test_named_flags_and_enums_print_names_and_stay_numbers() -> None:
     assert str(ChassisStatus(1 << 14)) == "BIT_14"  # undocumented bits are named too
     assert (str(DockingState.DOCKED), f"{DockingState.DOCKED:d}") == ("DOCKED", "4")
     assert repr(DockingState.DOCKED) == "<DockingState.DOCKED: 4>"
+
+
+def test_a_listener_sees_every_item_at_once_and_outlives_a_failed_stream() -> None:
+    from chassis_sdk.core.dispatch import Broadcast
+
+    stream: Broadcast[int] = Broadcast(2)
+    seen: list[int] = []
+    listener = stream.listen(seen.append)
+    for i in range(5):  # more than any subscriber's buffer: a listener keeps nothing
+        stream.publish(i)
+    assert seen == [0, 1, 2, 3, 4]  # synchronously, in order, none dropped
+    stream.fail(None)  # the link was lost: iterations end, a listener stays
+    stream.reopen()
+    stream.publish(5)
+    assert seen[-1] == 5
+    listener.close()
+    stream.publish(6)
+    assert seen[-1] == 5
+    assert stream.dropped == 0

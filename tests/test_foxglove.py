@@ -449,3 +449,59 @@ async def test_cli_serve_says_when_the_port_is_taken() -> None:
         taken.close()
     assert code == 1
     assert err.strip().startswith("chassis-sdk: cannot serve on 127.0.0.1:"), err
+
+
+async def test_a_recording_goes_on_through_an_unplug(tmp_path: Path) -> None:
+    from chassis_sdk import ConnectionState
+
+    path = tmp_path / "unplug.mcap"
+    async with ChassisSimulator() as sim, Chassis(sim.port, reconnect=True, record=path) as robot:
+        before = await telemetry_frames(robot, 5)
+        states = robot.connection_states()
+        sim.unplug()
+        async for state in states:
+            if state is ConnectionState.RECONNECTING:
+                break
+        await sim.replug()
+        await robot.wait_connected(timeout=5)
+        after = await telemetry_frames(robot, 5)
+    link = [json.loads(d)["state"] for _, d in messages(path, "/chassis/link")]
+    assert link.index("reconnecting") < len(link) - 1 - link[::-1].index("connected")
+    seqs = [json.loads(d)["seq"] for _, d in messages(path, "/chassis/telemetry")]
+    assert before[0].seq in seqs
+    assert after[-1].seq in seqs
+
+
+async def test_a_recording_holds_the_loss_of_a_link_that_does_not_come_back(
+    tmp_path: Path,
+) -> None:
+    from chassis_sdk import ConnectionLostError
+
+    path = tmp_path / "lost.mcap"
+    async with ChassisSimulator() as sim:
+        robot = Chassis(sim.port, record=path)
+        async with robot:
+            await telemetry_frames(robot, 3)
+            sim.unplug()
+            with pytest.raises(ConnectionLostError):
+                async for _ in robot.telemetry():
+                    pass
+    link = [json.loads(d)["state"] for _, d in messages(path, "/chassis/link")]
+    assert link[-2:] == ["lost", "disconnected"]
+    events = [json.loads(d)["kind"] for _, d in messages(path, "/chassis/events")]
+    assert "LINK_LOST" in events
+
+
+async def test_the_application_runs_before_the_recorder_logs_its_frame(tmp_path: Path) -> None:
+    """The control path never waits for the recorder: when the application's task
+    wakes for a frame, that frame's recording work is still queued."""
+    async with ChassisSimulator() as sim, Chassis(sim.port, record=tmp_path / "o.mcap") as robot:
+        sink = robot._recording.sink  # type: ignore[union-attr]
+        queued = []
+        n = 0
+        async for t in robot.telemetry():
+            queued.append(any(args and args[0] is t for _, args in sink._pending))
+            n += 1
+            if n == 20:
+                break
+    assert all(queued), queued
