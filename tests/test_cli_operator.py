@@ -386,10 +386,11 @@ async def test_sim_removes_its_port_link_on_sigterm() -> None:
     assert not os.path.lexists(port)
 
 
-async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path) -> None:
+@pytest.mark.parametrize("suffix", [".jsonl", ".mcap"])
+async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path, suffix: str) -> None:
     from chassis_sdk import Chassis, ConnectionLostError, Telemetry, capture
 
-    path = tmp_path / "cap.jsonl"
+    path = tmp_path / f"cap{suffix}"
     async with ChassisSimulator() as sim:
         await capture.record(sim.port, path, seconds=1.0)
     recorded = [
