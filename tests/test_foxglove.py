@@ -5,7 +5,6 @@ independent WebSocket client (tests/foxglove_client.py)."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import csv
 import itertools
 import json
