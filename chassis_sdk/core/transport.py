@@ -48,6 +48,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import functools
 import importlib
 import logging
 import math
@@ -478,11 +479,62 @@ def _open_serial(url: str, baudrate: int) -> serial.Serial:
         url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, exclusive=True
     )
     fd = ser.fd
+    os.set_blocking(fd, False)
     # One non-blocking os.write: EAGAIN surfaces as BlockingIOError, which both
     # transports handle by waiting; pyserial's own loop would spin on it.
     ser.write = lambda data: os.write(fd, bytes(data))
     ser.flush = lambda: None  # a blocking tcdrain; the link drains with a bound itself
+    ser.read = _fd_reader(fd)
+    # pyserial's two "abort" pipes (4 descriptors) serve only its blocking read and
+    # write, which are replaced above: close them, and close the port without them.
+    for name in (
+        "pipe_abort_read_r",
+        "pipe_abort_read_w",
+        "pipe_abort_write_r",
+        "pipe_abort_write_w",
+    ):
+        pipe_fd = getattr(ser, name, None)
+        if pipe_fd is not None:
+            os.close(pipe_fd)
+            setattr(ser, name, None)
+    ser.close = functools.partial(_close_serial, ser)
     return ser
+
+
+def _fd_reader(fd: int) -> Callable[[int], bytes]:
+    """The transports' read: one ``os.read`` of what is there.
+
+    pyserial's ``Serial.read`` first calls ``select()``, which fails for every
+    descriptor numbered 1024 or above (a process with some 200 ports open), and builds
+    a ``Timeout`` object per wake-up. Whatever fails here is a ``SerialException``, which
+    both transports turn into a lost link, once; anything else would escape their read
+    callback and be logged on every wake-up, forever.
+    """
+
+    def read(size: int = 1) -> bytes:
+        try:
+            data = os.read(fd, size)
+        except (BlockingIOError, InterruptedError):
+            return b""  # a spurious wake-up
+        except Exception as exc:
+            raise serial.SerialException(f"read failed: {exc}") from exc
+        if not data:  # readable but empty: the device is gone (as pyserial says it)
+            raise serial.SerialException(
+                "device reports readiness to read but returned no data "
+                "(device disconnected or multiple access on port?)"
+            )
+        return data
+
+    return read
+
+
+def _close_serial(ser: serial.Serial) -> None:
+    """pyserial's ``close`` without the abort pipes :func:`_open_serial` closed."""
+    if ser.is_open:
+        if ser.fd is not None:
+            os.close(ser.fd)
+            ser.fd = None
+        ser.is_open = False
 
 
 async def _open_serial_in_thread(url: str, baudrate: int) -> serial.Serial:

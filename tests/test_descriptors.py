@@ -1,0 +1,110 @@
+"""Descriptors: how many a chassis holds, and ports numbered past select()'s 1024.
+
+pyserial's ``Serial.read`` calls ``select()``, which fails for any descriptor at or
+above 1024; with pyserial's abort pipes each port held five or six descriptors, so a
+process stopped hearing its robots at about 200 of them, and every failing read
+callback logged a traceback, forever.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import resource
+from collections.abc import Iterator
+
+import pytest
+
+from chassis_sdk import Chassis
+from chassis_sdk.sim import ChassisSimulator
+
+
+def open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+async def test_a_chassis_holds_two_descriptors() -> None:
+    async with ChassisSimulator() as sim:
+        before = open_fds()
+        async with Chassis(sim.port) as robot:
+            async for _ in robot.telemetry():
+                break
+            held = open_fds() - before
+        assert open_fds() == before
+    # The port, and the link's own duplicate for writing; no pyserial abort pipes.
+    assert held <= 2, held
+
+
+@contextlib.contextmanager
+def descriptors_past(number: int) -> Iterator[None]:
+    """Fill the descriptor table so that the next ones opened are past ``number``."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    want = number + 256
+    if hard != resource.RLIM_INFINITY and hard < want:
+        pytest.skip(f"the hard descriptor limit ({hard}) is below {want}")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, want), hard))
+    fillers = []
+    try:
+        null = os.open(os.devnull, os.O_RDONLY)
+        fillers.append(null)
+        while fillers[-1] < number:
+            fillers.append(os.dup(null))
+        yield
+    finally:
+        for fd in fillers:
+            os.close(fd)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
+async def test_a_port_past_descriptor_1024_is_read(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.ERROR)
+    with descriptors_past(1100):
+        async with ChassisSimulator() as sim, Chassis(sim.port, request_timeout=0.5) as robot:
+            serial = robot._link.writer.link.transport.get_extra_info("serial")  # type: ignore[union-attr]
+            assert serial.fd > 1024
+            frames = 0
+            async with asyncio.timeout(5):  # pyserial's read: never a frame, a traceback each
+                async for _ in robot.telemetry():
+                    frames += 1
+                    if frames == 10:
+                        break
+            assert await robot.get_firmware_version() > 0
+    assert not [r for r in caplog.records if "select" in r.getMessage()]
+
+
+async def test_a_failing_read_is_a_lost_link_once_not_a_traceback_per_wakeup(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    import types
+
+    from chassis_sdk import ConnectionState
+    from chassis_sdk.core import transport
+
+    failures = 0
+
+    def failing_read(fd: int, size: int) -> bytes:
+        nonlocal failures
+        failures += 1
+        raise ValueError("filedescriptor out of range in select()")
+
+    broken = types.ModuleType("os")
+    broken.__dict__.update(os.__dict__)
+    broken.read = failing_read  # type: ignore[attr-defined]
+    caplog.set_level(logging.ERROR)
+    async with ChassisSimulator() as sim, Chassis(sim.port, reconnect=True) as robot:
+        async for _ in robot.telemetry():
+            break
+        states = robot.connection_states()
+        monkeypatch.setattr(transport, "os", broken)
+        async with asyncio.timeout(5):
+            async for state in states:
+                if state is ConnectionState.RECONNECTING:
+                    break
+        monkeypatch.undo()
+        await robot.wait_connected(timeout=5)
+        async for _ in robot.telemetry():  # heard again after the reopen
+            break
+    assert failures == 1
+    assert not [r for r in caplog.records if r.name == "asyncio"]
