@@ -478,7 +478,8 @@ class JsonlRecording:
 
     Args:
         path: The file (overwritten).
-        port, baudrate: For the header.
+        port: For the header.
+        baudrate: For the header.
         device: The device whose links to tap (``None``: the caller feeds :meth:`rx`).
     """
 
