@@ -30,7 +30,7 @@ import tty
 from pathlib import Path
 
 FIRMWARE = Path(__file__).with_name("_firmware.py")
-BACKENDS = ["pyserial-asyncio", "pyserial-asyncio-fast"]
+BACKENDS = ["pyserial-asyncio", "pyserial-asyncio-fast", "serialx"]
 N_FRAMES = 2000
 N_REQUESTS = 2000
 RESEND = 0.02

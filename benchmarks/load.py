@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 SIMULATORS = Path(__file__).with_name("_simulators.py")
-BACKENDS = ["pyserial-asyncio", "pyserial-asyncio-fast"]
+BACKENDS = ["pyserial-asyncio", "pyserial-asyncio-fast", "serialx"]
 COUNTS = [1, 8, 32]
 WINDOW = 10.0
 QUICK: list[str] = []

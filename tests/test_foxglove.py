@@ -128,7 +128,7 @@ async def test_an_application_recording_holds_both_directions_streams_and_metada
     assert info["port"] == port
     assert info["baudrate"] == "115200"
     assert info["sdk_version"]
-    assert info["transport"] in ("pyserial-asyncio", "pyserial-asyncio-fast")
+    assert info["transport"] in ("pyserial-asyncio", "pyserial-asyncio-fast", "serialx")
     # Receive times: the raw bytes are stamped when they arrived, 50 Hz apart.
     rx = messages(path, "/chassis/raw/rx")
     assert all(b >= a for (a, _), (b, _) in itertools.pairwise(rx))

@@ -163,3 +163,32 @@ async def test_board_odometry_with_imu_heading_matches_the_simulator() -> None:
         x, y, heading = (a - b for a, b in zip(sim.firmware.pose, start, strict=True))
         assert pose.distance_to(x, y) < 0.03
         assert pose.heading == pytest.approx(wrap_angle(heading), abs=math.radians(2))
+
+
+def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
+    """The pose is built per frame only for a listener; read later it is the same."""
+    from chassis_sdk import Chassis
+    from chassis_sdk.devices.chassis.firmware import ChassisFirmware
+    from chassis_sdk.devices.chassis.protocol import ChassisEncoder
+
+    firmware, encoder = ChassisFirmware(), ChassisEncoder()
+    firmware.on_connect(0.0)
+    firmware.receive(encoder.drive_velocity(0.4, 0.6), 0.0)
+    frames = [(i * 0.01, firmware.poll(i * 0.01)) for i in range(1, 200)]
+    listened, alone = Chassis("/dev/a"), Chassis("/dev/b")
+    poses: list[object] = []
+    keep = listened._odometry.listen(poses.append)
+    assert alone.latest_odometry is None
+    for i, (now, data) in enumerate(frames):
+        listened._ingest(data, now)
+        alone._ingest(data, now)
+        if i == 100:
+            assert alone.latest_odometry is not None
+            assert alone.latest_odometry == listened.latest_odometry  # read mid-way
+    assert alone._odometry.latest is None  # nothing was built since
+    assert alone.latest_odometry == listened.latest_odometry == poses[-1]
+    assert listened.latest_odometry is not None
+    assert listened.latest_odometry.x > 0.1
+    alone.reset_odometry()
+    assert alone.latest_odometry == poses[-1]  # the last pose before the reset
+    keep.close()

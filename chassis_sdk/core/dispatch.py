@@ -169,6 +169,11 @@ class Broadcast(Generic[T]):
     def __len__(self) -> int:
         return sum(1 for ref in self._refs if ref() is not None)
 
+    @property
+    def listened(self) -> bool:
+        """Whether anyone subscribes or listens (so a message is worth building)."""
+        return bool(self._refs)
+
     def subscribe(self) -> Subscription[T]:
         """Return a new subscription; it receives everything published from now on.
 

@@ -166,7 +166,12 @@ class Observation:
     def _integrate(
         self, linear: float, angular: float, timestamp: float, heading: float | None = None
     ) -> None:
-        self._odometry.publish(self._pose.update(linear, angular, timestamp, heading))
+        stream = self._odometry
+        if stream.listened:
+            stream.publish(self._pose.update(linear, angular, timestamp, heading))
+        else:  # nobody listens: the pose is built when asked (latest_odometry)
+            self._pose.advance(linear, angular, timestamp, heading)
+            stream.latest = None
 
     def odometry(self) -> Subscription[Odometry]:
         """Subscribe to the pose dead-reckoned from the device's reported velocities:
@@ -182,7 +187,10 @@ class Observation:
     @property
     def latest_odometry(self) -> Odometry | None:
         """The most recent :class:`~chassis_sdk.Odometry`, or ``None``."""
-        return self._odometry.latest
+        stream = self._odometry
+        if stream.latest is None:
+            stream.latest = self._pose.current()
+        return stream.latest
 
     def reset_odometry(self, x: float = 0.0, y: float = 0.0, heading: float = 0.0) -> None:
         """Set the current pose (default: the origin, heading 0) and integrate from it.
@@ -191,7 +199,9 @@ class Observation:
             ValueError: A value is not finite.
         """
         heading = check_real(heading, "heading")
-        self._pose.reset(check_real(x, "x"), check_real(y, "y"), heading)
+        x, y = check_real(x, "x"), check_real(y, "y")
+        _ = self.latest_odometry  # the last pose before the reset stays the latest
+        self._pose.reset(x, y, heading)
         self._on_odometry_reset(heading)
 
     # --- observability ------------------------------------------------------------------------

@@ -70,6 +70,7 @@ class OdometryIntegrator:
         self.y = 0.0
         self._heading = 0.0  # unwrapped, so many turns integrate without loss
         self._last: float | None = None
+        self._sample: tuple[float, float, float] | None = None
         #: Gaps longer than ``max_gap`` that were not integrated.
         self.skipped_gaps = 0
 
@@ -90,15 +91,31 @@ class OdometryIntegrator:
             heading: An absolute heading change to use instead of integrating
                 ``angular`` (for a gyro-integrated heading), or ``None``.
         """
+        self.advance(linear, angular, timestamp, heading)
+        return _build(self.x, self.y, wrap_angle(self._heading), linear, angular, timestamp)
+
+    def advance(
+        self, linear: float, angular: float, timestamp: float, heading: float | None = None
+    ) -> None:
+        """:meth:`update` without building the :class:`Odometry` (see :meth:`current`):
+        the device integrates every sample, and builds a pose only for someone."""
         last = self._last
         self._last = timestamp
+        self._sample = (linear, angular, timestamp)
         if last is not None:
             dt = timestamp - last
             if dt > self.max_gap:
                 self.skipped_gaps += 1
             elif dt > 0:
                 self._advance(linear, angular, dt, heading)
-        return _build(self.x, self.y, wrap_angle(self._heading), linear, angular, timestamp)
+
+    def current(self) -> Odometry | None:
+        """The pose now, with the last sample's velocity and time (``None`` before the
+        first sample)."""
+        sample = self._sample
+        if sample is None:
+            return None
+        return _build(self.x, self.y, wrap_angle(self._heading), *sample)
 
     def _advance(self, v: float, w: float, dt: float, heading: float | None) -> None:
         h0 = self._heading

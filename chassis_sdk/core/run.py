@@ -15,7 +15,7 @@ import asyncio
 import os
 import signal
 import sys
-from collections.abc import Coroutine
+from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
 from ..errors import ChassisError, RequestTimeoutError
@@ -24,6 +24,8 @@ __all__ = ["run"]
 
 T = TypeVar("T")
 
+#: ``CHASSIS_SDK_LOOP=asyncio`` keeps :func:`run` on asyncio's own loop.
+ENV_LOOP = "CHASSIS_SDK_LOOP"
 #: Signals that cancel the main task (SIGINT is asyncio.Runner's own).
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 #: A cancellation is repeated this often, this many times, while the task runs on.
@@ -32,7 +34,11 @@ RECANCELS = 10
 
 
 def run(
-    main: Coroutine[Any, Any, T], *, debug: bool | None = None, one_line_errors: bool = False
+    main: Coroutine[Any, Any, T],
+    *,
+    debug: bool | None = None,
+    one_line_errors: bool = False,
+    uvloop: bool | None = None,
 ) -> T:
     """Run ``main`` to completion in a new event loop, like :func:`asyncio.run`, with
     SIGTERM and SIGHUP cancelling it the way Ctrl-C does.
@@ -63,6 +69,10 @@ def run(
             lost...) ends the program with its message on one line of stderr, named
             after the script, and exit status 1 (2 for a timeout), instead of a
             traceback. The robot has been stopped by then, as on any exit.
+        uvloop: Run on `uvloop <https://github.com/MagicStack/uvloop>`_ (extra
+            ``uvloop``): ``None`` (default) when it is installed, unless the
+            environment says ``CHASSIS_SDK_LOOP=asyncio``; ``True`` requires it;
+            ``False`` never. It spends less CPU on every wake-up (see Figures).
 
     Returns:
         What ``main`` returned.
@@ -71,10 +81,15 @@ def run(
         SystemExit: ``main`` was cancelled by SIGTERM or SIGHUP, or (with
             ``one_line_errors``) failed with a ``ChassisError``.
     """
-    if not one_line_errors:
-        return _run(main, debug)
     try:
-        return _run(main, debug)
+        factory = loop_factory(uvloop)
+    except ImportError:
+        main.close()  # never to run: no "never awaited" warning
+        raise
+    if not one_line_errors:
+        return _run(main, debug, factory)
+    try:
+        return _run(main, debug, factory)
     except RequestTimeoutError as exc:
         print(f"{_program()}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -87,7 +102,31 @@ def _program() -> str:
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "python"
 
 
-def _run(main: Coroutine[Any, Any, T], debug: bool | None) -> T:
+def loop_factory(use_uvloop: bool | None = None) -> Callable[[], asyncio.AbstractEventLoop] | None:
+    """uvloop's loop factory if it is to be used (see :func:`run`), else ``None``.
+
+    Raises:
+        ImportError: ``use_uvloop=True`` without uvloop installed.
+    """
+    if use_uvloop is False:
+        return None
+    if use_uvloop is None and os.environ.get(ENV_LOOP, "").lower() == "asyncio":
+        return None
+    try:
+        import uvloop
+    except ImportError:
+        if use_uvloop:
+            raise ImportError("uvloop=True needs it: pip install 'chassis-sdk[uvloop]'") from None
+        return None
+    factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
+    return factory
+
+
+def _run(
+    main: Coroutine[Any, Any, T],
+    debug: bool | None,
+    factory: Callable[[], asyncio.AbstractEventLoop] | None,
+) -> T:
     received: list[int] = []
 
     async def guarded() -> T:
@@ -125,7 +164,7 @@ def _run(main: Coroutine[Any, Any, T], debug: bool | None) -> T:
             for sig in installed:
                 loop.remove_signal_handler(sig)
 
-    with asyncio.Runner(debug=debug) as runner:
+    with asyncio.Runner(debug=debug, loop_factory=factory) as runner:
         try:
             return runner.run(guarded())
         except asyncio.CancelledError:

@@ -38,9 +38,15 @@ handler connects with a blocking 5 s call, and its ``close()`` sleeps 0.3 s), ea
 ``connect_timeout``. Serial devices are opened exclusively: a second opener, in this
 process or another, gets :class:`~chassis_sdk.PortOpenError` naming who holds the port.
 
-pyserial-asyncio-fast (an optional extra) is preferred when installed; both open device
-paths through ``serial.serial_for_url``, so ``/dev/tty*`` and pseudo-terminals work
-alike. ``CHASSIS_SDK_BACKEND`` forces one.
+Three transports carry device paths, the first installed preferred: **serialx** (extra
+``serialx``: opens off the loop, locks the port, reads with ``os.read`` straight from
+the loop), **pyserial-asyncio-fast** (extra ``fast``) and **pyserial-asyncio**.
+``CHASSIS_SDK_BACKEND`` forces one. With the pyserial ones the port is opened in a
+thread through ``serial.serial_for_url`` and read with one ``os.read`` too: pyserial's
+``Serial.read`` first calls ``select()``, which fails for descriptors numbered 1024 and
+up, and its two abort pipes (closed here) would cost four descriptors per port. Under
+every transport the link writes itself, to its own duplicate of the descriptor, as
+described above; a port holds two descriptors.
 """
 
 from __future__ import annotations
@@ -66,17 +72,20 @@ import serial
 
 from ..errors import PortOpenError
 
+#: In order of preference: the first installed is used.
 _BACKENDS = {
+    "serialx": "serialx",
     "pyserial-asyncio-fast": "serial_asyncio_fast",
     "pyserial-asyncio": "serial_asyncio",
 }
 
 
 def _load_backend() -> tuple[Any, str]:
-    """Prefer the maintained fork when installed; both have the same API.
+    """The first of serialx, pyserial-asyncio-fast and pyserial-asyncio installed.
 
-    The environment variable ``CHASSIS_SDK_BACKEND`` (``pyserial-asyncio`` or
-    ``pyserial-asyncio-fast``) forces one, to compare them or to rule one out.
+    The environment variable ``CHASSIS_SDK_BACKEND`` (``serialx``,
+    ``pyserial-asyncio-fast`` or ``pyserial-asyncio``) forces one, to compare them or
+    to rule one out.
     """
     forced = os.environ.get("CHASSIS_SDK_BACKEND")
     if forced:
@@ -94,6 +103,10 @@ def _load_backend() -> tuple[Any, str]:
 
 
 _serial_asyncio, BACKEND = _load_backend()
+#: What opening a device path may raise (serialx's exceptions are not OSErrors).
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, termios.error)
+if BACKEND == "serialx":
+    _OPEN_ERRORS += (_serial_asyncio.SerialException,)
 
 __all__ = ["BACKEND", "Link", "Tap", "open_link"]
 
@@ -177,9 +190,9 @@ class Link(asyncio.Protocol, Generic[M]):
         if self.transport is not None:  # called again by the transport's call_soon
             return
         self.transport = cast(asyncio.WriteTransport, transport)
-        ser = transport.get_extra_info("serial")
-        if isinstance(ser, serial.Serial) and ser.fd is not None:
-            self._wfd = os.dup(ser.fd)
+        fd = _serial_fd(transport.get_extra_info("serial"))
+        if fd is not None:
+            self._wfd = os.dup(fd)
         else:
             # asyncio's socket transport: pause as soon as it holds a byte, so that
             # from then on the link holds frames itself.
@@ -446,7 +459,8 @@ def lock_holder(path: str) -> str | None:
 def _describe_open_error(url: str, exc: BaseException) -> str:
     err = getattr(exc, "errno", None)
     text = str(exc)
-    if "exclusively lock" in text or err in (errno.EAGAIN, errno.EWOULDBLOCK):
+    locked = "exclusively lock" in text or "already locked" in text  # pyserial, serialx
+    if locked or err in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY):
         holder = lock_holder(url)
         return f"could not open {url}: port busy, held by " + (
             holder or "another program (close it, or check `fuser -v " + url + "`)"
@@ -472,6 +486,19 @@ def _describe_open_error(url: str, exc: BaseException) -> str:
         host = urllib.parse.urlsplit(url).hostname
         return f"could not open {url}: cannot resolve the host {host!r}"
     return f"could not open {url}: {text}"
+
+
+def _serial_fd(ser: object) -> int | None:
+    """The descriptor of a serial port object of either library (``None`` if none)."""
+    if isinstance(ser, serial.Serial):
+        return ser.fd if ser.fd is not None else None
+    fileno = getattr(ser, "fileno", None)
+    if ser is not None and callable(fileno):
+        with contextlib.suppress(Exception):
+            fd = fileno()
+            if isinstance(fd, int) and fd >= 0:
+                return fd
+    return None
 
 
 def _open_serial(url: str, baudrate: int) -> serial.Serial:
@@ -604,6 +631,11 @@ async def open_link(
                     f"unsupported URL scheme {parsed.scheme!r}: use a device path or "
                     "socket://host:port"
                 )
+            elif BACKEND == "serialx":
+                # Opened off the loop, locked (flock), read with os.read from the loop.
+                transport, protocol = await _serial_asyncio.create_serial_connection(
+                    loop, link_factory, url, baudrate, exclusive=True
+                )
             else:
                 ser = await _open_serial_in_thread(url, baudrate)
                 transport, protocol = await _serial_asyncio.connection_for_serial(
@@ -613,7 +645,7 @@ async def open_link(
         raise PortOpenError(
             f"could not open {url}: no answer within {timeout:g} s (connect_timeout)"
         ) from None
-    except (OSError, ValueError) as exc:
+    except _OPEN_ERRORS as exc:
         # serial.SerialException is an OSError subclass; bad URLs raise ValueError.
         raise PortOpenError(_describe_open_error(url, exc)) from exc
     link: Link[Any] = protocol

@@ -1,0 +1,225 @@
+"""CPU and lag against the number of chassis in one process, on every transport and
+both event loops, beside the raw-reader floor (about 8 minutes; --quick: about 1).
+
+    pip install ".[bench,fast,serialx,uvloop]"
+    python benchmarks/scaling.py [--quick] [--plot docs/img/scaling.svg]
+
+N chassis stream 50 Hz telemetry from another process (``_writer.py``: precomputed
+frames on N pseudo-terminals, staggered); this process reads them with N ``Chassis``,
+each into an ``async for``, in a fresh process per configuration. CPU is
+``time.process_time()`` over a window after a second of warm-up (100 % = one core); lag
+is from a frame's due time at the writer to the application's ``async for``, p50 and
+p99 (the writer's own lateness is printed beside it); "got" is the share of the frames
+written in the window that reached the application; "errors" counts sequence gaps,
+dropped messages and every exception the event loop had to log. The floor reads the
+same ptys with ``loop.add_reader`` and ``os.read`` and nothing else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import importlib.util
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).parent
+COUNTS = [1, 8, 32, 64, 128, 256, 512]
+BACKENDS = ["pyserial-asyncio", "pyserial-asyncio-fast", "serialx"]
+MODULES = {"pyserial-asyncio-fast": "serial_asyncio_fast", "serialx": "serialx"}
+WARMUP = 1.0
+
+
+def installed(backend: str) -> bool:
+    module = MODULES.get(backend)
+    return module is None or importlib.util.find_spec(module) is not None
+
+
+async def measure(n: int, window: float, floor: bool) -> dict[str, Any]:
+    writer = await asyncio.create_subprocess_exec(
+        sys.executable, str(HERE / "_writer.py"), str(n), str(WARMUP + window + 1.0),
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    )  # fmt: skip
+    assert writer.stdout is not None
+    assert writer.stdin is not None
+    info = json.loads(await writer.stdout.readline())
+    ports, t0, period = info["ports"], info["t0"], info["period"]
+    loop = asyncio.get_running_loop()
+    errors = 0
+
+    def count_error(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        nonlocal errors
+        errors += 1
+
+    loop.set_exception_handler(count_error)
+    got = 0
+    lags: list[float] = []
+    start = t0 + WARMUP
+    stop = start + window
+    result: dict[str, Any] = {"chassis": n}
+    if floor:
+        fds = [os.open(p, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK) for p in ports]
+
+        def read(fd: int) -> None:
+            nonlocal got
+            if start <= time.monotonic() < stop:
+                got += len(os.read(fd, 4096)) // 28
+            else:
+                os.read(fd, 4096)
+
+        for fd in fds:
+            loop.add_reader(fd, read, fd)
+        await asyncio.sleep(start - time.monotonic())
+        c0 = time.process_time()
+        await asyncio.sleep(stop - time.monotonic())
+        cpu = time.process_time() - c0
+        for fd in fds:
+            loop.remove_reader(fd)
+            os.close(fd)
+    else:
+        from chassis_sdk import Chassis
+
+        robots = [Chassis(p, link_timeout=None, connect_timeout=30) for p in ports]
+        await asyncio.gather(*(r.connect() for r in robots))
+
+        async def consume(i: int, robot: Chassis) -> None:
+            nonlocal got
+            offset = t0 + i * period / n
+            async for t in robot.telemetry():
+                now = time.monotonic()
+                if start <= now < stop:
+                    got += 1
+                    lags.append(now - (offset + t.seq * period))
+
+        tasks = [asyncio.ensure_future(consume(i, r)) for i, r in enumerate(robots)]
+        await asyncio.sleep(start - time.monotonic())
+        c0 = time.process_time()
+        await asyncio.sleep(stop - time.monotonic())
+        cpu = time.process_time() - c0
+        for task in tasks:
+            task.cancel()
+        errors += sum(r.stats.sequence_gaps + r.stats.queue_drops for r in robots)
+        result["backend"] = robots[0].transport_backend
+        await asyncio.gather(*(r.close() for r in robots))
+    writer.stdin.close()
+    late = json.loads(await writer.stdout.readline())
+    await writer.wait()
+    result.update(
+        cpu_percent=cpu / window * 100,
+        got=got / (n * window / period),
+        errors=errors,
+        writer_late_p99_ms=late["late_p99_ms"],
+    )
+    if lags:
+        lags.sort()
+        result["lag_p50_ms"] = statistics.median(lags) * 1e3
+        result["lag_p99_ms"] = lags[int(len(lags) * 0.99)] * 1e3
+    return result
+
+
+def run_one(n: int, window: float, backend: str | None, uvloop: bool) -> dict[str, Any]:
+    args = [sys.executable, __file__, "--one", str(n), "--window", str(window)]
+    args += ["--uvloop"] if uvloop else []
+    args += ["--floor"] if backend is None else []
+    env = dict(os.environ)
+    if backend is not None:
+        env["CHASSIS_SDK_BACKEND"] = backend
+    out = subprocess.run(args, env=env, check=True, capture_output=True, text=True)
+    result: dict[str, Any] = json.loads(out.stdout)
+    return result
+
+
+def plot(rows: list[dict[str, Any]], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (cpu_ax, lag_ax) = plt.subplots(1, 2, figsize=(12, 4.5))
+    configs = sorted({r["config"] for r in rows})
+    for config in configs:
+        mine = [r for r in rows if r["config"] == config]
+        ns = [r["chassis"] for r in mine]
+        style = "k--" if config.startswith("floor") else "-o"
+        cpu_ax.plot(ns, [r["cpu_percent"] for r in mine], style, label=config, markersize=3)
+        if not config.startswith("floor"):
+            lag_ax.plot(ns, [r.get("lag_p99_ms", float("nan")) for r in mine], "-o",
+                        label=config, markersize=3)  # fmt: skip
+    for ax, label in ((cpu_ax, "CPU, % of one core"), (lag_ax, "lag p99, ms (write -> async for)")):
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("chassis at 50 Hz in one process")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    cpu_ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="1 and 32 chassis, 2 s windows")
+    parser.add_argument("--counts", help="comma-separated N (default 1,8,...,512)")
+    parser.add_argument("--plot", metavar="FILE", help="draw CPU and lag against N (.svg/.png)")
+    parser.add_argument("--json", metavar="FILE", help="write every row to FILE")
+    parser.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--window", type=float, default=5.0, help=argparse.SUPPRESS)
+    parser.add_argument("--floor", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--uvloop", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one is not None:
+        factory = None
+        if args.uvloop:
+            import uvloop
+
+            factory = uvloop.new_event_loop
+        with asyncio.Runner(loop_factory=factory) as runner:
+            print(json.dumps(runner.run(measure(args.one, args.window, args.floor))))
+        return
+    counts = [1, 32] if args.quick else COUNTS
+    if args.counts:
+        counts = [int(c) for c in args.counts.split(",")]
+    window = 2.0 if args.quick else args.window
+    loops = [False] + ([True] if importlib.util.find_spec("uvloop") else [])
+    configs: list[tuple[str | None, bool]] = [(None, u) for u in loops]
+    configs += [(b, u) for b in BACKENDS if installed(b) for u in loops]
+    print(f"{'N':>4}  {'configuration':<32}{'CPU %':>7}{'x floor':>9}{'got':>8}"
+          f"{'lag p50':>9}{'p99 ms':>8}{'errors':>7}{'writer late p99':>16}")  # fmt: skip
+    rows = []
+    for n in counts:
+        floors: dict[bool, float] = {}
+        for backend, on_uvloop in configs:
+            name = f"{backend or 'floor: raw os.read'} / {'uvloop' if on_uvloop else 'asyncio'}"
+            try:
+                r = run_one(n, window, backend, on_uvloop)
+            except subprocess.CalledProcessError as exc:
+                tail = (exc.stderr or "").strip().splitlines()[-1:] or ["?"]
+                print(f"{n:>4}  {name:<32} not measured: {tail[0]}", flush=True)
+                continue
+            r["config"] = name
+            rows.append(r)
+            if backend is None:
+                floors[on_uvloop] = r["cpu_percent"]
+            base = floors.get(on_uvloop)
+            ratio = float(r["cpu_percent"]) / base if base else float("nan")
+            lag = f"{'':>17}"
+            if "lag_p50_ms" in r:
+                lag = f"{r['lag_p50_ms']:>9.2f}{r['lag_p99_ms']:>8.2f}"
+            late = f"{r['writer_late_p99_ms']:>14.2f}ms"
+            print(f"{n:>4}  {name:<32}{r['cpu_percent']:>7.1f}{ratio:>8.2f}x{r['got']:>8.1%}"
+                  f"{lag}{r['errors']:>7}{late}", flush=True)  # fmt: skip
+    print(f"({window:g} s windows; 100 % = one core; got: frames that reached the application)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    if args.plot:
+        plot(rows, args.plot)
+        print(f"wrote {args.plot}")
+
+
+if __name__ == "__main__":
+    main()

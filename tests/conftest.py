@@ -1,0 +1,19 @@
+"""The event loop the tests run on: asyncio's own, or uvloop with
+``CHASSIS_SDK_TEST_LOOP=uvloop`` (CI runs the integration tests on it once)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+
+import pytest
+
+if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":
+    import asyncio
+
+    import uvloop
+
+    def pytest_asyncio_loop_factories(
+        config: pytest.Config, item: pytest.Item
+    ) -> Mapping[str, Callable[[], asyncio.AbstractEventLoop]]:
+        return {"uvloop": uvloop.new_event_loop}
