@@ -1,4 +1,4 @@
-"""Run every benchmark and print its table (about 4 minutes; --quick: about 70 s).
+"""Run every benchmark and print its table (about 12 minutes; --quick: about 2.5 minutes).
 
     pip install ".[bench,fast]"
     python benchmarks/all.py [--quick]
@@ -26,6 +26,7 @@ SCRIPTS = [
     "phantoms.py",
     "mqtt_fleet.py",
     "recording.py",
+    "scaling.py",
 ]
 
 
@@ -38,6 +39,8 @@ PACKAGES = [
     "aiomqtt",
     "foxglove-sdk",
     "mcap",
+    "serialx",
+    "uvloop",
 ]
 
 
@@ -50,6 +53,12 @@ def _cpu() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+def _load() -> str:
+    """The machine's load averages (1, 5, 15 minutes): a busy machine moves figures."""
+    one, five, fifteen = os.getloadavg()
+    return f"{one:.2f} {five:.2f} {fifteen:.2f}"
 
 
 def machine() -> list[str]:
@@ -87,7 +96,9 @@ def main() -> int:
     print(flush=True)
     for script in SCRIPTS:
         print(f"== {script} {' '.join(extra)}".rstrip(), flush=True)
+        print(f"load before: {_load()}", flush=True)
         done = subprocess.run([sys.executable, str(HERE / script), *extra], check=False)
+        print(f"load after: {_load()}", flush=True)
         if done.returncode:
             print(f"{script} failed with exit code {done.returncode}", file=sys.stderr)
             return done.returncode

@@ -91,7 +91,7 @@ def simulate(seconds: float) -> list[tuple[float, bool, bytes]]:
 
     firmware = ChassisFirmware()
     encoder = ChassisEncoder()
-    t0 = time.monotonic()
+    t0 = time.monotonic() + 10.0  # after the recorder starts, as in a live session
     firmware.on_connect(t0)
     session = []
     step = 0.01

@@ -137,6 +137,7 @@ def run_one(n: int, window: float, backend: str | None, uvloop: bool) -> dict[st
 
 def plot(rows: list[dict[str, Any]], path: str) -> None:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -153,9 +154,12 @@ def plot(rows: list[dict[str, Any]], path: str) -> None:
                         label=config, markersize=3)  # fmt: skip
     for ax, label in ((cpu_ax, "CPU, % of one core"), (lag_ax, "lag p99, ms (write -> async for)")):
         ax.set_xscale("log", base=2)
+        ax.set_xticks(sorted({r["chassis"] for r in rows}))
+        ax.get_xaxis().set_major_formatter(matplotlib.ticker.ScalarFormatter())
         ax.set_xlabel("chassis at 50 Hz in one process")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
+    lag_ax.set_yscale("log")
     cpu_ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path)

@@ -220,12 +220,21 @@ async def _record(
 def _replay(path: str, protocol: str | None, as_json: bool) -> None:
     proto = protocol or _detect_file(path)
     count = 0
+    lines: list[str] = []
+    # Streamed: decoded as read, written a thousand lines at a time (a line per write
+    # and a flush per line cost more than the decoding).
     for t, msg in capture.decode_capture(path, proto):
         count += 1
         if as_json:
-            out(json.dumps({"t": t, "type": type(msg).__name__, **jsonable(msg)}))
+            lines.append(json.dumps({"t": t, "type": type(msg).__name__, **jsonable(msg)}))
         else:
-            out(f"{t:10.6f}  {msg}")
+            lines.append(f"{t:10.6f}  {msg}")
+        if len(lines) == 1000:
+            sys.stdout.write("\n".join(lines) + "\n")
+            lines.clear()
+    if lines:
+        sys.stdout.write("\n".join(lines) + "\n")
+    sys.stdout.flush()
     if count == 0:
         _no_messages(path, proto)
 
@@ -255,7 +264,7 @@ async def _replay_as_device(args: argparse.Namespace) -> None:
 
 
 def _no_messages(path: str, proto: str) -> None:
-    data = b"".join(chunk for _, chunk in capture.read_capture(path))
+    data = _head(path)
     if not data:
         raise ChassisError(f"{path} holds no bytes")
     other = capture.detect_in(data)
@@ -263,13 +272,23 @@ def _no_messages(path: str, proto: str) -> None:
     raise ChassisError(f"no {proto} frames in {path}{hint}")
 
 
+def _head(path: str, size: int = 1 << 16) -> bytes:
+    """The first ``size`` bytes the device sent in a capture (enough to tell which
+    device it is: thousands of frames), without reading the rest."""
+    data = bytearray()
+    for _, chunk in capture.read_capture(path):
+        data += chunk
+        if len(data) >= size:
+            break
+    return bytes(data)
+
+
 def _detect_file(path: str) -> str:
     if capture.is_mcap(path):
         recorded = capture.mcap_metadata(path).get("device")
         if recorded in profiles():
             return recorded
-    data = b"".join(chunk for _, chunk in capture.read_capture(path))
-    found = capture.detect_in(data)
+    found = capture.detect_in(_head(path))
     if found is None:
         raise ChassisError(f"no frames of any known device ({', '.join(profiles())}) in {path}")
     return found
