@@ -179,9 +179,7 @@ def main() -> None:
     if args.one is not None:
         factory = None
         if args.uvloop:
-            import uvloop
-
-            factory = uvloop.new_event_loop
+            factory = importlib.import_module("uvloop").new_event_loop
         with asyncio.Runner(loop_factory=factory) as runner:
             print(json.dumps(runner.run(measure(args.one, args.window, args.floor))))
         return

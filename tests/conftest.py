@@ -10,10 +10,12 @@ import pytest
 
 if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":
     import asyncio
+    import importlib
 
-    import uvloop
+    uvloop = importlib.import_module("uvloop")  # installed for this run only
 
     def pytest_asyncio_loop_factories(
         config: pytest.Config, item: pytest.Item
     ) -> Mapping[str, Callable[[], asyncio.AbstractEventLoop]]:
-        return {"uvloop": uvloop.new_event_loop}
+        factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
+        return {"uvloop": factory}

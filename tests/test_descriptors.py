@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import importlib
 import logging
 import os
 import resource
@@ -97,7 +98,7 @@ async def test_a_failing_read_is_a_lost_link_once_not_a_traceback_per_wakeup(
     if transport.BACKEND == "serialx":
         if isinstance(error, ValueError):
             pytest.skip("serialx reads itself; os.read raises no ValueError")
-        import serialx.descriptor_transport as reader
+        reader = importlib.import_module("serialx.descriptor_transport")
     failures = 0
 
     def failing_read(fd: int, size: int) -> bytes:

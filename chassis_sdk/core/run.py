@@ -12,6 +12,7 @@ stops the wheels. :func:`run` turns both into the same cancellation as Ctrl-C.
 from __future__ import annotations
 
 import asyncio
+import importlib
 import os
 import signal
 import sys
@@ -113,7 +114,7 @@ def loop_factory(use_uvloop: bool | None = None) -> Callable[[], asyncio.Abstrac
     if use_uvloop is None and os.environ.get(ENV_LOOP, "").lower() == "asyncio":
         return None
     try:
-        import uvloop
+        uvloop = importlib.import_module("uvloop")  # an optional extra: not typed here
     except ImportError:
         if use_uvloop:
             raise ImportError("uvloop=True needs it: pip install 'chassis-sdk[uvloop]'") from None
