@@ -23,6 +23,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -164,6 +165,19 @@ def decode_all(path: Path) -> tuple[float, int]:
     return time.monotonic() - start, n
 
 
+def columns_all(path: Path) -> tuple[float, int]:
+    """``capture_columns``: the same frames into arrays (numpy), or (nan, 0) without it."""
+    from chassis_sdk import capture
+
+    try:
+        import numpy  # noqa: F401
+    except ImportError:
+        return math.nan, 0
+    start = time.monotonic()
+    n = len(capture.capture_columns(path, "chassis")["Telemetry"]["t"])
+    return time.monotonic() - start, n
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3 s windows, a tenth of an hour")
@@ -205,8 +219,8 @@ def main() -> None:
     print()
     what = "an hour" if scale == 1 else f"{seconds / 60:.0f} minutes, scaled to an hour"
     print(f"{what} of a chassis driving (50 Hz telemetry, velocity every 50 ms)")
-    print(f"{'file':<8}{'MB/hour':>9}{'write s':>9}{'us/frame':>10}"
-          f"{'decode s':>10}{'replay s':>10}{'export s':>10}{'floor s':>9}")  # fmt: skip
+    print(f"{'file':<8}{'MB/hour':>9}{'write s':>9}{'us/frame':>10}{'decode s':>10}"
+          f"{'columns s':>11}{'replay s':>10}{'export s':>10}{'floor s':>9}")  # fmt: skip
     session = simulate(seconds)
     bare = write_hour(None, session)
     with tempfile.TemporaryDirectory() as tmp:
@@ -214,22 +228,26 @@ def main() -> None:
             path = Path(tmp) / f"hour{suffix}"
             w = write_hour(path, session)
             decode, n = decode_all(path)
+            columns, n_columns = columns_all(path)
             cli = [sys.executable, "-m", "chassis_sdk.cli"]
             replay = timed([*cli, "replay", str(path), "--protocol", "chassis"])
             export = timed([*cli, "export", str(path), "--csv", str(Path(tmp) / "csv")])
             floor_s = read_floor(path)
             per_frame = (w["cpu_s"] - bare["cpu_s"]) / w["frames"] * 1e6
             print(f"{suffix[1:]:<8}{w['bytes'] * scale / 1e6:>9.1f}{w['cpu_s'] * scale:>9.1f}"
-                  f"{per_frame:>10.1f}{decode * scale:>10.1f}{replay * scale:>10.1f}"
+                  f"{per_frame:>10.1f}{decode * scale:>10.1f}{columns * scale:>11.1f}"
+                  f"{replay * scale:>10.1f}"
                   f"{export * scale:>10.1f}{floor_s * scale:>9.1f}")  # fmt: skip
             assert n == w["rx_chunks"], (n, w)
+            assert n_columns in (0, n), (n_columns, n)
             with contextlib.suppress(FileNotFoundError):
                 os.remove(path)
     print(f"{'none':<8}{'':>9}{bare['cpu_s'] * scale:>9.1f}   (decoding, odometry, events alone)")
     print(
         "(write: CPU to decode and record the hour as fast as it goes; us/frame: the "
         "recorder's own, per frame either way; "
-        "decode: decode_capture of every frame; replay: `chassis-sdk replay` into /dev/null; "
+        "decode: decode_capture of every frame; columns: capture_columns (numpy arrays) of "
+        "the same frames; replay: `chassis-sdk replay` into /dev/null; "
         "export: `export --csv`; floor: the file read with no decoding)"
     )
 

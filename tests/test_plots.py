@@ -12,8 +12,9 @@ import pytest
 
 from chassis_sdk import capture
 from chassis_sdk.cli import main as cli_main
+from chassis_sdk.core.columns import decode_columns
 from chassis_sdk.devices import profile
-from chassis_sdk.protocol import BatteryReading, BoardEncoder, ChassisEncoder
+from chassis_sdk.protocol import BoardEncoder, ChassisEncoder
 from chassis_sdk.protocol.board import velocity_command as board_velocity
 from chassis_sdk.protocol.chassis import velocity_command
 from chassis_sdk.sim import BoardFirmware, ChassisFirmware
@@ -54,9 +55,9 @@ def chassis_session() -> list[tuple[float, bytes]]:
 def test_the_chassis_plot_separates_units_wheels_and_commands(tmp_path: Path) -> None:
     path = tmp_path / "chassis.jsonl"
     write_capture(path, chassis_session())
-    rows = list(capture.decode_capture(path, "chassis"))
-    commands = list(capture.decode_capture(path, "chassis", commands=True))
-    assert len(commands) == 40
+    rows = capture.capture_columns(path, "chassis")
+    commands = capture.capture_columns(path, "chassis", commands=True)
+    assert len(commands.messages) == 40
     fig = Figure()
     plot = profile("chassis").plot
     assert plot is not None
@@ -81,23 +82,26 @@ def test_the_chassis_plot_separates_units_wheels_and_commands(tmp_path: Path) ->
 def test_the_board_plot_says_why_the_battery_panel_is_empty() -> None:
     fw, enc = BoardFirmware(), BoardEncoder()
     fw.on_connect(0.0)
-    rows: list[tuple[float, object]] = []
-    commands: list[tuple[float, object]] = []
-    decoder = profile("board").decoder()
+    received: list[tuple[float, bytes]] = []
+    sent: list[tuple[float, bytes]] = []
     for step in range(100):
         t = step * 0.01
         if step % 10 == 0:
-            cmd = board_velocity(0.3, 0.5)
-            fw.receive(enc.encode(cmd), t)
-            commands.append((t, cmd))
-        rows += [(t, m) for m in decoder.feed(fw.poll(t), t)]
+            frame = enc.encode(board_velocity(0.3, 0.5))
+            fw.receive(frame, t)
+            sent.append((t, frame))
+        received.append((t, fw.poll(t)))
+    rows = decode_columns(received, profile("board").decoder())
+    commands = decode_columns(sent, profile("board").command_decoder())
+    assert len(commands.messages) == 10
     plot = profile("board").plot
     assert plot is not None
     with_battery = Figure()
     plot(rows, commands, with_battery)
     assert with_battery.axes[2].get_lines()  # the battery panel
     without = Figure()
-    plot([(t, m) for t, m in rows if not isinstance(m, BatteryReading)], commands, without)
+    del rows.tables["BatteryReading"]
+    plot(rows, commands, without)
     battery_panel = without.axes[2]
     assert not battery_panel.get_lines()
     assert "no battery reading" in battery_panel.texts[0].get_text()

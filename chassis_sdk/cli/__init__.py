@@ -304,21 +304,27 @@ def _plot(path: str, output: str, protocol: str | None) -> None:
         raise ChassisError("plot needs matplotlib: pip install 'chassis-sdk[plot]'") from None
     proto = protocol or _detect_file(path)
     device = profile(proto)
-    rows = list(capture.decode_capture(path, proto))
-    if not rows:
-        _no_messages(path, proto)
-    commands = list(capture.decode_capture(path, proto, commands=True))
     fig = plt.figure(figsize=(13, 9))
-    if device.plot is not None:
-        device.plot(rows, commands, fig)
+    if device.plot is not None:  # from arrays: an hour's frames, no object apiece
+        data = capture.capture_columns(path, proto)
+        commands = capture.capture_columns(path, proto, commands=True)
+        messages, sent = data.frames, commands.frames
+        if not messages:
+            _no_messages(path, proto)
+        device.plot(data, commands, fig)
     else:  # a generic device: every numeric field of every message, by type
+        rows = list(capture.decode_capture(path, proto))
+        if not rows:
+            _no_messages(path, proto)
+        messages = len(rows)
+        sent = sum(1 for _ in capture.decode_capture(path, proto, commands=True))
         _plot_fields(rows, fig)
     fig.suptitle(f"{proto} capture {path}")
     fig.tight_layout()
     fig.savefig(output, dpi=100)
     plt.close(fig)
-    extra = f" and {len(commands)} commands" if commands else ""
-    out(f"wrote {output} ({len(rows)} messages{extra})")
+    extra = f" and {sent} commands" if sent else ""
+    out(f"wrote {output} ({messages} messages{extra})")
 
 
 def _plot_fields(rows: list[tuple[float, object]], fig: Any) -> None:

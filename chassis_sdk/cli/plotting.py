@@ -1,17 +1,27 @@
 """What every device's ``plot`` shares: the layout (time series on the left, the path
 on the right), measured against commanded, the odometry path, and saying so when a
-panel has nothing to show."""
+panel has nothing to show.
+
+A plot draws from :class:`~chassis_sdk.core.columns.Columns`: the capture decoded into
+arrays (``capture_columns``), so an hour's 180,000 frames are drawn without building
+an object per frame."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..core.odometry import OdometryIntegrator
 
-__all__ = ["empty", "layout", "path_panel", "series", "velocity_panels"]
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
-Rows = Sequence[tuple[float, object]]
+    from ..core.columns import Columns
+
+    #: A column, or values listed: what matplotlib draws.
+    Values = Sequence[float] | npt.NDArray[Any]
+
+__all__ = ["empty", "layout", "path_panel", "series", "velocity_panels"]
 
 
 def layout(fig: Any, panels: int) -> tuple[list[Any], Any]:
@@ -26,12 +36,12 @@ def layout(fig: Any, panels: int) -> tuple[list[Any], Any]:
     return left, fig.add_subplot(grid[:, 1])
 
 
-def series(
-    rows: Rows, kind: type, field: str, scale: float = 1.0
-) -> tuple[list[float], list[float]]:
-    """(times, values) of ``field`` of every message of type ``kind``."""
-    picked = [(t, m) for t, m in rows if isinstance(m, kind)]
-    return [t for t, _ in picked], [getattr(m, field) * scale for _, m in picked]
+def series(data: Columns, kind: str, field: str) -> tuple[Values, Values]:
+    """(times, values) of column ``field`` of message type ``kind`` (empty if none)."""
+    table = data.tables.get(kind)
+    if table is None:
+        return [], []
+    return table["t"], table[field]
 
 
 def empty(ax: Any, text: str) -> None:
@@ -39,26 +49,26 @@ def empty(ax: Any, text: str) -> None:
     ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", color="gray")
 
 
-Series3 = tuple[list[float], list[float], list[float]]
+Series3 = tuple["Values", "Values", "Values"]
 
 
 def velocity_panels(
     linear_ax: Any,
     angular_ax: Any,
-    rows: Rows,
-    kind: type,
-    commands: Rows,
+    data: Columns,
+    kind: str,
+    commands: Columns,
     command_kind: type,
     command_si: Callable[[Any], tuple[float, float]],
 ) -> Series3:
     """Measured linear (m/s) and angular (rad/s) velocity (the ``linear`` and
-    ``angular`` of every ``kind`` message) on their own axes, each with what the host
-    commanded (``command_si`` of every ``command_kind``: m/s and rad/s) when the capture
-    holds it, as a step line: a command holds until the next. Returns the measured
-    (times, linear, angular)."""
-    t, v = series(rows, kind, "linear")
-    _, w = series(rows, kind, "angular")
-    drives = [(ts, command_si(c)) for ts, c in commands if isinstance(c, command_kind)]
+    ``angular`` columns of ``kind``) on their own axes, each with what the host
+    commanded (``command_si`` of every ``command_kind`` message: m/s and rad/s) when
+    the capture holds it, as a step line: a command holds until the next. Returns the
+    measured (times, linear, angular)."""
+    t, v = series(data, kind, "linear")
+    _, w = series(data, kind, "angular")
+    drives = [(ts, command_si(c)) for ts, c in commands.messages if isinstance(c, command_kind)]
     ct = [ts for ts, _ in drives]
     cv = [vw[0] for _, vw in drives]
     cw = [vw[1] for _, vw in drives]
@@ -71,11 +81,11 @@ def velocity_panels(
     return t, v, w
 
 
-def path_panel(ax: Any, t: list[float], v: list[float], w: list[float]) -> None:
+def path_panel(ax: Any, t: Values, v: Values, w: Values) -> None:
     """The path dead-reckoned from the measured velocities (x forward at the start)."""
     odometry = OdometryIntegrator()
     xs, ys = [0.0], [0.0]
-    for ts, linear, angular in zip(t, v, w, strict=True):
+    for ts, linear, angular in zip(list(t), list(v), list(w), strict=True):
         pose = odometry.update(linear, angular, ts)
         xs.append(pose.x)
         ys.append(pose.y)

@@ -29,13 +29,15 @@ from __future__ import annotations
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, Generic, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 __all__ = [
     "INVALID",
     "NEED_DATA",
+    "Column",
     "DecoderStats",
     "FrameDecoder",
+    "FrameLayout",
     "FrameTable",
     "Parser",
     "byte_sum",
@@ -95,6 +97,55 @@ class DecoderStats:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+@dataclass(frozen=True, slots=True)
+class FrameLayout:
+    """A protocol's framing rules as data, for decoding a whole capture with arrays
+    (:mod:`chassis_sdk.core.columns`). It must say exactly what the codec's
+    ``_try_frame`` does; a test holds the two to the same frames.
+
+    A frame starts with the decoder's head; its type is the byte at ``type_at`` and its length
+    byte at ``length_at``. A type whose table size is 0 has a variable size: the frame
+    is ``length + size_of_length`` bytes, and needs ``length >= min_length``. Otherwise
+    the table size is the frame size (``fixed_is_length`` False: the length byte is not
+    checked), or the value the length byte must have (``fixed_is_length`` True; the
+    frame is then ``length + size_of_length`` bytes). Nothing is decided before
+    ``header`` bytes are there. The check is the sum of the bytes from ``sum_from``
+    (after the head's start) up to the check field, modulo 256 or 65536 for a
+    ``check_size`` of 1 or 2 (little-endian); ``tail`` closes the frame. A parser gets
+    the data at ``data_at`` and ``size - overhead`` bytes of it. ``no_head_inside``:
+    a frame is refused while a plausible head (head, known type, possible length)
+    starts inside it, or may start at its last byte (protocol B's alignment rule).
+    """
+
+    type_at: int
+    length_at: int
+    header: int
+    fixed_is_length: bool
+    size_of_length: int
+    min_length: int
+    sum_from: int
+    check_size: int
+    tail: bytes
+    data_at: int
+    overhead: int
+    no_head_inside: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Column:
+    """One field of a fixed-size frame, read into an array by
+    :mod:`chassis_sdk.core.columns`: ``name`` (the flattened name a CSV export uses,
+    e.g. ``wheels.front_left``), the struct code of the little-endian field (``"h"``,
+    ``"H"``, ``"B"``, ...) at ``at`` bytes from the frame's data (negative: in the
+    header), and ``divisor``: the value in SI units is the raw number divided by it
+    (``None``: kept as the raw integer, for codes and flags)."""
+
+    name: str
+    at: int
+    code: str
+    divisor: float | None = 1.0
+
+
 class FrameDecoder(Generic[T]):
     """Incremental decoder: ``feed`` bytes in any chunking, get complete messages out.
 
@@ -102,6 +153,13 @@ class FrameDecoder(Generic[T]):
     """
 
     _head: bytes = b""
+    #: The frame types this decoder accepts (subclasses that use a table set it).
+    _table: ClassVar[FrameTable] = {}
+    #: The framing as data, for decoding whole captures into arrays (None: not described).
+    layout: ClassVar[FrameLayout | None] = None
+    #: The fields of the frame types decoded into arrays, by type: ``(message class
+    #: name, columns)``. Such a type's parser must accept every frame that checks out.
+    columns: ClassVar[dict[int, tuple[str, tuple[Column, ...]]]] = {}
 
     __slots__ = ("_buf", "stats")
 

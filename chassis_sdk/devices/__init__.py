@@ -24,11 +24,14 @@ import logging
 from collections.abc import Callable, Coroutine, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import import_module, metadata
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..core.device import Device
 from ..core.framing import FrameDecoder
 from ..core.simulator import Firmware, SimulatorServer
+
+if TYPE_CHECKING:
+    from ..core.columns import Columns
 
 __all__ = ["ENTRY_POINT_GROUP", "DeviceProfile", "profile", "profiles", "register", "unregister"]
 
@@ -78,9 +81,10 @@ class DeviceProfile:
             report if ``None``.
         monitor: ``chassis-sdk monitor PORT``: ``monitor(port, baudrate, seconds,
             as_json)``.
-        plot: ``chassis-sdk plot``: ``plot(rows, commands, figure)`` draws decoded
-            ``(seconds, message)`` rows, and the host's commands if the capture holds
-            any, into a matplotlib figure; a generic plot if ``None``.
+        plot: ``chassis-sdk plot``: ``plot(data, commands, figure)`` draws the capture
+            decoded into arrays (:class:`~chassis_sdk.core.columns.Columns`), and the
+            host's commands if the capture holds any, into a matplotlib figure; a
+            generic plot if ``None``. Both decoders must describe their ``layout``.
     """
 
     name: str
@@ -101,15 +105,17 @@ class DeviceProfile:
     demo: Callable[[], Coroutine[Any, Any, None]] | None = None
     info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
     monitor: Callable[[str, int, float | None, bool], Coroutine[Any, Any, None]] | None = None
-    plot: Callable[[list[tuple[float, object]], list[tuple[float, object]], Any], None] | None = (
-        None
-    )
+    plot: Callable[[Columns, Columns, Any], None] | None = None
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.isidentifier() or self.name != self.name.lower():
             raise ValueError(f"a device name is a lowercase identifier, got {self.name!r}")
         if not self.examples or not self.command_examples:
             raise ValueError(f"device {self.name!r}: examples of both directions are needed")
+        if self.plot is not None and any(
+            type(make()).layout is None for make in (self.decoder, self.command_decoder)
+        ):
+            raise ValueError(f"device {self.name!r}: a plot needs both decoders' layout")
 
 
 _registered: dict[str, DeviceProfile] = {}

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import TYPE_CHECKING, Any
 
 from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
 from ...cli.plotting import empty, layout, path_panel, series, velocity_panels
 from ...errors import RequestTimeoutError
 from .device import Board
-from .messages import BatteryReading, ImuSample, VelocityCommand, VelocityFeedback
+from .messages import VelocityCommand
+
+if TYPE_CHECKING:
+    from ...core.columns import Columns
 
 __all__ = ["demo", "info", "plot"]
 
@@ -56,27 +60,21 @@ async def info(port: str, baudrate: int, timeout: float) -> None:
         out(str(await board.diagnose()))
 
 
-def plot(rows: list[tuple[float, object]], commands: list[tuple[float, object]], fig: Any) -> None:
+def plot(data: Columns, commands: Columns, fig: Any) -> None:
     """Linear and angular velocity feedback (each with what was commanded, if the
     capture holds it; the gyro's z rate beside the angular one), the battery, and the
     path from odometry."""
     (linear, angular, volts), path = layout(fig, 3)
     t, v, w = velocity_panels(
-        linear, angular, rows, VelocityFeedback, commands, VelocityCommand,
+        linear, angular, data, "VelocityFeedback", commands, VelocityCommand,
         lambda c: (c.linear_milli / 1000, c.angular_milli / 1000),
     )  # fmt: skip
-    imu = [(ts, m) for ts, m in rows if isinstance(m, ImuSample)]
-    angular.plot(
-        [ts for ts, _ in imu],
-        [m.angular_velocity.z for _, m in imu],
-        linewidth=0.6,
-        alpha=0.6,
-        label="gyro z",
-    )
+    gt, gz = series(data, "ImuSample", "gyro.z")
+    angular.plot(gt, [math.radians(x) for x in gz], linewidth=0.6, alpha=0.6, label="gyro z")
     angular.legend(loc="upper right", fontsize=8)
-    bt, bv = series(rows, BatteryReading, "voltage")
+    bt, bv = series(data, "BatteryReading", "voltage")
     volts.set_ylabel("battery (V)")
-    if bt:
+    if len(bt):
         volts.plot(bt, bv, "o-", color="tab:green")
     else:
         empty(volts, "no battery reading (0x13 comes once a second)")

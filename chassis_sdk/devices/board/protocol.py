@@ -24,7 +24,15 @@ import struct
 from typing import ClassVar, TypeVar
 
 from ...core.construct import frozen_builder
-from ...core.framing import INVALID, NEED_DATA, FrameDecoder, FrameTable, byte_sum
+from ...core.framing import (
+    INVALID,
+    NEED_DATA,
+    Column,
+    FrameDecoder,
+    FrameLayout,
+    FrameTable,
+    byte_sum,
+)
 from ...core.validation import INT16, UINT8, check_int, check_member, scale_to_int
 from .messages import (
     STANDARD_GRAVITY,
@@ -308,6 +316,32 @@ _DEVICE_FRAMES: FrameTable = {
     BoardType.LOG: (0, _parse_log),
 }
 
+#: The framing as data (core.columns decodes whole captures with it): type at 2, length
+#: byte at 3 (the table's value, or any but 0 for variable frames), 4 + length bytes in
+#: all, an 8-bit sum from the type to the check, no tail; the alignment rule.
+_LAYOUT = FrameLayout(
+    type_at=2, length_at=3, header=4, fixed_is_length=True, size_of_length=4, min_length=1,
+    sum_from=2, check_size=1, tail=b"", data_at=4, overhead=5, no_head_inside=True,
+)  # fmt: skip
+
+
+def _xyz(prefix: str, at: int, divisor: float) -> tuple[Column, ...]:
+    return tuple(
+        Column(f"{prefix}.{axis}", at + 2 * i, "h", divisor) for i, axis in enumerate("xyz")
+    )
+
+
+#: The high-rate frames as columns (names as a CSV export flattens the messages).
+_DEVICE_COLUMNS: dict[int, tuple[str, tuple[Column, ...]]] = {
+    BoardType.IMU: ("ImuSample", (
+        *_xyz("accel", 0, ACCEL_SCALE), *_xyz("gyro", 6, GYRO_SCALE), *_xyz("mag", 12, 1),
+    )),
+    BoardType.VELOCITY_FEEDBACK: ("VelocityFeedback", (
+        Column("linear", 0, "h", 1000), Column("angular", 2, "h", 1000),
+    )),
+    BoardType.BATTERY: ("BatteryReading", (Column("voltage", 0, "h", 100),)),
+}  # fmt: skip
+
 _HOST_FRAMES: FrameTable = {
     BoardType.LED: (0x03, _parse_switch_cmd),
     BoardType.BUZZER: (0x03, _parse_switch_cmd),
@@ -349,6 +383,7 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
     """
 
     _table: ClassVar[FrameTable] = {}
+    layout = _LAYOUT
     #: Refuse checked-out candidates that what follows shows to be misaligned.
     check_alignment: ClassVar[bool] = True
 
@@ -427,6 +462,7 @@ class BoardDecoder(_ProtocolBDecoder[BoardMessage]):
 
     _head = DEVICE_HEAD
     _table = _DEVICE_FRAMES
+    columns = _DEVICE_COLUMNS
 
 
 class BoardCommandDecoder(_ProtocolBDecoder[BoardCommand]):

@@ -7,7 +7,7 @@ import json
 import math
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
@@ -21,10 +21,13 @@ from ...cli.common import (
     out,
     simulated,
 )
-from ...cli.plotting import layout, path_panel, velocity_panels
+from ...cli.plotting import layout, path_panel, series, velocity_panels
 from ...errors import ChassisError, RequestTimeoutError
 from .device import Chassis
 from .messages import DriveVelocity, Telemetry
+
+if TYPE_CHECKING:
+    from ...core.columns import Columns
 
 __all__ = ["demo", "format_telemetry", "info", "monitor", "plot"]
 
@@ -239,25 +242,24 @@ class _View:
         return table
 
 
-def plot(rows: list[tuple[float, object]], commands: list[tuple[float, object]], fig: Any) -> None:
+def plot(data: Columns, commands: Columns, fig: Any) -> None:
     """Linear and angular velocity (each with what was commanded, if the capture holds
     it), the four wheels (left blue, right orange; front solid, rear dashed), the
     battery, and the path from odometry."""
     (linear, angular, wheels, volts), path = layout(fig, 4)
     t, v, w = velocity_panels(
-        linear, angular, rows, Telemetry, commands, DriveVelocity,
+        linear, angular, data, "Telemetry", commands, DriveVelocity,
         lambda c: (c.linear_mm / 1000, c.angular),
     )  # fmt: skip
-    telemetry = [m for _, m in rows if isinstance(m, Telemetry)]
     for name, color, style in (
         ("front_left", "tab:blue", "-"),
         ("rear_left", "tab:blue", "--"),
         ("front_right", "tab:orange", "-"),
         ("rear_right", "tab:orange", "--"),
     ):
-        wheels.plot(t, [getattr(m.wheels, name) for m in telemetry], style, color=color, label=name)
+        wheels.plot(*series(data, "Telemetry", f"wheels.{name}"), style, color=color, label=name)
     wheels.set_ylabel("wheels (m/s)")
     wheels.legend(loc="upper right", fontsize=8, ncol=2)
-    volts.plot(t, [m.voltage for m in telemetry], color="tab:green")
+    volts.plot(*series(data, "Telemetry", "voltage"), color="tab:green")
     volts.set_ylabel("battery (V)")
     path_panel(path, t, v, w)

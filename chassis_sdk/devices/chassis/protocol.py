@@ -16,7 +16,15 @@ import struct
 from typing import ClassVar, TypeVar
 
 from ...core.construct import MemberCache, frozen_builder
-from ...core.framing import INVALID, NEED_DATA, FrameDecoder, FrameTable, byte_sum
+from ...core.framing import (
+    INVALID,
+    NEED_DATA,
+    Column,
+    FrameDecoder,
+    FrameLayout,
+    FrameTable,
+    byte_sum,
+)
 from ...core.validation import INT16, check_int, check_real, scale_to_int
 from .messages import (
     ChassisInfo,
@@ -391,6 +399,35 @@ _DEVICE_FRAMES: FrameTable = {
     ReplyId.SHIP_DATE: (13, _parse_date),
 }
 
+#: The framing as data (core.columns decodes whole captures with it): the frame id at 4,
+#: a fixed size from the table (the length byte unchecked), else the length byte gives
+#: the whole frame (10..255); a 16-bit sum of everything before the check; the tail.
+_LAYOUT = FrameLayout(
+    type_at=4, length_at=5, header=6, fixed_is_length=False, size_of_length=0,
+    min_length=_OVERHEAD, sum_from=0, check_size=2, tail=TAIL, data_at=_DATA,
+    overhead=_OVERHEAD,
+)  # fmt: skip
+
+
+def _wheels(prefix: str, at: int, divisor: float) -> tuple[Column, ...]:
+    names = ("front_left", "front_right", "rear_left", "rear_right")
+    return tuple(Column(f"{prefix}.{n}", at + 2 * i, "h", divisor) for i, n in enumerate(names))
+
+
+#: The high-rate frames as columns (names as a CSV export flattens the messages).
+_DEVICE_COLUMNS: dict[int, tuple[str, tuple[Column, ...]]] = {
+    ReplyId.TELEMETRY: ("Telemetry", (
+        Column("voltage", 0, "H", 10), Column("status", 2, "H", None),
+        Column("docking", 4, "H", None), Column("linear", 6, "h", 1000),
+        Column("angular", 8, "h", 1000), *_wheels("wheels", 10, 1000),
+        Column("seq", _SEQ, "H", None),
+    )),
+    ReplyId.POWER: ("PowerTelemetry", (
+        *_wheels("currents", 0, 10), Column("voltage_front", 8, "H", 10),
+        Column("voltage_rear", 10, "H", 10), Column("seq", _SEQ, "H", None),
+    )),
+}  # fmt: skip
+
 _HOST_FRAMES: FrameTable = {
     int(cid): ((18, _parse_drive) if cid == CommandId.DRIVE else (12, _parse_command))
     for cid in CommandId
@@ -474,6 +511,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
 
     _head = HEAD
     _table: ClassVar[FrameTable] = {}
+    layout = _LAYOUT
 
     __slots__ = ("sequence",)
 
@@ -541,6 +579,7 @@ class ChassisDecoder(_ProtocolADecoder[ChassisMessage]):
     """
 
     _table = _DEVICE_FRAMES
+    columns = _DEVICE_COLUMNS
 
 
 class ChassisCommandDecoder(_ProtocolADecoder[HostCommand]):
