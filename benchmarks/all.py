@@ -1,20 +1,26 @@
-"""Run every benchmark and print its table (about 12 minutes; --quick: about 2.5 minutes).
+"""Run every benchmark and print its table (about 25 minutes; --quick: about 4).
 
-    pip install ".[bench,fast]"
-    python benchmarks/all.py [--quick]
+    pip install ".[bench,fast,serialx,uvloop,columns]"
+    python benchmarks/all.py [--quick] [--json results.json]
+    python benchmarks/goals.py results.json --write docs/figures.md
 
 The figures in docs/figures.md come from this command on the 2-core development
 machine. It first prints what a figure depends on: the date, the commit, the CPU,
-Python and the versions of the packages on the path.
+Python and the versions of the packages on the path, and the load before and after
+each script. ``--json FILE`` also writes all of that and every script's figures to one
+file, from which ``goals.py`` makes the goals table in the docs.
 """
 
 from __future__ import annotations
 
+import argparse
 import datetime
+import json
 import os
 import platform
 import subprocess
 import sys
+import tempfile
 from importlib import metadata
 from pathlib import Path
 
@@ -28,6 +34,13 @@ SCRIPTS = [
     "recording.py",
     "scaling.py",
 ]
+#: How each script that can writes its figures to a file.
+JSON_FLAG = {
+    "decoder_throughput.py": "--json",
+    "latency.py": "--json-file",
+    "recording.py": "--json",
+    "scaling.py": "--json",
+}
 
 
 PACKAGES = [
@@ -89,20 +102,41 @@ def machine() -> list[str]:
 
 
 def main() -> int:
-    extra = sys.argv[1:]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="every script's quick mode")
+    parser.add_argument("--json", metavar="FILE", help="write the machine and every figure")
+    args = parser.parse_args()
+    extra = ["--quick"] if args.quick else []
+    report: dict[str, object] = {"machine": dict(line.split(": ", 1) for line in machine())}
+    scripts: dict[str, object] = {}
+    report["scripts"] = scripts
+    report["quick"] = args.quick
     print("== machine")
     for line in machine():
         print(line)
     print(flush=True)
-    for script in SCRIPTS:
-        print(f"== {script} {' '.join(extra)}".rstrip(), flush=True)
-        print(f"load before: {_load()}", flush=True)
-        done = subprocess.run([sys.executable, str(HERE / script), *extra], check=False)
-        print(f"load after: {_load()}", flush=True)
-        if done.returncode:
-            print(f"{script} failed with exit code {done.returncode}", file=sys.stderr)
-            return done.returncode
-        print(flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for script in SCRIPTS:
+            print(f"== {script} {' '.join(extra)}".rstrip(), flush=True)
+            before = _load()
+            print(f"load before: {before}", flush=True)
+            out = Path(tmp) / f"{script}.json"
+            flags = [JSON_FLAG[script], str(out)] if args.json and script in JSON_FLAG else []
+            command = [sys.executable, str(HERE / script), *extra, *flags]
+            done = subprocess.run(command, check=False)
+            after = _load()
+            print(f"load after: {after}", flush=True)
+            if done.returncode:
+                print(f"{script} failed with exit code {done.returncode}", file=sys.stderr)
+                return done.returncode
+            entry: dict[str, object] = {"load_before": before, "load_after": after}
+            if out.exists():
+                entry["figures"] = json.loads(out.read_text())
+            scripts[script] = entry
+            print(flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+        print(f"wrote {args.json}")
     return 0
 
 

@@ -15,9 +15,11 @@ ratios are taken within this run, so a busy machine slows both sides alike.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from chassis_sdk.protocol import (
@@ -87,14 +89,15 @@ def measure(make_decoder: Callable[[], Any], stream: bytes, chunk: int) -> float
     return elapsed
 
 
-def columns(cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]]) -> None:
+def columns(cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]]) -> dict[str, float]:
     """A whole capture into arrays (numpy, ``capture_columns``) against the decoder
     one object per frame, on the same bytes, printed first."""
     try:
         from chassis_sdk.core.columns import decode_joined
     except ImportError:
         print("numpy is not installed (pip install '.[columns]'): no column figures")
-        return
+        return {}
+    rates = {}
     for name, dec, (stream, _) in cases:
         objects = statistics.median(measure(dec, stream, 4096) for _ in range(RUNS))
         times = []
@@ -105,15 +108,19 @@ def columns(cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]]) -> No
             assert found.frames == N, found.frames
         secs = statistics.median(times)
         mb = len(stream) / secs / 1e6
+        rates[name] = N / secs
         print(f"{name + ' columns':<20}{'whole':<12}{N / secs:>12,.0f}{mb:>8.1f}"
               f"{'':>14}  {objects / secs:.0f}x objects")  # fmt: skip
+    return rates
 
 
 def main() -> None:
     global RUNS, N
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer, shorter runs (for CI)")
-    if parser.parse_args().quick:
+    parser.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
+    args = parser.parse_args()
+    if args.quick:
         RUNS, N = 3, 10_000
     cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]] = [
         ("chassis 0x81", ChassisDecoder, chassis_stream()),
@@ -123,7 +130,7 @@ def main() -> None:
     if mav is not None:
         cases.append(("pymavlink ATTITUDE", MavlinkDecoder, mav))
     print(f"{'decoder':<20}{'chunking':<12}{'frames/s':>12}{'MB/s':>8}{'x wire limit':>14}")
-    columns(cases[:2])
+    column_rates = columns(cases[:2])
     rates: dict[tuple[str, str], float] = {}
     for name, dec, (stream, size) in cases:
         for label, chunk in [("4 KiB", 4096), ("per frame", size)]:
@@ -135,12 +142,19 @@ def main() -> None:
     a, b = WIRE_BYTES_PER_S / 28, WIRE_BYTES_PER_S / 23
     print(f"(median of {RUNS} runs of {N:,} frames; wire limit at 115200 baud: "
           f"{a:.0f} frames/s of 0x81, {b:.0f} of 0x11)")  # fmt: skip
+    ratios = {}
     if mav is None:
         print("pymavlink is not installed (pip install '.[bench]'): no comparison")
-        return
-    for label in ("4 KiB", "per frame"):
-        ratio = rates["chassis 0x81", label] / rates["pymavlink ATTITUDE", label]
+    for label in ("4 KiB", "per frame") if mav is not None else ():
+        ratio = ratios[label] = rates["chassis 0x81", label] / rates["pymavlink ATTITUDE", label]
         print(f"protocol A decoder / pymavlink, {label}: {ratio:.2f}x (target >= 5x)")
+    if args.json:
+        report = {
+            "frames_per_s": {f"{name} / {label}": fps for (name, label), fps in rates.items()},
+            "columns_frames_per_s": column_rates,
+            "vs_pymavlink": ratios,
+        }
+        Path(args.json).write_text(json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

@@ -13,6 +13,12 @@ Three figures, each p50 and p99 (and max):
   reads it, while 50 Hz telemetry is being consumed (300 intervals).
 
 Both processes read ``time.monotonic()`` (CLOCK_MONOTONIC, one clock per machine).
+
+The **floor** is measured in the same run, against the same firmware process on a pty
+of its own: asyncio's ``add_reader`` and one ``os.read`` per wake-up, frames cut at
+their known size with no check and no decoding, and a task woken by a future: the
+least an asyncio application can do to see a frame in a task, or to send a request and
+see its reply. Every SDK figure is printed with its ratio to the floor.
 """
 
 from __future__ import annotations
@@ -44,70 +50,133 @@ def summary(samples: list[float]) -> dict[str, float]:
     return {"p50": q[49] * 1e3, "p99": q[98] * 1e3, "max": max(samples) * 1e3, "n": len(samples)}
 
 
-async def measure() -> dict[str, object]:
-    from chassis_sdk import Chassis
+class _Firmware:
+    """The firmware process (benchmarks/_firmware.py) on the master side of a new pty."""
 
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, str(FIRMWARE), str(master), pass_fds=(master,),
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-    )  # fmt: skip
-    os.close(master)
-    assert proc.stdin is not None
-    assert proc.stdout is not None
+    def __init__(self) -> None:
+        self.proc: asyncio.subprocess.Process | None = None
+        self.slave = -1
 
-    async def ask(line: str) -> list[float]:
-        assert proc.stdin is not None
-        assert proc.stdout is not None
-        proc.stdin.write(line.encode() + b"\n")
-        await proc.stdin.drain()
-        result: list[float] = json.loads(await proc.stdout.readline())
+    async def __aenter__(self) -> _Firmware:
+        master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.proc = await asyncio.create_subprocess_exec(
+            sys.executable, str(FIRMWARE), str(master), pass_fds=(master,),
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        )  # fmt: skip
+        os.close(master)
+        return self
+
+    async def ask(self, line: str) -> list[float]:
+        assert self.proc is not None
+        assert self.proc.stdin is not None
+        assert self.proc.stdout is not None
+        self.proc.stdin.write(line.encode() + b"\n")
+        await self.proc.stdin.drain()
+        result: list[float] = json.loads(await self.proc.stdout.readline())
         return result
 
-    try:
-        async with Chassis(os.ttyname(slave), resend_interval=RESEND) as robot:
-            # 1. firmware write -> async for
+    async def __aexit__(self, *exc: object) -> None:
+        assert self.proc is not None
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(b"quit\n")
+        await self.proc.wait()
+        os.close(self.slave)
+
+
+async def measure_floor() -> dict[str, object]:
+    """The same two figures with the least an asyncio application can do (see above)."""
+    from chassis_sdk.protocol import ChassisEncoder, Command, CommandId
+
+    loop = asyncio.get_running_loop()
+    async with _Firmware() as fw:
+        fd = fw.slave
+        os.set_blocking(fd, False)
+        pending = bytearray()
+        seqs: list[int] = []
+        waiter: asyncio.Future[None] | None = None
+
+        def readable() -> None:
+            nonlocal waiter
+            pending.extend(os.read(fd, 4096))
+            while (len(pending) >= 12 and pending[4] == 0x87) or len(pending) >= 28:
+                size = 12 if pending[4] == 0x87 else 28
+                seqs.append(pending[2] | pending[3] << 8)
+                del pending[:size]
+            if seqs and waiter is not None and not waiter.done():
+                waiter.set_result(None)
+
+        loop.add_reader(fd, readable)
+        try:
             arrived: dict[int, float] = {}
-            sub = robot.telemetry()
-            written = asyncio.ensure_future(ask(f"stream {N_FRAMES} 0.005"))
-            async for t in sub:
-                arrived[t.seq] = time.monotonic()
-                if t.seq == N_FRAMES - 1:
-                    break
+            written = asyncio.ensure_future(fw.ask(f"stream {N_FRAMES} 0.005"))
+            while len(arrived) < N_FRAMES and (N_FRAMES - 1) not in arrived:
+                waiter = loop.create_future()
+                await waiter
+                now = time.monotonic()
+                for seq in seqs:
+                    arrived[seq] = now
+                seqs.clear()
             sent = await written
             latency = [arrived[i] - sent[i] for i in range(N_FRAMES) if i in arrived]
-
-            # 2. request round trip
+            request = ChassisEncoder().encode(Command(CommandId.FIRMWARE_VERSION))
             rtt = []
             for _ in range(N_REQUESTS):
                 t0 = time.perf_counter()
-                await robot.get_firmware_version()
+                waiter = loop.create_future()
+                os.write(fd, request)
+                await waiter
+                seqs.clear()
                 rtt.append(time.perf_counter() - t0)
+        finally:
+            loop.remove_reader(fd)
+    return {"backend": "floor", "latency": summary(latency), "round_trip": summary(rtt),
+            "frames_lost": N_FRAMES - len(latency)}  # fmt: skip
 
-            # 3. watchdog resend jitter, with 50 Hz telemetry being consumed meanwhile
-            await ask("drives")
-            hold = RESEND * (N_RESENDS + 1) + 0.01
-            streaming = asyncio.ensure_future(ask(f"stream {int(hold / 0.02) + 5} 0.02"))
 
-            async def consume() -> None:
-                async for _ in robot.telemetry():
-                    pass
+async def measure() -> dict[str, object]:
+    from chassis_sdk import Chassis
 
-            consumer = asyncio.ensure_future(consume())
-            await robot.set_velocity(0.1, 0.0, duration=hold)
-            await streaming
-            drives = await ask("drives")
-            consumer.cancel()
-            intervals = [b - a for a, b in itertools.pairwise(drives)][:N_RESENDS]
-            jitter = [abs(i - RESEND) for i in intervals]
-            backend = robot.transport_backend
-            lost = N_FRAMES - len(latency)
-    finally:
-        assert proc.stdin is not None
-        proc.stdin.write(b"quit\n")
-        await proc.wait()
-        os.close(slave)
+    async with (
+        _Firmware() as fw,
+        Chassis(os.ttyname(fw.slave), resend_interval=RESEND) as robot,
+    ):
+        # 1. firmware write -> async for
+        arrived: dict[int, float] = {}
+        sub = robot.telemetry()
+        written = asyncio.ensure_future(fw.ask(f"stream {N_FRAMES} 0.005"))
+        async for t in sub:
+            arrived[t.seq] = time.monotonic()
+            if t.seq == N_FRAMES - 1:
+                break
+        sent = await written
+        latency = [arrived[i] - sent[i] for i in range(N_FRAMES) if i in arrived]
+
+        # 2. request round trip
+        rtt = []
+        for _ in range(N_REQUESTS):
+            t0 = time.perf_counter()
+            await robot.get_firmware_version()
+            rtt.append(time.perf_counter() - t0)
+
+        # 3. watchdog resend jitter, with 50 Hz telemetry being consumed meanwhile
+        await fw.ask("drives")
+        hold = RESEND * (N_RESENDS + 1) + 0.01
+        streaming = asyncio.ensure_future(fw.ask(f"stream {int(hold / 0.02) + 5} 0.02"))
+
+        async def consume() -> None:
+            async for _ in robot.telemetry():
+                pass
+
+        consumer = asyncio.ensure_future(consume())
+        await robot.set_velocity(0.1, 0.0, duration=hold)
+        await streaming
+        drives = await fw.ask("drives")
+        consumer.cancel()
+        intervals = [b - a for a, b in itertools.pairwise(drives)][:N_RESENDS]
+        jitter = [abs(i - RESEND) for i in intervals]
+        backend = robot.transport_backend
+        lost = N_FRAMES - len(latency)
     return {
         "backend": backend,
         "latency": summary(latency),
@@ -117,20 +186,25 @@ async def measure() -> dict[str, object]:
     }
 
 
-def run_one(backend: str) -> dict[str, object]:
-    env = dict(os.environ, CHASSIS_SDK_BACKEND=backend)
+def run_one(backend: str, loop: str) -> dict[str, object]:
+    env = dict(os.environ, CHASSIS_SDK_BACKEND=backend if backend != "floor" else "")
     out = subprocess.run(
-        [sys.executable, __file__, "--backend", backend, "--json", *QUICK],
+        [sys.executable, __file__, "--backend", backend, "--loop", loop, "--json", *QUICK],
         env=env, check=True, capture_output=True, text=True,
     )  # fmt: skip
     result: dict[str, object] = json.loads(out.stdout)
+    result["loop"] = loop
     return result
 
 
 def main() -> None:
+    from chassis_sdk.core.run import loop_factory
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--backend", choices=BACKENDS)
+    parser.add_argument("--backend", choices=["floor", *BACKENDS])
+    parser.add_argument("--loop", choices=["asyncio", "uvloop"], help="default: both")
     parser.add_argument("--json", action="store_true", help="print one backend's figures as JSON")
+    parser.add_argument("--json-file", metavar="FILE", help="also write every figure to FILE")
     parser.add_argument("--quick", action="store_true", help="fewer samples (for CI)")
     args = parser.parse_args()
     if args.quick:
@@ -138,28 +212,44 @@ def main() -> None:
         QUICK.append("--quick")
         N_FRAMES, N_REQUESTS, N_RESENDS = 300, 300, 50
     if args.json:
-        if args.backend:
+        if args.backend and args.backend != "floor":
             os.environ["CHASSIS_SDK_BACKEND"] = args.backend
-        print(json.dumps(asyncio.run(measure())))
+        job = measure_floor() if args.backend == "floor" else measure()
+        with asyncio.Runner(loop_factory=loop_factory(args.loop == "uvloop")) as runner:
+            print(json.dumps(runner.run(job)))
         return
     backends = [args.backend] if args.backend else BACKENDS
-    results = []
-    for backend in backends:
-        try:
-            results.append(run_one(backend))
-        except subprocess.CalledProcessError as exc:
-            print(f"{backend}: not measured ({exc.stderr.strip().splitlines()[-1]})")
-    print(f"{'figure (ms)':<28}" + "".join(f"{r['backend']:>24}" for r in results))
-    for key, label in [
-        ("latency", "write -> async for"),
-        ("round_trip", "round trip 0x07 -> 0x87"),
-        ("jitter", "watchdog jitter"),
-    ]:
-        for q in ("p50", "p99", "max"):
-            cells = "".join(f"{r[key][q]:>24.3f}" for r in results)  # type: ignore[index]
-            print(f"{label + ' ' + q:<28}{cells}")
+    loops = [args.loop] if args.loop else ["asyncio"] + (["uvloop"] if loop_factory() else [])
+    report: dict[str, object] = {}
+    for loop in loops:
+        floor = run_one("floor", loop)
+        results = []
+        for backend in backends:
+            try:
+                results.append(run_one(backend, loop))
+            except subprocess.CalledProcessError as exc:
+                print(f"{backend}: not measured ({exc.stderr.strip().splitlines()[-1]})")
+        report[loop] = {"floor": floor, "sdk": results}
+        print(f"\n{loop} loop: ms, and each SDK figure's ratio to the floor")
+        print(f"{'figure (ms)':<28}{'floor':>10}" + "".join(f"{r['backend']:>24}" for r in results))
+        for key, label in [
+            ("latency", "write -> async for"),
+            ("round_trip", "round trip 0x07 -> 0x87"),
+            ("jitter", "watchdog jitter"),
+        ]:
+            for q in ("p50", "p99", "max"):
+                base = floor.get(key)
+                cells = f"{base[q]:>10.3f}" if isinstance(base, dict) else f"{'':>10}"
+                for r in results:
+                    value = r[key][q]  # type: ignore[index]
+                    ratio = f" ({value / base[q]:.2f}x)" if isinstance(base, dict) else ""
+                    cells += f"{f'{value:.3f}{ratio}':>24}"
+                print(f"{label + ' ' + q:<28}{cells}")
     print(f"({N_FRAMES} frames at 200 Hz, {N_REQUESTS} requests, {N_RESENDS} resends at "
-          f"{RESEND * 1e3:.0f} ms; a firmware process on a pty; target p99 <= 2 ms)")  # fmt: skip
+          f"{RESEND * 1e3:.0f} ms; a firmware process on a pty; floor: add_reader + os.read, "
+          "frames cut by size, a future per wake-up; target p99 <= 2 ms)")  # fmt: skip
+    if args.json_file:
+        Path(args.json_file).write_text(json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

@@ -136,9 +136,33 @@ def write_hour(path: Path | None, session: list[tuple[float, bool, bytes]]) -> d
 
 
 def timed(command: list[str]) -> float:
+    return timed_rss(command)[0]
+
+
+#: Runs the CLI and prints its peak memory (VmHWM, kB) to stderr as it exits. A child's
+#: ``ru_maxrss`` would not do: it starts from the forking parent's size.
+_PEAK = (
+    "import atexit, runpy, sys\n"
+    "def peak():\n"
+    "    for line in open('/proc/self/status'):\n"
+    "        if line.startswith('VmHWM:'):\n"
+    "            print('peak-kb', line.split()[1], file=sys.stderr)\n"
+    "atexit.register(peak)\n"
+    "sys.argv = ['chassis-sdk', *sys.argv[1:]]\n"
+    "runpy.run_module('chassis_sdk.cli', run_name='__main__')\n"
+)
+
+
+def timed_rss(args: list[str]) -> tuple[float, float]:
+    """Seconds ``chassis-sdk ARGS`` takes, and its own peak memory (MB)."""
     start = time.monotonic()
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-    return time.monotonic() - start
+    done = subprocess.run(
+        [sys.executable, "-c", _PEAK, *args],
+        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    elapsed = time.monotonic() - start
+    peak = [line.split()[1] for line in done.stderr.splitlines() if line.startswith("peak-kb")]
+    return elapsed, int(peak[-1]) / 1024 if peak else math.nan
 
 
 def read_floor(path: Path) -> float:
@@ -182,6 +206,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3 s windows, a tenth of an hour")
     parser.add_argument("--cpu", metavar="SUFFIX", help="(internal) one CPU measurement")
+    parser.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
     args = parser.parse_args()
     global WINDOW
     if args.quick:
@@ -195,12 +220,14 @@ def main() -> None:
     print(f"{'recording':<24}{'CPU %':>7}{'x floor':>9}{'frames/s':>10}{'file KB/s':>11}"
           f"{'lag p50 us':>12}{'p99 us':>8}")  # fmt: skip
     floor = None
+    report: dict[str, Any] = {"cpu": [], "hour": {}}
     for suffix in ("floor", "", ".jsonl", ".mcap"):
         out = subprocess.run(
             [sys.executable, __file__, "--cpu", suffix, *quick],
             check=True, capture_output=True, text=True,
         )  # fmt: skip
         r = json.loads(out.stdout)
+        report["cpu"].append({"recording": suffix, **r})
         cpu = float(r["cpu_percent"])
         floor = cpu if suffix == "floor" else floor
         name = {"floor": "floor: raw os.read", "": "Chassis, no recording"}.get(
@@ -230,7 +257,8 @@ def main() -> None:
             decode, n = decode_all(path)
             columns, n_columns = columns_all(path)
             cli = [sys.executable, "-m", "chassis_sdk.cli"]
-            replay = timed([*cli, "replay", str(path), "--protocol", "chassis"])
+            replay, replay_mb = timed_rss(["replay", str(path), "--protocol", "chassis"])
+            as_json, json_mb = timed_rss(["replay", str(path), "--json"])
             export = timed([*cli, "export", str(path), "--csv", str(Path(tmp) / "csv")])
             floor_s = read_floor(path)
             per_frame = (w["cpu_s"] - bare["cpu_s"]) / w["frames"] * 1e6
@@ -239,6 +267,13 @@ def main() -> None:
                   f"{replay * scale:>10.1f}"
                   f"{export * scale:>10.1f}{floor_s * scale:>9.1f}")  # fmt: skip
             assert n == w["rx_chunks"], (n, w)
+            report["hour"][suffix[1:]] = {
+                "mb_per_hour": w["bytes"] * scale / 1e6, "write_s": w["cpu_s"] * scale,
+                "recorder_us_per_frame": per_frame, "decode_s": decode * scale,
+                "columns_s": columns * scale, "replay_s": replay * scale, "replay_mb": replay_mb,
+                "replay_json_s": as_json * scale, "replay_json_mb": json_mb,
+                "export_s": export * scale, "floor_s": floor_s * scale, "scale": scale,
+            }  # fmt: skip
             assert n_columns in (0, n), (n_columns, n)
             with contextlib.suppress(FileNotFoundError):
                 os.remove(path)
@@ -250,6 +285,12 @@ def main() -> None:
         "the same frames; replay: `chassis-sdk replay` into /dev/null; "
         "export: `export --csv`; floor: the file read with no decoding)"
     )
+    for name, h in report["hour"].items():
+        plain = f"replay {h['replay_s']:.1f} s, {h['replay_mb']:.0f} MB peak"
+        json_text = f"replay --json {h['replay_json_s']:.1f} s, {h['replay_json_mb']:.0f} MB peak"
+        print(f"{name}: {plain}; {json_text}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1))
 
 
 if __name__ == "__main__":

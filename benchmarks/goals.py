@@ -1,0 +1,152 @@
+"""The speed goals table, made from one ``all.py --json`` run: every figure beside its
+goal, each SDK figure as its ratio to the floor measured in the same run.
+
+    python benchmarks/all.py --json results.json
+    python benchmarks/goals.py results.json                          # print it
+    python benchmarks/goals.py results.json --write docs/figures.md  # put it in the docs
+
+``--write`` replaces what lies between ``<!-- goals:begin -->`` and ``<!-- goals:end -->``
+in the file, so the docs' table is never typed by hand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+BEGIN, END = "<!-- goals:begin -->", "<!-- goals:end -->"
+
+
+def _span(values: Iterable[float], unit: str = "×") -> str:
+    """``2.1-2.9×`` (or one value) of the values, or a dash if there are none."""
+    v = sorted(values)
+    if not v:
+        return "not measured"
+    lo, hi = v[0], v[-1]
+    return f"{lo:.2f}{unit}" if f"{lo:.2f}" == f"{hi:.2f}" else f"{lo:.2f}-{hi:.2f}{unit}"
+
+
+def _met(ok: bool | None) -> str:
+    return "—" if ok is None else ("**met**" if ok else "not met")
+
+
+def _cpu_ratios(rows: list[dict[str, Any]], n: int) -> dict[str, list[float]]:
+    """CPU / floor (same loop, same N) of every transport, by loop."""
+    out: dict[str, list[float]] = {}
+    floors = {
+        r["config"].rsplit(" / ", 1)[1]: r["cpu_percent"]
+        for r in rows
+        if r["chassis"] == n and "backend" not in r
+    }
+    for r in rows:
+        if r["chassis"] == n and "backend" in r:
+            loop = r["config"].rsplit(" / ", 1)[1]
+            if floors.get(loop):
+                out.setdefault(loop, []).append(r["cpu_percent"] / floors[loop])
+    return out
+
+
+def _by_loop(ratios: dict[str, list[float]]) -> str:
+    return "; ".join(f"{_span(v)} {loop}" for loop, v in sorted(ratios.items())) or "—"
+
+
+def table(report: dict[str, Any]) -> list[str]:
+    """The goals table's lines (markdown)."""
+    scripts = report["scripts"]
+
+    def figures(script: str) -> Any:
+        return scripts.get(script, {}).get("figures")
+
+    lines = ["| figure | goal | measured | |", "|---|---|---|---|"]
+    scaling = figures("scaling.py") or []
+    for n in (1, 32, 128):
+        ratios = _cpu_ratios(scaling, n)
+        worst = max((max(v) for v in ratios.values()), default=None)
+        lines.append(
+            f"| CPU per chassis at 50 Hz vs the raw reader, N = {n} | ≤ 1.5× | "
+            f"{_by_loop(ratios)} | {_met(None if worst is None else worst <= 1.5)} |"
+        )
+    clean: dict[int, list[bool]] = {}
+    for r in scaling:
+        if "backend" in r:
+            clean.setdefault(r["chassis"], []).append(r["errors"] == 0 and r["got"] >= 0.99)
+    top = max((n for n, oks in clean.items() if all(oks)), default=None)
+    lines.append(
+        "| chassis at 50 Hz in one process, nothing lost, no error (every transport and loop) "
+        f"| ≥ 512 | {top if top is not None else 'not measured'} | "
+        f"{_met(None if top is None else top >= 512)} |"
+    )
+    decoder = figures("decoder_throughput.py") or {}
+    versus = decoder.get("vs_pymavlink", {})
+    for label in ("per frame", "4 KiB"):
+        r = versus.get(label)
+        lines.append(
+            f"| protocol A decoder vs pymavlink, {label} | ≥ 5× | "
+            f"{'not measured' if r is None else f'{r:.2f}×'} | "
+            f"{_met(None if r is None else r >= 5)} |"
+        )
+    hour = (figures("recording.py") or {}).get("hour", {}).get("jsonl")
+    if hour is not None:
+        ok = hour["replay_s"] <= 2 and hour["replay_mb"] <= 50
+        lines.append(
+            f"| `replay` of a 1 h capture (180,000 frames) | ≤ 2 s, ≤ 50 MB | "
+            f"{hour['replay_s']:.1f} s, {hour['replay_mb']:.0f} MB | {_met(ok)} |"
+        )
+        lines.append(
+            f"| `replay --json` of the same | ≤ 4 s | {hour['replay_json_s']:.1f} s | "
+            f"{_met(hour['replay_json_s'] <= 4)} |"
+        )
+    latency = figures("latency.py") or {}
+    for key, label in (
+        ("latency", "write → `async for` p99"),
+        ("round_trip", "request round trip p99"),
+    ):
+        versus_floor = {
+            loop: [r[key]["p99"] / result["floor"][key]["p99"] for r in result["sdk"]]
+            for loop, result in latency.items()
+        }
+        worst = max((max(v) for v in versus_floor.values() if v), default=None)
+        lines.append(
+            f"| {label} vs the floor, every transport | ≤ 1.2× | {_by_loop(versus_floor)} | "
+            f"{_met(None if worst is None else worst <= 1.2)} |"
+        )
+    machine = report["machine"]
+    quick = " (quick mode: shorter windows, fewer samples)" if report.get("quick") else ""
+    lines += [
+        "",
+        f"Measured {machine['date']}, commit {machine['commit']}, {machine['cpu']}, "
+        f"{machine['python']}{quick}; load before/after each script: "
+        + ", ".join(
+            f"{name} {s['load_before'].split()[0]}/{s['load_after'].split()[0]}"
+            for name, s in scripts.items()
+        )
+        + ".",
+    ]
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("results", help="the file all.py --json wrote")
+    parser.add_argument("--write", metavar="DOC", help="replace the table in DOC")
+    args = parser.parse_args()
+    report = json.loads(Path(args.results).read_text())
+    text = "\n".join(table(report))
+    if not args.write:
+        print(text)
+        return
+    doc = Path(args.write)
+    old = doc.read_text()
+    pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
+    if not pattern.search(old):
+        raise SystemExit(f"{doc} has no {BEGIN} ... {END} block to replace")
+    doc.write_text(pattern.sub(lambda _: f"{BEGIN}\n{text}\n{END}", old))
+    print(f"wrote the goals table into {doc}")
+
+
+if __name__ == "__main__":
+    main()
