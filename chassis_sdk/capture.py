@@ -373,7 +373,7 @@ def _chunks(path: str | Path, commands: bool) -> Iterator[tuple[float, bytes]]:
 def capture_columns(path: str | Path, protocol: str, *, commands: bool = False) -> Columns:
     """Decode a whole capture into arrays (numpy): a column per field, in SI units.
 
-    The frames :func:`decode_capture` finds, decoded 12-21 times faster (reading the
+    The frames :func:`decode_capture` finds, decoded 10-27 times faster (reading the
     file then takes most of the time). The high-rate types (telemetry, power; IMU,
     velocity, battery) come out as a table of columns each, ``t`` (seconds since the
     start) first; every other frame is in ``messages`` as an object:

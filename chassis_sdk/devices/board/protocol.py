@@ -335,6 +335,7 @@ def _xyz(prefix: str, at: int, divisor: float) -> tuple[Column, ...]:
 _DEVICE_COLUMNS: dict[int, tuple[str, tuple[Column, ...]]] = {
     BoardType.IMU: ("ImuSample", (
         *_xyz("accel", 0, ACCEL_SCALE), *_xyz("gyro", 6, GYRO_SCALE), *_xyz("mag", 12, 1),
+        *(Column(f"raw.{name}", 2 * i, "h", None) for i, name in enumerate(ImuCounts._fields)),
     )),
     BoardType.VELOCITY_FEEDBACK: ("VelocityFeedback", (
         Column("linear", 0, "h", 1000), Column("angular", 2, "h", 1000),
