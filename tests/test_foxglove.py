@@ -49,6 +49,17 @@ def messages(path: Path, topic: str) -> list[tuple[int, bytes]]:
         return [(m.log_time, m.data) for _, _, m in make_reader(f).iter_messages(topics=[topic])]
 
 
+async def all_received(sim: ChassisSimulator, path: Path) -> list[object]:
+    """What the simulator received, once it has read every frame the recording says
+    was written (the zero of ``close()`` is written as the device closes, and the
+    simulator reads it a loop turn or more later)."""
+    sent = sum(1 for _ in capture.decode_capture(path, "chassis", commands=True))
+    async with asyncio.timeout(5.0):
+        while len(sim.firmware.received) < sent:
+            await asyncio.sleep(0)  # checked once per loop iteration
+    return [c for _, c in sim.firmware.received]
+
+
 async def telemetry_frames(robot: Chassis, n: int) -> list[Telemetry]:
     frames = []
     async for t in robot.telemetry():
@@ -78,7 +89,7 @@ async def test_an_application_recording_holds_both_directions_streams_and_metada
                     break
             version = await robot.get_firmware_version()
             seen = await telemetry_frames(robot, 5)
-        written = [c for _, c in sim.firmware.received]
+        written = await all_received(sim, path)
     channels, metadata = summary(path)
     expect = {
         "/chassis/raw/rx": ("json", "chassis_sdk.RawBytes", "jsonschema"),
@@ -157,7 +168,7 @@ async def test_a_jsonl_recording_holds_both_directions(tmp_path: Path) -> None:
         async with Chassis(sim.port, record=path) as robot:
             await robot.set_velocity(0.1, 0.0)
             await telemetry_frames(robot, 10)
-        written = [c for _, c in sim.firmware.received]
+        written = await all_received(sim, path)
     assert [c for _, c in capture.decode_capture(path, "chassis", commands=True)] == written
     received = [m for _, m in capture.decode_capture(path, "chassis")]
     assert sum(isinstance(m, Telemetry) for m in received) >= 10
