@@ -125,3 +125,30 @@ async def test_a_failing_read_is_a_lost_link_once_not_a_traceback_per_wakeup(
             break
     assert failures == 1
     assert not [r for r in caplog.records if r.name == "asyncio"]
+
+
+async def test_no_read_asks_for_more_than_read_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    """serialx asks for 256 KiB per read: past glibc's mmap threshold, so every read
+    mapped, shrank and unmapped a buffer (three system calls and a page fault; 70 us
+    per request round trip at p50 in benchmarks/latency.py)."""
+    import types
+
+    reader: Any = transport
+    if transport.BACKEND == "serialx":
+        reader = importlib.import_module("serialx.descriptor_transport")
+    sizes: list[int] = []
+
+    def recording_read(fd: int, size: int) -> bytes:
+        sizes.append(size)
+        return os.read(fd, size)
+
+    spy = types.ModuleType("os")
+    spy.__dict__.update(os.__dict__)
+    spy.read = recording_read  # type: ignore[attr-defined]
+    monkeypatch.setattr(reader, "os", spy)
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        async for _ in robot.telemetry():
+            break
+        await robot.get_firmware_version()
+    assert sizes
+    assert max(sizes) <= transport.READ_SIZE, max(sizes)

@@ -112,6 +112,12 @@ __all__ = ["BACKEND", "Link", "Tap", "open_link"]
 
 M = TypeVar("M")
 
+#: The most serialx reads per wake-up. Its default, 256 KiB, is past glibc's mmap
+#: threshold (128 KiB): every read then maps and unmaps a buffer, some 18 us a read on
+#: a pty (benchmarks/read_size.py); 64 KiB is served from the heap and still drains
+#: more than half a second of a 1 Mbaud line in one read.
+READ_SIZE = 64 * 1024
+
 #: Bytes of non-velocity frames held while the port cannot take them (requests and
 #: commands are at most a few dozen bytes each; past this the device is not reading).
 QUEUE_LIMIT = 1024
@@ -636,6 +642,8 @@ async def open_link(
                 transport, protocol = await _serial_asyncio.create_serial_connection(
                     loop, link_factory, url, baudrate, exclusive=True
                 )
+                if isinstance(getattr(transport, "max_size", None), int):
+                    setattr(transport, "max_size", READ_SIZE)  # noqa: B010 (not typed)
             else:
                 ser = await _open_serial_in_thread(url, baudrate)
                 transport, protocol = await _serial_asyncio.connection_for_serial(
