@@ -72,6 +72,53 @@ async def test_requester_answers_the_call_and_counts_late_and_unmatched_replies(
     assert (requests.unmatched, requests.late) == (1, 1)
 
 
+async def test_a_reply_wakes_its_call_on_the_next_loop_turn() -> None:
+    # The reply wakes the waiting task itself: with asyncio.wait in between (a done
+    # callback that wakes the waiter that wakes the task) it took one turn more.
+    wire = Wire()
+    requests: Requester[str] = Requester(
+        "fake", wire.write, wire.ensure_open, timeout=5.0, retries=0, log=LOG
+    )
+    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
+    while not wire.frames:
+        await asyncio.sleep(0)
+    requests.reply("v", 7)
+    await asyncio.sleep(0)
+    assert call.done()
+    assert call.result() == 7
+
+
+async def test_a_reply_to_an_earlier_attempt_answers_the_retry() -> None:
+    wire = Wire()
+    requests: Requester[str] = Requester(
+        "fake", wire.write, wire.ensure_open, timeout=0.05, retries=2, log=LOG
+    )
+    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
+    while len(wire.frames) < 2:  # the first attempt timed out; the second is waiting
+        await asyncio.sleep(0.005)
+    requests.reply("v", 7)  # the reply to the first request
+    assert await call == 7
+    assert (requests.unmatched, requests.late) == (0, 0)
+    requests.reply("v", 7)  # the second request's own reply comes after: late
+    assert (requests.unmatched, requests.late) == (0, 1)
+
+
+async def test_a_cancelled_call_gives_up_its_key_and_its_reply_is_late() -> None:
+    wire = Wire()
+    requests: Requester[str] = Requester(
+        "fake", wire.write, wire.ensure_open, timeout=5.0, retries=0, log=LOG
+    )
+    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
+    while not wire.frames:
+        await asyncio.sleep(0)
+    call.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await call
+    assert len(requests) == 0
+    requests.reply("v", 7)
+    assert (requests.unmatched, requests.late) == (0, 1)
+
+
 async def test_requester_writes_nothing_when_the_link_is_down() -> None:
     wire = Wire()
     wire.open = False

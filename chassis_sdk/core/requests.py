@@ -89,10 +89,9 @@ class Requester(Generic[K]):
                     self._ensure_open()
                 self._write(frame)
                 table.sent(key)
-                # asyncio.wait, unlike a cancel scope, leaves the call's future intact
-                # for the next attempt.
-                done, _ = await asyncio.wait((call,), timeout=self.timeout)
-                if done:
+                # Unlike a cancel scope, this leaves the call's future intact for the
+                # next attempt.
+                if await table.wait(key, call, self.timeout):
                     return call.result()
                 self._log.debug("%s: %s attempt %d timed out", self.port, name, attempt)
         finally:
