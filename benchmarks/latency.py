@@ -6,8 +6,13 @@
 Three figures, each p50 and p99 (and max):
 
 * **write -> async for**: from the firmware process's ``os.write`` of a 0x81 frame to
-  the application's ``async for`` body receiving it (2,000 frames at 200 Hz);
-* **round trip**: ``await robot.get_firmware_version()``, 2,000 in a row;
+  the application's ``async for`` body receiving it (2,000 frames at 200 Hz); and the
+  part of it from the moment the read callback had the bytes (``Telemetry.timestamp``;
+  the floor's callback reads the clock first too) to the ``async for`` body: what the
+  process itself adds, apart from the kernel and the wake-up;
+* **round trip**: ``await robot.get_firmware_version()``, 2,000 in a row, and the
+  application process's CPU time per call (``time.process_time()``: steadier on a
+  shared machine than the wall-clock percentiles);
 * **watchdog jitter**: how far each resend of a held ``set_velocity`` arrives from the
   ``resend_interval`` (20 ms here) after the one before, measured where the firmware
   reads it, while 50 Hz telemetry is being consumed (300 intervals).
@@ -96,12 +101,17 @@ async def measure_floor() -> dict[str, object]:
         seqs: list[int] = []
         waiter: asyncio.Future[None] | None = None
 
+        read_at: dict[int, float] = {}
+
         def readable() -> None:
             nonlocal waiter
+            now = time.monotonic()
             pending.extend(os.read(fd, 4096))
             while (len(pending) >= 12 and pending[4] == 0x87) or len(pending) >= 28:
                 size = 12 if pending[4] == 0x87 else 28
-                seqs.append(pending[2] | pending[3] << 8)
+                seq = pending[2] | pending[3] << 8
+                seqs.append(seq)
+                read_at[seq] = now
                 del pending[:size]
             if seqs and waiter is not None and not waiter.done():
                 waiter.set_result(None)
@@ -119,8 +129,10 @@ async def measure_floor() -> dict[str, object]:
                 seqs.clear()
             sent = await written
             latency = [arrived[i] - sent[i] for i in range(N_FRAMES) if i in arrived]
+            inside = [arrived[i] - read_at[i] for i in range(N_FRAMES) if i in arrived]
             request = ChassisEncoder().encode(Command(CommandId.FIRMWARE_VERSION))
             rtt = []
+            cpu = time.process_time()
             for _ in range(N_REQUESTS):
                 t0 = time.perf_counter()
                 waiter = loop.create_future()
@@ -128,9 +140,12 @@ async def measure_floor() -> dict[str, object]:
                 await waiter
                 seqs.clear()
                 rtt.append(time.perf_counter() - t0)
+            cpu = time.process_time() - cpu
         finally:
             loop.remove_reader(fd)
-    return {"backend": "floor", "latency": summary(latency), "round_trip": summary(rtt),
+    return {"backend": "floor", "latency": summary(latency), "inside": summary(inside),
+            "round_trip": summary(rtt),
+            "round_trip_cpu_us": cpu / N_REQUESTS * 1e6,
             "frames_lost": N_FRAMES - len(latency)}  # fmt: skip
 
 
@@ -143,21 +158,26 @@ async def measure() -> dict[str, object]:
     ):
         # 1. firmware write -> async for
         arrived: dict[int, float] = {}
+        read_at: dict[int, float] = {}
         sub = robot.telemetry()
         written = asyncio.ensure_future(fw.ask(f"stream {N_FRAMES} 0.005"))
         async for t in sub:
             arrived[t.seq] = time.monotonic()
+            read_at[t.seq] = t.timestamp  # taken as the read callback got the bytes
             if t.seq == N_FRAMES - 1:
                 break
         sent = await written
         latency = [arrived[i] - sent[i] for i in range(N_FRAMES) if i in arrived]
+        inside = [arrived[i] - read_at[i] for i in range(N_FRAMES) if i in arrived]
 
         # 2. request round trip
         rtt = []
+        cpu = time.process_time()
         for _ in range(N_REQUESTS):
             t0 = time.perf_counter()
             await robot.get_firmware_version()
             rtt.append(time.perf_counter() - t0)
+        cpu = time.process_time() - cpu
 
         # 3. watchdog resend jitter, with 50 Hz telemetry being consumed meanwhile
         await fw.ask("drives")
@@ -180,8 +200,10 @@ async def measure() -> dict[str, object]:
     return {
         "backend": backend,
         "latency": summary(latency),
+        "inside": summary(inside),
         "frames_lost": lost,
         "round_trip": summary(rtt),
+        "round_trip_cpu_us": cpu / N_REQUESTS * 1e6,
         "jitter": summary(jitter),
     }
 
@@ -234,10 +256,11 @@ def main() -> None:
         print(f"{'figure (ms)':<28}{'floor':>10}" + "".join(f"{r['backend']:>24}" for r in results))
         for key, label in [
             ("latency", "write -> async for"),
+            ("inside", "  read -> async for"),
             ("round_trip", "round trip 0x07 -> 0x87"),
             ("jitter", "watchdog jitter"),
         ]:
-            for q in ("p50", "p99", "max"):
+            for q in ("p50", "p99") if key == "inside" else ("p50", "p99", "max"):
                 base = floor.get(key)
                 cells = f"{base[q]:>10.3f}" if isinstance(base, dict) else f"{'':>10}"
                 for r in results:
@@ -245,6 +268,13 @@ def main() -> None:
                     ratio = f" ({value / base[q]:.2f}x)" if isinstance(base, dict) else ""
                     cells += f"{f'{value:.3f}{ratio}':>24}"
                 print(f"{label + ' ' + q:<28}{cells}")
+            if key == "round_trip":
+                base_cpu = float(floor["round_trip_cpu_us"])  # type: ignore[arg-type]
+                cells = f"{base_cpu / 1e3:>10.3f}"
+                for r in results:
+                    value = float(r["round_trip_cpu_us"]) / 1e3  # type: ignore[arg-type]
+                    cells += f"{f'{value:.3f} ({value * 1e3 / base_cpu:.2f}x)':>24}"
+                print(f"{label + ' CPU':<28}{cells}")
     print(f"({N_FRAMES} frames at 200 Hz, {N_REQUESTS} requests, {N_RESENDS} resends at "
           f"{RESEND * 1e3:.0f} ms; a firmware process on a pty; floor: add_reader + os.read, "
           "frames cut by size, a future per wake-up; target p99 <= 2 ms)")  # fmt: skip
