@@ -109,7 +109,7 @@ def columns(cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]]) -> di
         secs = statistics.median(times)
         mb = len(stream) / secs / 1e6
         rates[name] = N / secs
-        print(f"{name + ' columns':<20}{'whole':<12}{N / secs:>12,.0f}{mb:>8.1f}"
+        print(f"{name + ' columns':<20} {'whole':<11}{N / secs:>12,.0f}{mb:>8.1f}"
               f"{'':>14}  {objects / secs:.0f}x objects")  # fmt: skip
     return rates
 
