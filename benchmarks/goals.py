@@ -12,9 +12,11 @@ in the file, so the docs' table is never typed by hand.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +50,10 @@ def _cpu_ratios(rows: list[dict[str, Any]], n: int) -> dict[str, list[float]]:
             if floors.get(loop):
                 out.setdefault(loop, []).append(r["cpu_percent"] / floors[loop])
     return out
+
+
+def _p99(key: str, result: dict[str, Any]) -> float:
+    return float(result[key]["p99"])
 
 
 def _by_loop(ratios: dict[str, list[float]]) -> str:
@@ -101,45 +107,40 @@ def table(report: dict[str, Any]) -> list[str]:
             f"{_met(hour['replay_json_s'] <= 4)} |"
         )
     latency = figures("latency.py") or {}
-    for key, label in (
-        ("latency", "write → `async for` p99"),
-        ("round_trip", "request round trip p99"),
+
+    def versus_floor(figure: Callable[[dict[str, Any]], float]) -> dict[str, list[float]]:
+        """``figure`` of every transport over the floor's, by loop (where measured)."""
+        out: dict[str, list[float]] = {}
+        for loop, result in latency.items():
+            with contextlib.suppress(KeyError):
+                base = figure(result["floor"])
+                out[loop] = [figure(r) / base for r in result["sdk"]]
+        return out
+
+    # Each goal, then a figure that is context, not a goal: the part of the latency the
+    # process adds after its read callback; the CPU a request costs.
+    for key, label, context, context_label in (
+        (
+            "latency",
+            "write → `async for` p99",
+            lambda r: r["inside"]["p50"],
+            "of it, read callback → `async for` p50",
+        ),
+        (
+            "round_trip",
+            "request round trip p99",
+            lambda r: r["round_trip_cpu_us"],
+            "request round trip, CPU per call",
+        ),
     ):
-        versus_floor = {
-            loop: [r[key]["p99"] / result["floor"][key]["p99"] for r in result["sdk"]]
-            for loop, result in latency.items()
-        }
-        worst = max((max(v) for v in versus_floor.values() if v), default=None)
+        goal = versus_floor(functools.partial(_p99, key))
+        worst = max((max(v) for v in goal.values() if v), default=None)
         lines.append(
-            f"| {label} vs the floor, every transport | ≤ 1.2× | {_by_loop(versus_floor)} | "
+            f"| {label} vs the floor, every transport | ≤ 1.2× | {_by_loop(goal)} | "
             f"{_met(None if worst is None else worst <= 1.2)} |"
         )
-        if key == "latency":
-            # Context, not a goal: the part the process adds after its read callback.
-            inside = {
-                loop: [r["inside"]["p50"] / result["floor"]["inside"]["p50"] for r in result["sdk"]]
-                for loop, result in latency.items()
-                if "inside" in result["floor"]
-            }
-            if inside:
-                lines.append(
-                    f"| of it, read callback → `async for` p50 vs the floor's | (context) | "
-                    f"{_by_loop(inside)} | |"
-                )
-        else:
-            cpu = {
-                loop: [
-                    r["round_trip_cpu_us"] / result["floor"]["round_trip_cpu_us"]
-                    for r in result["sdk"]
-                ]
-                for loop, result in latency.items()
-                if "round_trip_cpu_us" in result["floor"]
-            }
-            if cpu:
-                lines.append(
-                    f"| request round trip, CPU per call vs the floor's | (context) | "
-                    f"{_by_loop(cpu)} | |"
-                )
+        if ratios := versus_floor(context):
+            lines.append(f"| {context_label} vs the floor's | (context) | {_by_loop(ratios)} | |")
     machine = report["machine"]
     quick = " (quick mode: shorter windows, fewer samples)" if report.get("quick") else ""
     lines += [

@@ -41,6 +41,24 @@ class Wire:
             raise NotConnectedError("closed")
 
 
+def start_call(
+    timeout: float, retries: int = 0
+) -> tuple[Wire, Requester[str], asyncio.Future[object]]:
+    """A requester on a fake wire, and a read-only call of key "v" started on it."""
+    wire = Wire()
+    requests: Requester[str] = Requester(
+        "fake", wire.write, wire.ensure_open, timeout=timeout, retries=retries, log=LOG
+    )
+    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
+    return wire, requests, call
+
+
+async def written(wire: Wire, frames: int = 1) -> None:
+    """Until ``frames`` requests are on the wire."""
+    while len(wire.frames) < frames:
+        await asyncio.sleep(0.001)
+
+
 async def test_requester_retries_read_only_calls_then_times_out() -> None:
     wire = Wire()
     requests: Requester[str] = Requester(
@@ -55,13 +73,8 @@ async def test_requester_retries_read_only_calls_then_times_out() -> None:
 
 
 async def test_requester_answers_the_call_and_counts_late_and_unmatched_replies() -> None:
-    wire = Wire()
-    requests: Requester[str] = Requester(
-        "fake", wire.write, wire.ensure_open, timeout=0.05, retries=0, log=LOG
-    )
-    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
-    while not wire.frames:
-        await asyncio.sleep(0)
+    wire, requests, call = start_call(timeout=0.05)
+    await written(wire)
     requests.reply("v", 7)
     assert await call == 7
     requests.reply("v", 8)  # nobody asked
@@ -75,13 +88,8 @@ async def test_requester_answers_the_call_and_counts_late_and_unmatched_replies(
 async def test_a_reply_wakes_its_call_on_the_next_loop_turn() -> None:
     # The reply wakes the waiting task itself: with asyncio.wait in between (a done
     # callback that wakes the waiter that wakes the task) it took one turn more.
-    wire = Wire()
-    requests: Requester[str] = Requester(
-        "fake", wire.write, wire.ensure_open, timeout=5.0, retries=0, log=LOG
-    )
-    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
-    while not wire.frames:
-        await asyncio.sleep(0)
+    wire, requests, call = start_call(timeout=5.0)
+    await written(wire)
     requests.reply("v", 7)
     await asyncio.sleep(0)
     assert call.done()
@@ -89,13 +97,8 @@ async def test_a_reply_wakes_its_call_on_the_next_loop_turn() -> None:
 
 
 async def test_a_reply_to_an_earlier_attempt_answers_the_retry() -> None:
-    wire = Wire()
-    requests: Requester[str] = Requester(
-        "fake", wire.write, wire.ensure_open, timeout=0.05, retries=2, log=LOG
-    )
-    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
-    while len(wire.frames) < 2:  # the first attempt timed out; the second is waiting
-        await asyncio.sleep(0.005)
+    wire, requests, call = start_call(timeout=0.05, retries=2)
+    await written(wire, 2)  # the first attempt timed out; the second is waiting
     requests.reply("v", 7)  # the reply to the first request
     assert await call == 7
     assert (requests.unmatched, requests.late) == (0, 0)
@@ -104,13 +107,8 @@ async def test_a_reply_to_an_earlier_attempt_answers_the_retry() -> None:
 
 
 async def test_a_cancelled_call_gives_up_its_key_and_its_reply_is_late() -> None:
-    wire = Wire()
-    requests: Requester[str] = Requester(
-        "fake", wire.write, wire.ensure_open, timeout=5.0, retries=0, log=LOG
-    )
-    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
-    while not wire.frames:
-        await asyncio.sleep(0)
+    wire, requests, call = start_call(timeout=5.0)
+    await written(wire)
     call.cancel()
     with pytest.raises(asyncio.CancelledError):
         await call
@@ -131,13 +129,8 @@ async def test_requester_writes_nothing_when_the_link_is_down() -> None:
 
 
 async def test_requester_fail_all_ends_every_call() -> None:
-    wire = Wire()
-    requests: Requester[str] = Requester(
-        "fake", wire.write, wire.ensure_open, timeout=5.0, retries=0, log=LOG
-    )
-    call = asyncio.ensure_future(requests.call(lambda: (b"?", "v"), read_only=True, name="v"))
-    while not wire.frames:
-        await asyncio.sleep(0)
+    wire, requests, call = start_call(timeout=5.0)
+    await written(wire)
     requests.fail_all(None)
     with pytest.raises(NotConnectedError, match="fake was closed"):
         await call
