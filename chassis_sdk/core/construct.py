@@ -1,4 +1,5 @@
-"""Cheap construction of decoded messages, for the frames that arrive at 50-100 Hz.
+"""Cheap construction and printing of decoded messages, for the frames that arrive at
+50-100 Hz.
 
 Profiling the protocol A decoder (``benchmarks/decoder_throughput.py`` under cProfile,
 and timeit of the parts) showed that decoding the bytes was the small part of a frame's
@@ -14,6 +15,14 @@ So: :func:`frozen_builder` makes a constructor that fills a frozen, slotted data
 through its slot descriptors (the same result as ``__init__``, with the same
 immutability afterwards, in half the time), and :class:`MemberCache` maps wire integers
 to enum members with one dict lookup. Both are plain Python.
+
+Printing was the same story: ``chassis-sdk replay`` prints each message's ``repr``, and
+of a replayed hour's time 29 % went to the dataclass ``repr``: the generated method
+passes through a recursion guard (a set keyed by thread per call) and formats each field
+with ``repr``, nested ``NamedTuple`` and enum members included (about 6 µs for one
+``Telemetry``). :func:`fast_repr` gives a message class a ``repr`` that prints exactly
+the same text with one f-string (messages are immutable, so they cannot contain
+themselves and need no guard).
 """
 
 from __future__ import annotations
@@ -23,7 +32,7 @@ import enum
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
-__all__ = ["MemberCache", "frozen_builder"]
+__all__ = ["MemberCache", "fast_repr", "frozen_builder"]
 
 E = TypeVar("E", bound=enum.Enum)
 T = TypeVar("T")
@@ -49,6 +58,36 @@ def frozen_builder(cls: type[T]) -> Callable[..., T]:
     build: Callable[..., T] = namespace["build"]
     build.__qualname__ = f"frozen_builder({cls.__name__})"
     return build
+
+
+def fast_repr(cls: type[T]) -> type[T]:
+    """Class decorator: give a dataclass or ``NamedTuple`` a generated ``__repr__`` that
+    returns exactly what its default one does, faster.
+
+    The text is the default's: ``Name(field=repr(value), ...)``, the class's
+    ``__qualname__`` for a dataclass (its fields declared ``repr=False`` left out) and
+    ``__name__`` for a ``NamedTuple``, read from the instance's class as the defaults
+    do. It has no recursion guard: use it only on classes whose instances cannot
+    contain themselves (frozen messages of numbers, strings, enums and such messages).
+    """
+    if dataclasses.is_dataclass(cls):
+        names = [f.name for f in dataclasses.fields(cls) if f.repr]
+        values = [f"{name}={{self.{name}!r}}" for name in names]
+        title = "type(self).__qualname__"
+    elif issubclass(cls, tuple) and hasattr(cls, "_fields"):
+        named: Any = cls  # a NamedTuple class: its field names are in _fields
+        fields: tuple[str, ...] = named._fields
+        values = [f"{name}={{self[{i}]!r}}" for i, name in enumerate(fields)]
+        title = "type(self).__name__"
+    else:
+        raise TypeError(f"{cls.__name__} is neither a dataclass nor a NamedTuple")
+    source = f'def __repr__(self):\n    return f"{{{title}}}({", ".join(values)})"'
+    namespace: dict[str, Any] = {}
+    exec(source, namespace)  # the source is built from field names only
+    method = namespace["__repr__"]
+    method.__qualname__ = f"{cls.__qualname__}.__repr__"
+    cls.__repr__ = method  # type: ignore[method-assign]
+    return cls
 
 
 class MemberCache(dict[int, E], Generic[E]):

@@ -6,11 +6,15 @@ operator wants on a terminal. :class:`NamedFlag` and :class:`NamedEnum` print na
 (``REMOTE_OFFLINE``, ``HARDWARE_ESTOP|FRONT_BUMPER``, ``none``) in ``str()`` and
 f-strings, and stay numbers everywhere else: arithmetic, comparisons, ``int()``,
 ``repr()``, and a numeric format (``f"{status:#06x}"``).
+
+Their ``repr`` is the standard one, kept once made per member: the standard one builds
+the text on every call (about 0.7 µs), and a replayed hour prints two per line.
 """
 
 from __future__ import annotations
 
 import enum
+from typing import Any
 
 __all__ = ["NamedEnum", "NamedFlag", "flag_names"]
 
@@ -39,9 +43,28 @@ def _format(value: int, text: str, spec: str) -> str:
     return format(text, spec)
 
 
+#: The ``repr`` of each member (and flag combination) printed so far, by class and
+#: value, up to :data:`_REPRS_KEPT` of them (beyond: made each time, as the standard).
+_reprs: dict[tuple[type, int], str] = {}
+_REPRS_KEPT = 4096
+
+
+def _cached_repr(member: enum.IntFlag | enum.IntEnum, standard: Any) -> str:
+    key = (type(member), member._value_)
+    text = _reprs.get(key)
+    if text is None:
+        text = standard.__repr__(member)
+        if len(_reprs) < _REPRS_KEPT:
+            _reprs[key] = text
+    return text
+
+
 class NamedFlag(enum.IntFlag):
     """An ``IntFlag`` whose ``str()`` is its set bits by name, ``|``-joined
     (``"none"`` when none is set)."""
+
+    def __repr__(self) -> str:
+        return _cached_repr(self, enum.IntFlag)
 
     def __str__(self) -> str:
         return "|".join(flag_names(self)) or "none"
@@ -52,6 +75,9 @@ class NamedFlag(enum.IntFlag):
 
 class NamedEnum(enum.IntEnum):
     """An ``IntEnum`` whose ``str()`` is its name."""
+
+    def __repr__(self) -> str:
+        return _cached_repr(self, enum.IntEnum)
 
     def __str__(self) -> str:
         return self.name

@@ -32,18 +32,42 @@ def _same(value: Any) -> Any:
 
 
 def _enum(value: Any) -> Any:
-    return value.name if value.name else int(value.value)
+    # ``_name_`` and ``_value_`` are what the ``name`` and ``value`` properties return.
+    return value._name_ or int(value._value_)
+
+
+#: Types that are their own plain form: a field holding one is copied without a call.
+_ATOMS = frozenset({float, int, str, bool, type(None)})
+
+
+def _fields_converter(
+    title: str, fields: tuple[str, ...], tuple_like: bool
+) -> Callable[[Any], Any]:
+    """A function made for one class (as ``dataclasses`` makes ``__init__``) that turns
+    an instance into a ``dict`` of its fields: one attribute read per field, and a call
+    to :func:`plain` only for a value that is not already plain."""
+    lines = [f"def to_plain(value):  # {title}"]
+    for i, name in enumerate(fields):
+        lines.append(f"    v{i} = value[{i}]" if tuple_like else f"    v{i} = value.{name}")
+    items = [
+        f"{name!r}: v{i} if v{i}.__class__ in _atoms else _plain(v{i})"
+        for i, name in enumerate(fields)
+    ]
+    lines.append(f"    return {{{', '.join(items)}}}")
+    namespace: dict[str, Any] = {"_atoms": _ATOMS, "_plain": plain}
+    exec("\n".join(lines), namespace)  # the source is built from field names only
+    convert: Callable[[Any], Any] = namespace["to_plain"]
+    return convert
 
 
 def _converter(cls: type) -> Callable[[Any], Any]:
     if dataclasses.is_dataclass(cls):
         names = tuple(f.name for f in dataclasses.fields(cls))
-        return lambda value: {name: plain(getattr(value, name)) for name in names}
+        return _fields_converter(cls.__qualname__, names, tuple_like=False)
     if issubclass(cls, enum.Enum):
         return _enum
     if issubclass(cls, tuple) and hasattr(cls, "_fields"):
-        fields = tuple(cls._fields)
-        return lambda value: {name: plain(item) for name, item in zip(fields, value, strict=True)}
+        return _fields_converter(cls.__qualname__, tuple(cls._fields), tuple_like=True)
     if issubclass(cls, datetime.date):
         return lambda value: value.isoformat()
     return _same

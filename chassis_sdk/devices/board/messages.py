@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple, TypeAlias
 
+from ...core.construct import fast_repr
 from ...core.enums import NamedEnum
 from ...core.validation import check_real
 
@@ -77,6 +78,7 @@ class Servo(NamedEnum):
     SECOND = 2  #: servo channel 2
 
 
+@fast_repr
 class Vector3(NamedTuple):
     """Three axes of one sensor."""
 
@@ -89,6 +91,7 @@ class Vector3(NamedTuple):
 STANDARD_GRAVITY = 9.80665
 
 
+@fast_repr
 class ImuCounts(NamedTuple):
     """The 0x11 frame's nine int16 counts, exactly as the board sent them."""
 
@@ -103,6 +106,7 @@ class ImuCounts(NamedTuple):
     mag_z: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class ImuScale:
     """How many counts the board's IMU reports per unit.
@@ -127,6 +131,7 @@ class ImuScale:
             check_real(getattr(self, name), f"imu scale {name}", low=0, low_open=True)
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class ImuSample:
     """The 0x11 IMU frame.
@@ -178,6 +183,7 @@ class ImuSample:
         )
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class VelocityFeedback:
     """The 0x12 velocity feedback frame (m/s and rad/s)."""
@@ -187,6 +193,7 @@ class VelocityFeedback:
     timestamp: float = 0.0
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class BatteryReading:
     """The 0x13 battery frame (V)."""
@@ -195,6 +202,7 @@ class BatteryReading:
     timestamp: float = 0.0
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class LogMessage:
     """The 0xF1 log frame: one line of text from the board's firmware."""
@@ -203,6 +211,7 @@ class LogMessage:
     timestamp: float = 0.0
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class LedReply:
     """The 0x01 reply: the LED state after the request tagged ``request_id``."""
@@ -211,6 +220,7 @@ class LedReply:
     on: bool
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class BuzzerReply:
     """The 0x02 reply: the buzzer state after the request tagged ``request_id``."""
@@ -219,6 +229,7 @@ class BuzzerReply:
     on: bool
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class LedCommand:
     """0x01 request: switch or read the LED; the reply carries ``request_id`` back."""
@@ -227,6 +238,7 @@ class LedCommand:
     request_id: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class BuzzerCommand:
     """0x02 request: switch or read the buzzer; the reply carries ``request_id`` back."""
@@ -235,6 +247,7 @@ class BuzzerCommand:
     request_id: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class MotorPwmCommand:
     """0x21: raw PWM value for one motor."""
@@ -243,6 +256,7 @@ class MotorPwmCommand:
     pwm: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class VelocityCommand:
     """0x22: linear and angular velocity in thousandths (mm/s and mrad/s)."""
@@ -251,6 +265,7 @@ class VelocityCommand:
     angular_milli: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class ServoCommand:
     """0x31: servo angle in tenths of a degree."""

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple, TypeAlias
 
+from ...core.construct import fast_repr
 from ...core.enums import NamedEnum, NamedFlag
 
 __all__ = [
@@ -170,6 +171,7 @@ class FaultClear(NamedFlag):
     REAR_BUMPER = 1 << 2  #: rear bumper latch
 
 
+@fast_repr
 class WheelSpeeds(NamedTuple):
     """A value per wheel (m/s for speeds)."""
 
@@ -179,6 +181,7 @@ class WheelSpeeds(NamedTuple):
     rear_right: float
 
 
+@fast_repr
 class WheelCurrents(NamedTuple):
     """Motor current per wheel, in amperes."""
 
@@ -188,6 +191,7 @@ class WheelCurrents(NamedTuple):
     rear_right: float
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class Telemetry:
     """The 50 Hz 0x81 telemetry frame, in SI units.
@@ -219,6 +223,7 @@ class Telemetry:
         return bool(self.status & ChassisStatus.ESTOP)
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class WheelDriver:
     """Status of one wheel's motor driver.
@@ -236,6 +241,7 @@ class WheelDriver:
     peak_current: float
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class DriverStatus:
     """The 0xB0 motor-driver status reply.
@@ -266,6 +272,7 @@ class DriverStatus:
         return (self.front_left, self.front_right, self.rear_left, self.rear_right)
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class PowerTelemetry:
     """The 20 Hz 0xB1 driver current and voltage frame.
@@ -285,6 +292,7 @@ class PowerTelemetry:
     timestamp: float = 0.0
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class FirmwareVersion:
     """The 0x87 reply: the firmware version number."""
@@ -292,6 +300,7 @@ class FirmwareVersion:
     version: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class HardwareVersion:
     """The 0x88 reply: the hardware version string."""
@@ -299,6 +308,7 @@ class HardwareVersion:
     text: str
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class ChassisInfo:
     """The 0x89 reply: the chassis geometry, lengths in metres.
@@ -318,6 +328,7 @@ class ChassisInfo:
     encoder_resolution: int
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class ShipDate:
     """The 0x8A reply, as sent: year (full, e.g. 2024), month and day."""
@@ -331,6 +342,7 @@ class ShipDate:
         return datetime.date(self.year, self.month, self.day)
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class Command:
     """A 12-byte host command whose data is one uint16 (every id but 0x02)."""
@@ -339,6 +351,7 @@ class Command:
     value: int = 0
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class DriveVelocity:
     """0x02 mode 0: drive with a linear (mm/s) and an angular (rad/s, float32) velocity."""
@@ -347,6 +360,7 @@ class DriveVelocity:
     angular: float
 
 
+@fast_repr
 @dataclass(frozen=True, slots=True)
 class DriveWheels:
     """0x02 mode 1: drive with left and right side speeds (mm/s)."""
