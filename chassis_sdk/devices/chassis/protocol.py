@@ -318,6 +318,10 @@ _SEQ = -4
 _ID = -2
 #: 0x81 from its sequence number: the number and the data in one unpack.
 _TELEMETRY_FRAME = struct.Struct("<H2x" + _TELEMETRY.format[1:])
+#: The header after the head (sequence number, frame id, length byte), and the frame's
+#: last four bytes (check, tail): one unpack each instead of a byte at a time.
+_SEQ_ID_LEN = struct.Struct("<HBB")
+_CHECK_TAIL = struct.Struct("<HH")
 
 
 _build_telemetry = frozen_builder(Telemetry)
@@ -535,11 +539,11 @@ class _ProtocolADecoder(FrameDecoder[_M]):
         while True:
             if end - start < 6:
                 return NEED_DATA if start == first else start - first
-            entry = table.get(buf[start + 4])
+            seq, frame_id, claimed = _SEQ_ID_LEN.unpack_from(buf, start + 2)
+            entry = table.get(frame_id)
             if entry is None:
                 return INVALID if start == first else start - first
             size, parser = entry
-            claimed = buf[start + 5]
             if size == 0:
                 if claimed < _OVERHEAD:
                     return INVALID if start == first else start - first
@@ -547,9 +551,10 @@ class _ProtocolADecoder(FrameDecoder[_M]):
             stop = start + size
             if stop > end:
                 return NEED_DATA if start == first else start - first
-            if buf[stop - 2] != 0xBD or buf[stop - 1] != 0xBC:
+            check, tail = _CHECK_TAIL.unpack_from(buf, stop - 4)
+            if tail != 0xBCBD:
                 return INVALID if start == first else start - first
-            if byte_sum(buf[start : stop - 4], 0) & 0xFFFF != buf[stop - 4] | buf[stop - 3] << 8:
+            if byte_sum(buf[start : stop - 4], 0) & 0xFFFF != check:
                 if start != first:
                     return start - first
                 stats.checksum_errors += 1
@@ -562,7 +567,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
                 return INVALID
             if claimed != size:
                 stats.length_mismatches += 1
-            track(buf[start + 4], buf[start + 2] | buf[start + 3] << 8)
+            track(frame_id, seq)
             out.append(msg)
             start = stop
             if end - start < 2 or buf[start] != 0xED or buf[start + 1] != 0xDE:
