@@ -4,9 +4,14 @@ goal, each SDK figure as its ratio to the floor measured in the same run.
     python benchmarks/all.py --json results.json
     python benchmarks/goals.py results.json                          # print it
     python benchmarks/goals.py results.json --write docs/figures.md  # put it in the docs
+    python benchmarks/goals.py results.json --write docs/figures.md --plot docs/img/scaling.svg
 
 ``--write`` replaces what lies between ``<!-- goals:begin -->`` and ``<!-- goals:end -->``
-in the file, so the docs' table is never typed by hand.
+in the file, and the scaling table between ``<!-- scaling:begin -->`` and
+``<!-- scaling:end -->`` (CPU, delivery, lag and errors of every configuration at N = 1,
+32, 128 and 512, each beside its floor), so the docs' tables are never typed by hand.
+``--plot`` draws CPU and lag against N from the same run (and writes its rows beside it
+as ``.json``).
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-BEGIN, END = "<!-- goals:begin -->", "<!-- goals:end -->"
+#: The chassis counts the scaling table shows (the figure and its .json have them all).
+SCALING_ROWS = (1, 32, 128, 512)
 
 
 def _span(values: Iterable[float], unit: str = "×") -> str:
@@ -39,14 +45,10 @@ def _met(ok: bool | None) -> str:
 def _cpu_ratios(rows: list[dict[str, Any]], n: int) -> dict[str, list[float]]:
     """CPU / floor (same loop, same N) of every transport, by loop."""
     out: dict[str, list[float]] = {}
-    floors = {
-        r["config"].rsplit(" / ", 1)[1]: r["cpu_percent"]
-        for r in rows
-        if r["chassis"] == n and "backend" not in r
-    }
+    floors = {_loop(r): r["cpu_percent"] for r in rows if r["chassis"] == n and "backend" not in r}
     for r in rows:
         if r["chassis"] == n and "backend" in r:
-            loop = r["config"].rsplit(" / ", 1)[1]
+            loop = _loop(r)
             if floors.get(loop):
                 out.setdefault(loop, []).append(r["cpu_percent"] / floors[loop])
     return out
@@ -156,23 +158,69 @@ def table(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def scaling_table(report: dict[str, Any]) -> list[str]:
+    """The scaling table's lines (markdown): every configuration at each of
+    :data:`SCALING_ROWS` chassis, its CPU as a ratio to the floor on the same loop."""
+    rows = report["scripts"].get("scaling.py", {}).get("figures") or []
+    floors = {(r["chassis"], _loop(r)): r for r in rows if "backend" not in r}
+    lines = [
+        "| N | configuration | CPU (one core = 100 %) | × floor | frames delivered "
+        "| lag p50 / p99 | errors |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for n in SCALING_ROWS:
+        if (n, "asyncio") not in floors or (n, "uvloop") not in floors:
+            continue
+        a, u = floors[(n, "asyncio")]["cpu_percent"], floors[(n, "uvloop")]["cpu_percent"]
+        lines.append(f"| {n} | floor, asyncio / uvloop | {a:.1f} % / {u:.1f} % | | 100 % | | 0 |")
+        for r in rows:
+            if r["chassis"] == n and "backend" in r:
+                floor = floors[(n, _loop(r))]["cpu_percent"]
+                lines.append(
+                    f"| {n} | {r['backend']}, {_loop(r)} | {r['cpu_percent']:.1f} % | "
+                    f"{r['cpu_percent'] / floor:.2f}× | {r['got'] * 100:.1f} % | "
+                    f"{r['lag_p50_ms']:.2f} / {r['lag_p99_ms']:.2f} ms | {r['errors']} |"
+                )
+    return lines
+
+
+def _loop(row: dict[str, Any]) -> str:
+    return str(row["config"]).rsplit(" / ", 1)[1]
+
+
+def _replace(doc: str, name: str, text: str) -> str:
+    begin, end = f"<!-- {name}:begin -->", f"<!-- {name}:end -->"
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    if not pattern.search(doc):
+        raise SystemExit(f"the document has no {begin} ... {end} block to replace")
+    return pattern.sub(lambda _: f"{begin}\n{text}\n{end}", doc)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", help="the file all.py --json wrote")
-    parser.add_argument("--write", metavar="DOC", help="replace the table in DOC")
+    parser.add_argument("--write", metavar="DOC", help="replace the tables in DOC")
+    parser.add_argument("--plot", metavar="FILE", help="draw the scaling figure (.svg/.png)")
     args = parser.parse_args()
     report = json.loads(Path(args.results).read_text())
     text = "\n".join(table(report))
     if not args.write:
         print(text)
-        return
-    doc = Path(args.write)
-    old = doc.read_text()
-    pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-    if not pattern.search(old):
-        raise SystemExit(f"{doc} has no {BEGIN} ... {END} block to replace")
-    doc.write_text(pattern.sub(lambda _: f"{BEGIN}\n{text}\n{END}", old))
-    print(f"wrote the goals table into {doc}")
+        print()
+        print("\n".join(scaling_table(report)))
+    else:
+        doc = Path(args.write)
+        updated = _replace(doc.read_text(), "goals", text)
+        updated = _replace(updated, "scaling", "\n".join(scaling_table(report)))
+        doc.write_text(updated)
+        print(f"wrote the goals and scaling tables into {doc}")
+    if args.plot:
+        from scaling import plot
+
+        rows = report["scripts"]["scaling.py"]["figures"]
+        plot(rows, args.plot)
+        Path(args.plot).with_suffix(".json").write_text(json.dumps(rows, indent=1))
+        print(f"drew {args.plot}")
 
 
 if __name__ == "__main__":
