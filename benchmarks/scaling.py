@@ -12,7 +12,11 @@ is from a frame's due time at the writer to the application's ``async for``, p50
 p99 (the writer's own lateness is printed beside it); "got" is the share of the frames
 written in the window that reached the application; "errors" counts sequence gaps,
 dropped messages and every exception the event loop had to log. The floor reads the
-same ptys with ``loop.add_reader`` and ``os.read`` and nothing else.
+same ptys with ``loop.add_reader`` and ``os.read`` and nothing else. A second floor,
+"floor + task wake", adds what any ``async for`` consumer needs at the least: the read
+callback cuts the frames by their size and wakes a task per chassis through a future,
+which takes them one by one (no decoding): the gap between the two floors is what
+waking the application costs on its own.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +46,22 @@ def installed(backend: str) -> bool:
     return module is None or importlib.util.find_spec(module) is not None
 
 
-async def measure(n: int, window: float, floor: bool) -> dict[str, Any]:
+FRAME = 28  # the 0x81 telemetry frame the writer sends
+
+
+class _Frames:
+    """A chassis's frames waiting for its task in the "floor + task wake"."""
+
+    __slots__ = ("items", "waiter")
+
+    def __init__(self) -> None:
+        self.items: deque[bytes] = deque()
+        self.waiter: asyncio.Future[None] | None = None
+
+
+async def measure(n: int, window: float, kind: str) -> dict[str, Any]:
+    """One configuration: ``kind`` is ``floor``, ``wake`` (the floor plus a task woken
+    per frame) or ``sdk``."""
     writer = await asyncio.create_subprocess_exec(
         sys.executable, str(HERE / "_writer.py"), str(n), str(WARMUP + window + 1.0),
         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -63,25 +83,52 @@ async def measure(n: int, window: float, floor: bool) -> dict[str, Any]:
     start = t0 + WARMUP
     stop = start + window
     result: dict[str, Any] = {"chassis": n}
-    if floor:
+    if kind in ("floor", "wake"):
         fds = [os.open(p, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK) for p in ports]
 
         def read(fd: int) -> None:
             nonlocal got
             if start <= time.monotonic() < stop:
-                got += len(os.read(fd, 4096)) // 28
+                got += len(os.read(fd, 4096)) // FRAME
             else:
                 os.read(fd, 4096)
 
+        def read_and_wake(fd: int, box: _Frames) -> None:
+            data = os.read(fd, 4096)
+            box.items.extend(data[i : i + FRAME] for i in range(0, len(data), FRAME))
+            waiter = box.waiter
+            if waiter is not None and not waiter.done():
+                waiter.set_result(None)
+
+        async def take(box: _Frames) -> None:
+            nonlocal got
+            while True:
+                if not box.items:
+                    box.waiter = loop.create_future()
+                    await box.waiter
+                box.items.popleft()
+                if start <= time.monotonic() < stop:
+                    got += 1
+
+        tasks = []
         for fd in fds:
-            loop.add_reader(fd, read, fd)
+            if kind == "floor":
+                loop.add_reader(fd, read, fd)
+            else:
+                box = _Frames()
+                tasks.append(asyncio.ensure_future(take(box)))
+                loop.add_reader(fd, read_and_wake, fd, box)
         await asyncio.sleep(start - time.monotonic())
         c0 = time.process_time()
         await asyncio.sleep(stop - time.monotonic())
         cpu = time.process_time() - c0
+        for task in tasks:
+            task.cancel()
         for fd in fds:
             loop.remove_reader(fd)
             os.close(fd)
+        if kind == "wake":
+            result["kind"] = "wake"
     else:
         from chassis_sdk import Chassis
 
@@ -124,11 +171,13 @@ async def measure(n: int, window: float, floor: bool) -> dict[str, Any]:
 
 
 def run_one(n: int, window: float, backend: str | None, uvloop: bool) -> dict[str, Any]:
+    """One configuration in a fresh process: ``backend`` is a transport, or ``None``
+    for the floor, or ``"wake"`` for the floor plus a task woken per frame."""
     args = [sys.executable, __file__, "--one", str(n), "--window", str(window)]
     args += ["--uvloop"] if uvloop else []
-    args += ["--floor"] if backend is None else []
+    args += ["--kind", {None: "floor", "wake": "wake"}.get(backend, "sdk")]
     env = dict(os.environ)
-    if backend is not None:
+    if backend not in (None, "wake"):
         env["CHASSIS_SDK_BACKEND"] = backend
     out = subprocess.run(args, env=env, check=True, capture_output=True, text=True)
     result: dict[str, Any] = json.loads(out.stdout)
@@ -147,7 +196,9 @@ def plot(rows: list[dict[str, Any]], path: str) -> None:
     for config in configs:
         mine = [r for r in rows if r["config"] == config]
         ns = [r["chassis"] for r in mine]
-        style = "k--" if config.startswith("floor") else "-o"
+        style = (
+            "k:" if config.startswith("floor +") else "k--" if config.startswith("floor") else "-o"
+        )
         cpu_ax.plot(ns, [r["cpu_percent"] for r in mine], style, label=config, markersize=3)
         if not config.startswith("floor"):
             lag_ax.plot(ns, [r.get("lag_p99_ms", float("nan")) for r in mine], "-o",
@@ -173,7 +224,7 @@ def main() -> None:
     parser.add_argument("--json", metavar="FILE", help="write every row to FILE")
     parser.add_argument("--one", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--window", type=float, default=5.0, help=argparse.SUPPRESS)
-    parser.add_argument("--floor", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--kind", default="sdk", help=argparse.SUPPRESS)
     parser.add_argument("--uvloop", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one is not None:
@@ -181,7 +232,7 @@ def main() -> None:
         if args.uvloop:
             factory = importlib.import_module("uvloop").new_event_loop
         with asyncio.Runner(loop_factory=factory) as runner:
-            print(json.dumps(runner.run(measure(args.one, args.window, args.floor))))
+            print(json.dumps(runner.run(measure(args.one, args.window, args.kind))))
         return
     counts = [1, 32] if args.quick else COUNTS
     if args.counts:
@@ -189,6 +240,7 @@ def main() -> None:
     window = 2.0 if args.quick else args.window
     loops = [False] + ([True] if importlib.util.find_spec("uvloop") else [])
     configs: list[tuple[str | None, bool]] = [(None, u) for u in loops]
+    configs += [("wake", u) for u in loops]
     configs += [(b, u) for b in BACKENDS if installed(b) for u in loops]
     print(f"{'N':>4}  {'configuration':<32}{'CPU %':>7}{'x floor':>9}{'got':>8}"
           f"{'lag p50':>9}{'p99 ms':>8}{'errors':>7}{'writer late p99':>16}")  # fmt: skip
@@ -196,7 +248,8 @@ def main() -> None:
     for n in counts:
         floors: dict[bool, float] = {}
         for backend, on_uvloop in configs:
-            name = f"{backend or 'floor: raw os.read'} / {'uvloop' if on_uvloop else 'asyncio'}"
+            what = {None: "floor: raw os.read", "wake": "floor + task wake"}.get(backend, backend)
+            name = f"{what} / {'uvloop' if on_uvloop else 'asyncio'}"
             try:
                 r = run_one(n, window, backend, on_uvloop)
             except subprocess.CalledProcessError as exc:
