@@ -196,11 +196,13 @@ def plot(rows: list[dict[str, Any]], path: str) -> None:
     for config in configs:
         mine = [r for r in rows if r["config"] == config]
         ns = [r["chassis"] for r in mine]
-        style = (
-            "k:" if config.startswith("floor +") else "k--" if config.startswith("floor") else "-o"
-        )
-        cpu_ax.plot(ns, [r["cpu_percent"] for r in mine], style, label=config, markersize=3)
-        if not config.startswith("floor"):
+        cpu = [r["cpu_percent"] for r in mine]
+        if config.startswith("floor"):  # black on asyncio's loop, grey on uvloop
+            style = ":" if config.startswith("floor +") else "--"
+            colour = "0.55" if config.endswith("uvloop") else "black"
+            cpu_ax.plot(ns, cpu, style, color=colour, label=config)
+        else:
+            cpu_ax.plot(ns, cpu, "-o", label=config, markersize=3)
             lag_ax.plot(ns, [r.get("lag_p99_ms", float("nan")) for r in mine], "-o",
                         label=config, markersize=3)  # fmt: skip
     for ax, label in ((cpu_ax, "CPU, % of one core"), (lag_ax, "lag p99, ms (write -> async for)")):
