@@ -403,3 +403,34 @@ async def test_simulator_over_tcp() -> None:
         assert sim.port.startswith("socket://127.0.0.1:")
         assert await robot.get_firmware_version() == 103
         await anext(robot.telemetry())
+
+
+@pytest.mark.parametrize("gap", [1e-6, 1e-3, 0.02])
+def test_an_emergency_stop_any_time_after_a_step_keeps_the_model_physical(gap: float) -> None:
+    """The model brakes at once on an emergency stop. Its current (and so the battery's
+    sag) follows the acceleration; dividing that braking by a step microseconds long
+    drew thousands of amperes, sent the voltage below zero, and the telemetry frame,
+    which cannot carry a negative voltage, crashed the simulator's ticker (seen in CI)."""
+    from chassis_sdk.protocol import ChassisDecoder, ChassisEncoder, PowerTelemetry, Telemetry
+    from chassis_sdk.sim import ChassisFirmware
+
+    fw, enc, dec = ChassisFirmware(), ChassisEncoder(), ChassisDecoder()
+    fw.on_connect(0.0)
+    fw.power_enabled = True
+    now = 0.0
+    for _ in range(60):  # reach speed (0.5 m/s at 1.5 m/s²: 0.33 s), resending
+        now += 0.01
+        fw.receive(enc.drive_velocity(0.5, 0.0), now)
+        fw.poll(now)
+    fw.set_hardware_estop(True)
+    fw.poll(now + gap)
+    assert max(abs(w) for w in fw.wheels) == 0.0  # the stop is at once
+    # The frames the model would send right then, due or not.
+    heard = dec.feed(enc.encode(fw.telemetry()) + enc.encode(fw.power()), now + gap)
+    full = fw.spec.battery_full
+    assert 0.0 <= fw.battery_voltage <= full
+    telemetry, power = heard
+    assert isinstance(telemetry, Telemetry)
+    assert isinstance(power, PowerTelemetry)
+    assert 0.0 <= telemetry.voltage <= full, telemetry
+    assert all(0.0 <= c < 20.0 for c in power.currents), power  # not thousands of amperes

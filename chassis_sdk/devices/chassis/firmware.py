@@ -314,14 +314,18 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         may_move = self._may_move(now)
         if not may_move:
             self.target = [0.0, 0.0, 0.0, 0.0]
-        max_dv = self.spec.max_acceleration * dt
+        max_accel = self.spec.max_acceleration
+        max_dv = max_accel * dt
         for i in range(4):
             goal = self.target[i] if may_move else 0.0
             dv = max(-max_dv, min(max_dv, goal - self.wheels[i]))
             if not may_move and (self.software_estop or self.hardware_estop or self.remote_estop):
                 dv = goal - self.wheels[i]  # an emergency stop brakes at once
             self.wheels[i] += dv
-            self._accel[i] = dv / dt
+            # The current follows what the motor drives, at most the rated acceleration:
+            # an emergency stop's instant halt is the brake's, and dividing it by a step
+            # microseconds long drew thousands of amperes and a negative voltage.
+            self._accel[i] = max(-max_accel, min(max_accel, dv / dt))
             self._peak[i] = max(self._peak[i], abs(self._current(i)))
         self.pose = _advance(self.pose, self.wheels, self.spec.info.track_width, dt)
         moving = any(abs(w) > 1e-6 for w in self.wheels)
@@ -337,9 +341,10 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
 
     @property
     def battery_voltage(self) -> float:
-        """Terminal voltage: open-circuit voltage minus the sag under the current drawn."""
+        """Terminal voltage: open-circuit voltage minus the sag under the current drawn
+        (never below zero: a battery set or drained that far reads empty)."""
         total = sum(self._current(i) for i in range(4))
-        return self._battery_open - self.spec.battery_resistance * total
+        return max(0.0, self._battery_open - self.spec.battery_resistance * total)
 
     def telemetry(self) -> Telemetry:
         """The telemetry frame the model would send now."""
