@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import importlib.util
+import socket
+import struct
 import sys
+import time
 
 import pytest
 
@@ -62,3 +66,71 @@ async def test_the_tests_run_on_the_loop_asked_for() -> None:
 
     wanted = os.environ.get("CHASSIS_SDK_TEST_LOOP", "asyncio")
     assert (await _loop_module()).startswith(wanted)
+
+
+def _loops() -> list[object]:
+    return [
+        pytest.param(False, id="asyncio"),
+        pytest.param(
+            True,
+            id="uvloop",
+            marks=pytest.mark.skipif(
+                importlib.util.find_spec("uvloop") is None, reason="uvloop is not installed"
+            ),
+        ),
+    ]
+
+
+@pytest.mark.parametrize("how", ["unplug", "peer reset"])
+@pytest.mark.parametrize("use_uvloop", _loops())
+def test_the_simulator_survives_writing_to_a_client_whose_transport_closed(
+    use_uvloop: bool, how: str
+) -> None:
+    """uvloop raises RuntimeError on a write to a closed transport where asyncio ignores
+    it. The simulator's clock writes to every TCP client; a client closed by ``unplug``
+    or reset by its peer stays in the set until its reader task runs, so a write in
+    between used to kill the clock and re-raise from ``stop``."""
+
+    async def scenario() -> int:
+        async with ChassisSimulator(tcp_port=0) as sim:
+            host, port = sim.port.removeprefix("socket://").rsplit(":", 1)
+            reader, writer = await asyncio.open_connection(host, int(port))
+            assert await reader.read(1)  # connected and served: telemetry flows
+            if how == "unplug":
+                sim.unplug()  # closes the client's transport; its reader task has not run
+            else:  # the host dies with bytes unread: the kernel sends a reset
+                sock = writer.get_extra_info("socket")
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                writer.transport.abort()
+            for _ in range(20):  # a write on every loop turn while the close completes
+                sim.send(b"\x00" * 8)
+                await asyncio.sleep(0)
+            discarded = sim.bytes_discarded
+            while sim.bytes_discarded == discarded:  # the clock still runs
+                await asyncio.sleep(0.01)
+            writer.close()
+            return sim.bytes_discarded
+
+    assert chassis_sdk.run(scenario(), uvloop=use_uvloop) > 0
+
+
+@pytest.mark.parametrize("use_uvloop", _loops())
+def test_the_simulator_holds_replies_back_at_least_the_delay_asked(use_uvloop: bool) -> None:
+    """uvloop's timers fire up to a millisecond early (libuv's clock is whole
+    milliseconds, read at the start of a loop turn: MagicStack/uvloop#739); a fault
+    that promises "held back 10 ms" must not answer in 9.4."""
+    delay = 0.01
+
+    async def scenario() -> list[float]:
+        async with ChassisSimulator() as sim:
+            sim.faults.reply_delay = delay
+            async with Chassis(sim.port, request_timeout=1.0) as robot:
+                times = []
+                for _ in range(80):
+                    t0 = time.monotonic()
+                    await robot.get_firmware_version()
+                    times.append(time.monotonic() - t0)
+                return times
+
+    times = chassis_sdk.run(scenario(), uvloop=use_uvloop)
+    assert min(times) >= delay, sorted(times)[:5]

@@ -342,8 +342,9 @@ class SimulatorServer:
         if self._server is not None:
             self._server.close()
             self._server = None
-        for w in list(self._clients):
+        for w in self._clients:
             w.close()
+        self._clients.clear()  # their reader tasks end on their own (discard is a no-op)
         for handle in self._delayed:
             handle.cancel()
         self._delayed.clear()
@@ -399,16 +400,25 @@ class SimulatorServer:
             return
         if faults.reply_delay > 0:
             self.fault_counts.delayed_replies += 1
-            loop = asyncio.get_running_loop()
-
-            def later() -> None:
-                self._delayed.discard(handle)
-                self.send(out)
-
-            handle = loop.call_later(faults.reply_delay, later)
-            self._delayed.add(handle)
+            self._send_at(time.monotonic() + faults.reply_delay, out)
             return
         self.send(out)
+
+    def _send_at(self, due: float, out: bytes) -> None:
+        """Send ``out`` once ``time.monotonic()`` reaches ``due``, never before: uvloop's
+        timers fire up to a millisecond early (MagicStack/uvloop#739), so an early
+        one is re-armed for what is left."""
+        left = due - time.monotonic()
+        if left <= 0:
+            self.send(out)
+            return
+
+        def later() -> None:
+            self._delayed.discard(handle)
+            self._send_at(due, out)
+
+        handle = asyncio.get_running_loop().call_later(left, later)
+        self._delayed.add(handle)
 
     # --- output ---------------------------------------------------------------------------------
 
@@ -419,8 +429,10 @@ class SimulatorServer:
             data = damage(data, self.faults, self.fault_counts)
         if self._master is not None:
             self._pty_write(data)
-        elif self._clients:
-            for w in self._clients:
+        elif open_clients := [w for w in self._clients if not w.transport.is_closing()]:
+            # A closed client stays in the set until its reader task runs; uvloop raises
+            # on a write to a closed transport (asyncio ignores it), so skip those.
+            for w in open_clients:
                 w.write(data)
             self.bytes_sent += len(data)
         else:
