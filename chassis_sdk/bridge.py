@@ -8,7 +8,8 @@ as in the Python types):
 topic                           dir   retained  payload
 ==============================  ====  ========  ==========================================
 ``{p}/{id}/connection``         out   yes       ``{"state": "ONLINE" | "OFFLINE" |
-                                                "CONNECTIONBROKEN", "timestamp": ...}``
+                                                "CONNECTIONBROKEN", "timestamp": ...,
+                                                "owner": ...}``
 ``{p}/{id}/link``               out   yes       ``{"state": "connected" | "stale" | ...}``
 ``{p}/{id}/info``               out   yes       the device's identity
 ``{p}/{id}/telemetry/{stream}`` out   no        the latest message, at most ``rate``/s
@@ -16,20 +17,50 @@ topic                           dir   retained  payload
 ``{p}/{id}/cmd/velocity``       in    never     ``{"linear": m/s, "angular": rad/s}``
 ``{p}/{id}/cmd/stop``           in    never     anything: zero now
 ``{p}/{id}/cmd/estop``          in    never     ``{"engaged": true | false}``
-``{p}/{id}/errors``             out   no        each rejected command and why
+``{p}/{id}/errors``             out   no        what was refused: the first at once, then
+                                                at most one summary per second
 ``{p}/{id}/request/{name}``     in    never     MQTT 5 request/response: ``get_*``, diagnose
 ==============================  ====  ========  ==========================================
 
 Why it is shaped this way
 -------------------------
 A command must never move the robot late. Commands are QoS 0 on a clean session (a
-broker keeps nothing for a bridge that is away), a retained or expired command is
-refused, and each velocity command is one fresh command under the SDK's deadman
+broker keeps nothing for a bridge that is away), a retained, stale or expired command
+is refused, and each velocity command is one fresh command under the SDK's deadman
 (``command_timeout``): a dashboard that dies, or a Wi-Fi drop, stops the robot within
 half a second. Losing the broker writes zero at once, and nothing moves the robot
 again but a new command after the bridge is back. The connection topic follows VDA
 5050: ``ONLINE`` while bridged, ``OFFLINE`` after a clean stop, and the broker
-publishes the last will ``CONNECTIONBROKEN`` when the bridge vanishes.
+publishes the last will ``CONNECTIONBROKEN`` when the bridge vanishes, or ends on an
+error of its own (it then disconnects with reason 0x04, "with Will Message").
+
+Messages come from a network the robot does not control, so nothing about one may
+end the bridge, and no rate of them may delay a stop. Both are settled where a
+message enters: the client's incoming queue is a :class:`CommandInbox`, and each
+message is sorted as paho hands it over, in bounded work, before anything waits:
+
+- junk, a retained command, a stale one, an unknown topic: refused there and then
+  (counted; reported on ``errors`` by a reporter of its own, at most once a second),
+  never queued;
+- ``cmd/stop`` and ``cmd/estop``: a lane of their own, served first, and they cancel
+  any velocity command that came before them; they are never dropped (a run of them
+  collapses to what it means: engaged if any engaged, stopped, released last if so);
+- ``cmd/velocity``: one slot, the newest valid command: velocity is state, not a
+  queue, so a flood leaves at most one pending command and the deadman runs from the
+  last one the sender published;
+- ``request/...``: a short bounded queue served by two workers of their own, so a slow
+  device request never holds a command up.
+
+Memory is therefore bounded whatever arrives (a lane holds at most a few messages).
+
+Two bridges must never drive for one robot id. Each bridge has an owner id (host,
+process, random) that it puts in its ``connection`` payload; before it subscribes to
+commands it publishes ``ONLINE`` and reads the topic back: if the message before its
+own says another owner is ``ONLINE``, it puts that message back and refuses to start
+(:class:`RobotIdTaken`), unless it was told to take over. A running bridge that sees a
+take-over stops taking commands at once (in the order the broker delivered them, so
+no command routed to the new bridge reaches the old one), stops its robot and ends
+with :class:`RobotIdTaken`.
 """
 
 from __future__ import annotations
@@ -38,13 +69,22 @@ import asyncio
 import contextlib
 import json
 import logging
+import math
+import os
+import re
+import secrets
+import socket
 import time
-from collections.abc import Awaitable, Callable, Coroutine
+from collections import deque
+from collections.abc import Callable, Coroutine
 from typing import Any, cast
 
 import aiomqtt
+from paho.mqtt import client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from .core.device import Device
 from .core.plain import jsonable, plain
@@ -52,32 +92,78 @@ from .core.simulator import next_slot
 from .core.validation import check_real
 from .devices import DeviceProfile, profile
 from .errors import ChassisError
+from .inbound import CommandError as CommandError  # re-exported: it was defined here
+from .inbound import (
+    RefusalReport,
+    Refusals,
+    check_fresh,
+    command_object,
+    command_time,
+)
 
-__all__ = ["MqttBridge", "connection_will"]
+__all__ = [
+    "CommandError",
+    "CommandInbox",
+    "MqttBridge",
+    "RobotIdTaken",
+    "connection_will",
+    "new_owner",
+]
 
 _log = logging.getLogger("chassis_sdk.bridge")
+
+#: Stops and e-stops pending before a run of them is collapsed to what it means.
+_URGENT_MAX = 16
+#: Requests pending; more are refused (a request is answered or refused, never late).
+_REQUESTS_MAX = 16
+#: Workers answering requests (each may wait for the device for a few seconds).
+_REQUEST_WORKERS = 2
+#: Seconds to wait for the broker to send a bridge's own ``ONLINE`` back at start.
+_ECHO_TIMEOUT = 5.0
+#: Least seconds between two re-publications of ``ONLINE`` (another message appeared
+#: on the connection topic: a racing bridge's, or a stale last will).
+_REASSERT_INTERVAL = 1.0
+#: The disconnect reason that makes the broker publish the last will (MQTT 5 §3.14.2.1).
+_DISCONNECT_WITH_WILL = 0x04
 
 
 def _now() -> float:
     return time.time()
 
 
-def _state(state: str) -> bytes:
-    return json.dumps({"state": state, "timestamp": _now()}).encode()
+def _state(state: str, owner: str | None = None, *, take_over: bool = False) -> bytes:
+    body: dict[str, Any] = {"state": state, "timestamp": _now()}
+    if owner is not None:
+        body["owner"] = owner
+    if take_over:
+        body["take_over"] = True
+    return json.dumps(body).encode()
 
 
-def connection_will(robot_id: str, prefix: str = "robots") -> aiomqtt.Will:
+def new_owner() -> str:
+    """A new owner id for a bridge: ``host:pid:random``, unique per bridge, and telling
+    an operator where the bridge runs."""
+    return f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(3)}"
+
+
+def connection_will(
+    robot_id: str, prefix: str = "robots", owner: str | None = None
+) -> aiomqtt.Will:
     """The last will a bridge's client must be made with: the broker publishes
     ``CONNECTIONBROKEN`` (retained) on ``{prefix}/{robot_id}/connection`` if the bridge
     vanishes without a clean stop. One client per bridge, since a will is per
-    connection."""
+    connection; give the bridge's ``owner`` so the fleet knows whose will it is."""
     return aiomqtt.Will(
-        f"{prefix}/{robot_id}/connection", _state("CONNECTIONBROKEN"), qos=1, retain=True
+        f"{prefix}/{robot_id}/connection",
+        _state("CONNECTIONBROKEN", owner),
+        qos=1,
+        retain=True,
     )
 
 
-class CommandError(ValueError):
-    """A command or request that is refused, and why (published on ``errors``)."""
+class RobotIdTaken(ChassisError):
+    """Another bridge holds this robot id: this one refused to start, or it was taken
+    over and stopped its robot. The message names the other bridge's owner."""
 
 
 def _number(payload: dict[str, Any], key: str) -> float:
@@ -87,14 +173,138 @@ def _number(payload: dict[str, Any], key: str) -> float:
         raise CommandError(str(exc)) from None
 
 
-def _json_object(raw: bytes | bytearray) -> dict[str, Any]:
-    try:
-        payload = json.loads(raw)
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        raise CommandError("the payload is not JSON") from None
-    if not isinstance(payload, dict):
-        raise CommandError("the payload is not a JSON object")
-    return payload
+def _why(exc: Exception) -> str:
+    """One line saying why a message was refused, whatever went wrong with it."""
+    if isinstance(exc, CommandError):
+        text = str(exc)
+    elif isinstance(exc, ChassisError):
+        text = f"the device refused it: {exc}"
+    elif isinstance(exc, ValueError):
+        text = str(exc)
+    else:  # a failure nobody foresaw is still only this message's refusal
+        text = f"{type(exc).__name__} while handling it: {exc}"
+    return " ".join(text.split())[:300] or type(exc).__name__
+
+
+#: ``{prefix}/{id}/cmd/...`` and ``{prefix}/{id}/request/...`` of any robot: never a
+#: response topic, or a request could command a robot (its own or another).
+_COMMAND_TREE = re.compile(r"^[^/]+/[^/]+/(cmd|request)(/|$)")
+
+
+def _check_response_topic(topic: object) -> str:
+    """A response topic the bridge may publish to (MQTT 5 §3.3.2.3.5, §4.7)."""
+    if not isinstance(topic, str) or not topic:
+        raise CommandError("a request needs an MQTT 5 response topic")
+    if "#" in topic or "+" in topic:
+        raise CommandError("the response topic has a wildcard ('#' or '+'; MQTT 5 §3.3.2.3.5)")
+    if "\x00" in topic or len(topic.encode()) > 65535:
+        raise CommandError("the response topic is not a valid topic name")
+    if _COMMAND_TREE.match(topic):
+        raise CommandError("the response topic is a command or request topic")
+    return topic
+
+
+class _Lanes:
+    """What is pending, by kind: stops and e-stops (first), the newest velocity
+    command, and requests (served by workers of their own)."""
+
+    def __init__(self) -> None:
+        #: ("engage" | "stop" | "release", message), in arrival order.
+        self.urgent: deque[tuple[str, aiomqtt.Message]] = deque()
+        self.velocity: aiomqtt.Message | None = None
+        self.requests: deque[aiomqtt.Message] = deque()
+        #: Commands dropped because a newer one made them moot.
+        self.superseded = 0
+
+    def __len__(self) -> int:  # what ``get()`` can return (requests are not in it)
+        return len(self.urgent) + (self.velocity is not None)
+
+    def put_velocity(self, message: aiomqtt.Message) -> bool:
+        new = self.velocity is None
+        if not new:
+            self.superseded += 1
+        self.velocity = message
+        return new
+
+    def put_urgent(self, kind: str, message: aiomqtt.Message) -> bool:
+        if self.velocity is not None:  # it came before this stop: it must not follow it
+            self.velocity = None
+            self.superseded += 1
+        urgent = self.urgent
+        if urgent and urgent[-1][0] == kind:  # the same again means the same
+            if kind != "engage":
+                urgent[-1] = (kind, message)
+            self.superseded += 1
+            return False
+        urgent.append((kind, message))
+        if len(urgent) > _URGENT_MAX:
+            self._collapse()
+        return True
+
+    def _collapse(self) -> None:
+        """A long run of stops and e-stops, as what it means: e-stopped if any engaged,
+        stopped, and released last only if the last e-stop command was a release."""
+        urgent = self.urgent
+        engage = next((x for x in urgent if x[0] == "engage"), None)
+        stop = next((x for x in reversed(urgent) if x[0] == "stop"), None)
+        last = next((x for x in reversed(urgent) if x[0] != "stop"), None)
+        kept = [x for x in (engage, stop) if x is not None]
+        if last is not None and last[0] == "release":
+            kept.append(last)
+        self.superseded += len(urgent) - len(kept)
+        urgent.clear()
+        urgent.extend(kept)
+
+    def pop(self) -> aiomqtt.Message:
+        if self.urgent:
+            return self.urgent.popleft()[1]
+        message, self.velocity = self.velocity, None
+        assert message is not None  # asyncio.Queue gets only when len() > 0
+        return message
+
+    def clear_motion(self) -> None:
+        """Drop whatever could move the robot (the velocity command, releases)."""
+        if self.velocity is not None:
+            self.velocity = None
+            self.superseded += 1
+        kept = [x for x in self.urgent if x[0] != "release"]
+        self.superseded += len(self.urgent) - len(kept)
+        self.urgent.clear()
+        self.urgent.extend(kept)
+
+
+class CommandInbox(asyncio.Queue[aiomqtt.Message]):
+    """The incoming queue of a bridge's client (aiomqtt's ``queue_type``): each message
+    is sorted as it arrives, by :class:`MqttBridge`, so memory stays bounded and a stop
+    is served before anything else, whatever the rate of messages.
+
+    Pass ``queue_type=CommandInbox`` to ``aiomqtt.Client``; a bridge given a client
+    with aiomqtt's default queue (unbounded, first in first out) puts one in.
+    """
+
+    def _init(self, maxsize: int) -> None:
+        self.lanes = _Lanes()
+        # asyncio.Queue's empty() and qsize() read the length of self._queue.
+        self._queue = self.lanes
+        #: Sorts one message (set by the bridge); True when it is pending in a lane
+        #: that ``get()`` serves and was not there before.
+        self.sort: Callable[[aiomqtt.Message], bool] = self._unbound
+
+    def _unbound(self, message: aiomqtt.Message) -> bool:
+        _log.debug("no bridge on this inbox: dropped %s", message.topic)
+        return False
+
+    def put_nowait(self, item: aiomqtt.Message) -> None:
+        # Called by aiomqtt for every message, inside paho's read callback: nothing
+        # here may raise (the connection would be dropped) and nothing may wait.
+        if self.sort(item):
+            super().put_nowait(item)  # counts it and wakes the reader
+
+    def _put(self, item: aiomqtt.Message) -> None:
+        pass  # already stored in its lane by sort()
+
+    def _get(self) -> aiomqtt.Message:
+        return self.lanes.pop()
 
 
 class MqttBridge:
@@ -103,17 +313,29 @@ class MqttBridge:
     Args:
         device: A connected (or connecting) device; the bridge never closes it.
         client: An ``aiomqtt.Client``, not yet entered, made with
-            ``will=connection_will(robot_id, prefix)``, MQTT 5
-            (``protocol=aiomqtt.ProtocolVersion.V5``) for request/response, and a clean
-            start: the bridge enters it in :meth:`run`.
+            ``will=connection_will(robot_id, prefix, owner)``, MQTT 5
+            (``protocol=aiomqtt.ProtocolVersion.V5``), a clean start, a client id of
+            its own (two bridges must never share one) and ``queue_type=CommandInbox``:
+            the bridge enters it in :meth:`run`.
         robot_id: The robot's name under the prefix (letters, digits, ``-``, ``_``).
         prefix: The first topic level.
         rate: Most telemetry messages per stream per second (the latest, never a
             backlog).
         read_only: Never subscribe to commands (requests are still answered).
+        owner: This bridge's owner id, published in ``connection`` (default: a new
+            :func:`new_owner`). Keep one across reconnects of one service.
+        take_over: Start even if another bridge is ``ONLINE`` for this robot id; that
+            bridge stops its robot and ends.
+        require_timestamp: Refuse velocity commands and e-stop releases without a
+            ``timestamp``.
+        max_age: The oldest a command may be, by its ``timestamp`` (seconds; plus
+            :data:`chassis_sdk.inbound.TIMESTAMP_SKEW`): the device's
+            ``command_timeout``.
+        report_interval: Least seconds between two reports on ``errors``.
 
     Raises:
-        ValueError: A bad robot id, prefix or rate.
+        ValueError: A bad robot id, prefix, rate, max_age or report_interval.
+        TypeError: The client's incoming queue cannot be replaced.
     """
 
     def __init__(
@@ -125,30 +347,88 @@ class MqttBridge:
         prefix: str = "robots",
         rate: float = 10.0,
         read_only: bool = False,
+        owner: str | None = None,
+        take_over: bool = False,
+        require_timestamp: bool = False,
+        max_age: float = 0.5,
+        report_interval: float = 1.0,
     ) -> None:
         for name, value in (("robot_id", robot_id), ("prefix", prefix)):
             if not value or not all(c.isalnum() or c in "-_" for c in value):
                 raise ValueError(f"{name} must be letters, digits, '-' or '_', got {value!r}")
         rate = check_real(rate, "rate", low=0, low_open=True, high=100, unit="per second")
+        max_age = check_real(max_age, "max_age", low=0, low_open=True, unit="s")
+        report_interval = check_real(report_interval, "report_interval", low=0, low_open=True)
         self.device = device
         self.client = client
         self.robot_id = robot_id
         self.prefix = prefix
         self.rate = float(rate)
         self.read_only = read_only
+        self.owner = owner if owner is not None else new_owner()
+        self.take_over = take_over
+        self.require_timestamp = require_timestamp
+        self.max_age = float(max_age)
         self.topic = f"{prefix}/{robot_id}"
+        self._base = f"{self.topic}/"
         self.profile: DeviceProfile = profile(device.kind)
-        #: Commands refused so far (each also published on ``errors``).
-        self.rejected = 0
+        #: True once this bridge is the robot id's owner on the broker (it has read its
+        #: own ``ONLINE`` back and found no other bridge before it).
+        self.online = False
+        #: Commands that arrived after another bridge took over (never acted on).
+        self.dropped = 0
+        self._refusals = Refusals(float(report_interval))
+        self._reports: deque[RefusalReport] = deque(maxlen=4)
+        self._report_wanted = asyncio.Event()
+        self._request_ready = asyncio.Event()
+        self._owner_wanted = asyncio.Event()
+        self._online_payload = b""
+        self._echoed = asyncio.Event()
+        self._before: tuple[bytes, dict[str, Any]] | None = None
+        self._displaced_by: str | None = None
+        self._reassert = False
+        self._inbox = self._install_inbox(client)
+
+    def _install_inbox(self, client: aiomqtt.Client) -> CommandInbox:
+        queue = getattr(client, "_queue", None)
+        if isinstance(queue, CommandInbox):
+            inbox = queue
+        elif isinstance(queue, asyncio.Queue) and queue.empty():
+            # aiomqtt's default queue is unbounded and first in, first out: under a
+            # flood it grows without bound and a stop waits behind everything. The
+            # client is not entered yet, so nothing can be in it.
+            inbox = CommandInbox()
+            client._queue = inbox
+        else:
+            raise TypeError(
+                "the client's incoming queue cannot be replaced: make it with "
+                "queue_type=CommandInbox"
+            )
+        inbox.sort = self._sort
+        return inbox
+
+    @property
+    def rejected(self) -> int:
+        """Messages refused so far (each counted; reported on ``errors``, summarised)."""
+        return self._refusals.total
+
+    @property
+    def superseded(self) -> int:
+        """Commands dropped unacted because a newer one (or a stop) made them moot."""
+        return self._inbox.lanes.superseded
 
     async def run(self) -> None:
         """Bridge until cancelled (then publish ``OFFLINE``) or the broker is lost.
 
-        The device is stopped (zero velocity) whenever this returns or raises.
+        The device is stopped (zero velocity) whenever this returns or raises. If it
+        ends on an error of its own, it disconnects so that the broker publishes the
+        last will (``CONNECTIONBROKEN``).
 
         Raises:
             aiomqtt.MqttError: The broker connection failed or was lost; the robot was
                 stopped first. Call :meth:`run` again with a new client to resume.
+            RobotIdTaken: Another bridge is ``ONLINE`` for this robot id (this one
+                never took a command), or it took over (this one stopped its robot).
         """
         # Every await of this task is asyncio.wait (never aiomqtt's own calls, which
         # use asyncio.wait_for: before Python 3.12 it can lose a cancellation), so a
@@ -167,7 +447,16 @@ class MqttBridge:
                     await _cancel_all(workers)
                     await self._offline()
                     raise
-                except BaseException:
+                except (aiomqtt.MqttError, RobotIdTaken):
+                    # The broker is gone, or another bridge owns the robot id: either
+                    # way nothing of ours may be published now.
+                    await _cancel_all(workers)
+                    raise
+                except Exception:
+                    await _cancel_all(workers)
+                    await self._fail_loudly()
+                    raise
+                except BaseException:  # KeyboardInterrupt, SystemExit: the process ends
                     await _cancel_all(workers)
                     raise
         except aiomqtt.MqttError as exc:
@@ -177,12 +466,61 @@ class MqttBridge:
             await self._stop_robot()
 
     async def _start(self) -> None:
-        await self._publish("connection", _state("ONLINE"), qos=1, retain=True)
+        await self._claim()
         await self._publish_info()
         await self._subscribe()
 
+    async def _claim(self) -> None:
+        """Become the robot id's owner, or raise :class:`RobotIdTaken`.
+
+        The bridge publishes its ``ONLINE`` and reads the topic back: the broker sends
+        every subscriber a topic's messages in one order, so the message just before
+        our own is the state we replaced (a retained one, or a racing bridge's claim).
+        """
+        self._online_payload = _state("ONLINE", self.owner, take_over=self.take_over)
+        await self.client.subscribe(f"{self.topic}/connection", options=SubscribeOptions(qos=1))
+        await self._publish("connection", self._online_payload, qos=1, retain=True)
+        try:
+            async with asyncio.timeout(_ECHO_TIMEOUT):
+                await self._echoed.wait()
+        except TimeoutError:
+            raise ChassisError(
+                f"{self.topic}/connection: the broker did not send this bridge's ONLINE "
+                f"back within {_ECHO_TIMEOUT:g} s (may its user read that topic? see "
+                "docs/mqtt.md, Access control)"
+            ) from None
+        other = self._other_owner(self._before)
+        if other is not None and not self.take_over:
+            assert self._before is not None
+            raw, state = self._before
+            # Ours replaced theirs as the retained state: put it back before leaving.
+            await self._publish("connection", raw, qos=1, retain=True)
+            since = state.get("timestamp")
+            when = f" since {_clock(since)}" if isinstance(since, int | float) else ""
+            raise RobotIdTaken(
+                f"{self.topic} is already bridged by {other} (ONLINE{when}); stop that "
+                "bridge first, or start this one with --take-over (take_over=True)"
+            )
+        self.online = True
+
+    def _other_owner(self, seen: tuple[bytes, dict[str, Any]] | None) -> str | None:
+        """The owner of ``seen`` if it says another bridge is ONLINE."""
+        if seen is None or seen[1].get("state") != "ONLINE":
+            return None
+        owner = seen[1].get("owner")
+        if owner == self.owner:
+            return None  # our own, from before a reconnect
+        return str(owner)[:100] if owner is not None else "a bridge without an owner id"
+
     def _loops(self) -> list[tuple[str, Coroutine[Any, Any, None]]]:
-        loops = [("commands", self._commands()), ("link", self._link()), ("events", self._events())]
+        loops = [
+            ("commands", self._commands()),
+            ("owner", self._ownership()),
+            ("errors", self._reporter()),
+            ("link", self._link()),
+            ("events", self._events()),
+        ]
+        loops += [(f"requests {n}", self._requests()) for n in range(_REQUEST_WORKERS)]
         return loops + [(stream, self._telemetry(stream)) for stream in self.profile.streams]
 
     @staticmethod
@@ -196,15 +534,36 @@ class MqttBridge:
     async def _offline(self) -> None:
         """Say ``OFFLINE`` (a clean stop), bounded: a broker that does not acknowledge
         within two seconds does not hold the stop up (its last will then tells)."""
-        publish = asyncio.ensure_future(
-            self._publish("connection", _state("OFFLINE"), qos=1, retain=True)
-        )
+        if not self.online:
+            return  # not the owner (or not yet): the connection topic is not ours
+        await self._bounded_publish(_state("OFFLINE", self.owner))
+
+    async def _bounded_publish(self, payload: bytes) -> None:
+        publish = asyncio.ensure_future(self._publish("connection", payload, qos=1, retain=True))
         # asyncio.wait, unlike wait_for, works in a task that is being cancelled.
         done, _ = await asyncio.wait((publish,), timeout=2.0)
         if not done:
             publish.cancel()
         elif publish.exception() is not None:
-            _log.info("%s: could not say OFFLINE: %r", self.topic, publish.exception())
+            _log.info("%s: could not publish its state: %r", self.topic, publish.exception())
+
+    async def _fail_loudly(self) -> None:
+        """The bridge ends on an error of its own: tell the fleet. A DISCONNECT with
+        reason 0x04 makes the broker publish the last will (``CONNECTIONBROKEN``),
+        where aiomqtt's own clean disconnect would cancel it and leave ``ONLINE``."""
+        _log.error("%s: the bridge ends on an error; the last will tells the fleet", self.topic)
+        client: Any = self.client
+        inner = getattr(client, "_client", None)
+        disconnected = getattr(client, "_disconnected", None)
+        if isinstance(inner, paho.Client) and isinstance(disconnected, asyncio.Future):
+            reason = ReasonCode(PacketTypes.DISCONNECT, identifier=_DISCONNECT_WITH_WILL)
+            with contextlib.suppress(Exception):
+                if inner.disconnect(reasoncode=reason) == paho.MQTT_ERR_SUCCESS:
+                    await asyncio.wait((disconnected,), timeout=2.0)
+                    if disconnected.done() and not disconnected.cancelled():
+                        disconnected.exception()  # retrieved: it is expected
+                    return
+        await self._bounded_publish(_state("CONNECTIONBROKEN", self.owner))  # aiomqtt changed
 
     async def _stop_robot(self) -> None:
         with contextlib.suppress(ChassisError):
@@ -229,6 +588,7 @@ class MqttBridge:
             "summary": self.profile.summary,
             "port": self.device.port,
             "features": dict(self.profile.features),
+            "owner": self.owner,
         }
         for name in self.profile.identity:
             try:
@@ -239,9 +599,13 @@ class MqttBridge:
         await self._publish("info", json.dumps(info).encode(), qos=1, retain=True)
 
     async def _subscribe(self) -> None:
-        # QoS 0 and a clean session: a command is never kept for later.
+        # QoS 0 and a clean session: a command is never kept for later. Retain As
+        # Published (MQTT 5 §3.8.3.1): a live retained command keeps RETAIN 1, so it is
+        # refused like a stored one (without it the broker clears the flag).
         if not self.read_only:
-            await self.client.subscribe(f"{self.topic}/cmd/+", qos=0)
+            await self.client.subscribe(
+                f"{self.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
+            )
         await self.client.subscribe(f"{self.topic}/request/+", qos=0)
 
     # --- out ---------------------------------------------------------------------------
@@ -279,72 +643,200 @@ class MqttBridge:
             payload = {**jsonable(event), "kind": event.kind.value}
             await self._publish("events", json.dumps(payload).encode(), qos=1)
 
+    async def _reporter(self) -> None:
+        """Publish what was refused: the first at once, then at most one summary per
+        ``report_interval``, in a task of its own (a refusal never waits for it)."""
+        interval = self._refusals.interval
+        while True:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(interval):
+                    await self._report_wanted.wait()
+            self._report_wanted.clear()
+            report = self._refusals.due()
+            if report is not None:
+                self._reports.append(report)
+            while self._reports:
+                report = self._reports.popleft()
+                _log.info("%s: refused %s", self.topic, report.summary())
+                body: dict[str, Any] = {
+                    "topic": report.where,
+                    "error": report.why,
+                    "timestamp": _now(),
+                    "count": report.count,
+                    "total": report.total,
+                }
+                if report.count > 1:
+                    body["reasons"] = report.reasons
+                await self._publish("errors", json.dumps(body).encode(), qos=1)
+
+    async def _ownership(self) -> None:
+        """End the bridge when another one took over; say ``ONLINE`` again when
+        something else was published on the connection topic (a racing bridge's
+        claim, or a stale last will)."""
+        last = -math.inf
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._owner_wanted.wait()
+            self._owner_wanted.clear()
+            if self._displaced_by is not None:
+                raise RobotIdTaken(
+                    f"{self.topic} was taken over by {self._displaced_by}: this bridge "
+                    "stopped its robot and takes no more commands"
+                )
+            if self._reassert:
+                await asyncio.sleep(max(0.0, last + _REASSERT_INTERVAL - loop.time()))
+                self._reassert = False
+                last = loop.time()
+                await self._publish("connection", self._online_payload, qos=1, retain=True)
+
     # --- in ----------------------------------------------------------------------------
+
+    def _refuse(self, where: str, why: str) -> None:
+        """Count a refusal; wake the reporter when a report is due (never waits)."""
+        report = self._refusals.add(where, why)
+        if report is not None:
+            self._reports.append(report)
+            self._report_wanted.set()
+
+    def _sort(self, message: aiomqtt.Message) -> bool:
+        """Sort one message as it arrives (in paho's read callback): refuse it, act on
+        it (the connection topic), or leave it in its lane. Never raises."""
+        try:
+            return self._sort_one(message)
+        except Exception as exc:  # any failure is this message's refusal, no more
+            self._refuse(_topic(message), _why(exc))
+            return False
+
+    def _sort_one(self, message: aiomqtt.Message) -> bool:
+        topic = message.topic.value
+        if not topic.startswith(self._base):
+            return False  # not ours (a wider subscription of the user's)
+        sub = topic[len(self._base) :]
+        if sub == "connection":
+            self._on_connection(message)
+            return False
+        kind, _, name = sub.partition("/")
+        lanes = self._inbox.lanes
+        if kind == "request" and name and "/" not in name:
+            if len(lanes.requests) >= _REQUESTS_MAX:
+                raise CommandError(f"{_REQUESTS_MAX} requests are pending already")
+            lanes.requests.append(message)
+            self._request_ready.set()
+            return False
+        if kind != "cmd" or self.read_only or "/" in name:
+            return False
+        if self._displaced_by is not None:
+            self.dropped += 1  # another bridge owns the robot id now
+            return False
+        if message.retain:
+            raise CommandError("a retained command is never acted on (it would be stale)")
+        if name == "velocity":
+            self._velocity_of(message)  # junk and stale ones never take the slot
+            return lanes.put_velocity(message)
+        if name == "stop":
+            return lanes.put_urgent("stop", message)
+        if name == "estop":
+            return lanes.put_urgent("engage" if self._estop_of(message) else "release", message)
+        raise CommandError(f"unknown command {name[:40]!r}: velocity, stop or estop")
+
+    def _on_connection(self, message: aiomqtt.Message) -> None:
+        raw = message.payload if isinstance(message.payload, bytes) else b""
+        if raw == self._online_payload and raw:
+            self._echoed.set()
+            return
+        try:
+            state = command_object(raw)
+        except CommandError:
+            state = {}
+        if not self._echoed.is_set():
+            self._before = (raw, state)  # the state our ONLINE is about to replace
+            return
+        owner = state.get("owner")
+        taking = state.get("state") == "ONLINE" and state.get("take_over") is True
+        if taking and owner != self.owner:
+            # In the broker's order: every command routed to the new bridge comes
+            # after this, so from here on none is acted on here.
+            self._displaced_by = str(owner)[:100]
+            self._inbox.lanes.clear_motion()
+        elif self.online:
+            self._reassert = True
+        self._owner_wanted.set()
+
+    def _check_time(self, payload: dict[str, Any]) -> None:
+        stamp = payload.get("timestamp")
+        if stamp is None:
+            if self.require_timestamp:
+                raise CommandError("the command has no 'timestamp', and this bridge requires one")
+            return
+        check_fresh(command_time(stamp), self.max_age)
+
+    def _velocity_of(self, message: aiomqtt.Message) -> tuple[float, float]:
+        payload = command_object(message.payload)
+        linear, angular = _number(payload, "linear"), _number(payload, "angular")
+        self._check_time(payload)
+        return linear, angular
+
+    def _estop_of(self, message: aiomqtt.Message) -> bool:
+        payload = command_object(message.payload)
+        engaged = payload.get("engaged")
+        if not isinstance(engaged, bool):
+            raise CommandError(f"'engaged' must be true or false, got {str(engaged)[:40]!r}")
+        if not engaged:
+            self._check_time(payload)  # a release is as late-sensitive as a velocity
+        return engaged
 
     async def _commands(self) -> None:
         async for message in self.client.messages:
-            parts = str(message.topic).split("/")
             try:
-                if len(parts) == 4 and parts[2] == "request":
-                    await self._request(parts[3], message)
-                elif len(parts) == 4 and parts[2] == "cmd" and not self.read_only:
-                    await self._command(parts[3], message)
-            except CommandError as exc:
-                await self._reject(str(message.topic), str(exc))
-            except ChassisError as exc:
-                await self._reject(str(message.topic), f"the device refused it: {exc}")
+                await self._act(message)
+            except Exception as exc:  # any failure is this message's refusal, no more
+                self._refuse(_topic(message), _why(exc))
 
-    async def _reject(self, topic: str, why: str) -> None:
-        self.rejected += 1
-        _log.info("%s: rejected %s: %s", self.topic, topic, why)
-        payload = {"topic": topic, "error": why, "timestamp": _now()}
-        await self._publish("errors", json.dumps(payload).encode(), qos=1)
-
-    async def _command(self, name: str, message: aiomqtt.Message) -> None:
-        if message.retain:
-            raise CommandError("a retained command is never acted on (it would be stale)")
-        raw = message.payload if isinstance(message.payload, bytes | bytearray) else b""
-        handlers: dict[str, Callable[[bytes | bytearray], Awaitable[None]]] = {
-            "velocity": self._velocity,
-            "stop": lambda raw: self.device.stop(),
-            "estop": self._estop,
-        }
-        handler = handlers.get(name)
-        if handler is None:
-            raise CommandError(f"unknown command {name!r}: velocity, stop or estop")
-        await handler(raw)
-
-    async def _velocity(self, raw: bytes | bytearray) -> None:
-        payload = _json_object(raw)
-        linear, angular = _number(payload, "linear"), _number(payload, "angular")
-        try:
+    async def _act(self, message: aiomqtt.Message) -> None:
+        if self._displaced_by is not None:
+            self.dropped += 1
+            return
+        name = message.topic.value.rpartition("/")[2]
+        if name == "velocity":
+            # Checked again: it may have waited (a little) for a stop to be served.
+            linear, angular = self._velocity_of(message)
             # One fresh command under the deadman: it holds command_timeout, no longer.
             await self.device.set_velocity(linear, angular)
-        except ValueError as exc:
-            raise CommandError(str(exc)) from None
-
-    async def _estop(self, raw: bytes | bytearray) -> None:
-        engaged = _json_object(raw).get("engaged")
-        if not isinstance(engaged, bool):
-            raise CommandError(f"'engaged' must be true or false, got {engaged!r}")
-        device: Any = self.device
-        if not hasattr(device, "emergency_stop"):
+        elif name == "stop":
             await self.device.stop()
-            raise CommandError(f"a {self.profile.name} has no e-stop; it was stopped")
-        await (device.emergency_stop() if engaged else device.release_emergency_stop())
+        elif name == "estop":
+            engaged = self._estop_of(message)
+            device: Any = self.device
+            if not hasattr(device, "emergency_stop"):
+                await self.device.stop()
+                raise CommandError(f"a {self.profile.name} has no e-stop; it was stopped")
+            await (device.emergency_stop() if engaged else device.release_emergency_stop())
 
-    async def _request(self, name: str, message: aiomqtt.Message) -> None:
+    async def _requests(self) -> None:
+        requests = self._inbox.lanes.requests
+        while True:
+            while not requests:
+                self._request_ready.clear()
+                await self._request_ready.wait()
+            message = requests.popleft()
+            try:
+                await self._request(message)
+            except aiomqtt.MqttError:
+                raise  # the broker is gone: the bridge ends
+            except Exception as exc:  # any failure is this request's refusal, no more
+                self._refuse(_topic(message), _why(exc))
+
+    async def _request(self, message: aiomqtt.Message) -> None:
+        name = message.topic.value.rpartition("/")[2]
         props = message.properties
-        response = getattr(props, "ResponseTopic", None) if props is not None else None
-        if not response:
-            raise CommandError("a request needs an MQTT 5 response topic")
+        response = _check_response_topic(getattr(props, "ResponseTopic", None))
         reply = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
         correlation = getattr(props, "CorrelationData", None)
         if correlation is not None:
             reply.CorrelationData = correlation
         if name not in self.profile.requests:
             body: dict[str, Any] = {
-                "error": f"unknown request {name!r}; known: {', '.join(self.profile.requests)}"
+                "error": f"unknown request {name[:40]!r}; known: {', '.join(self.profile.requests)}"
             }
         else:
             try:
@@ -352,6 +844,18 @@ class MqttBridge:
             except ChassisError as exc:
                 body = {"error": str(exc)}
         await self.client.publish(response, json.dumps(body).encode(), properties=reply)
+
+
+def _topic(message: aiomqtt.Message) -> str:
+    with contextlib.suppress(Exception):
+        return str(message.topic.value)[:200]
+    return "?"
+
+
+def _clock(stamp: float) -> str:
+    with contextlib.suppress(ValueError, OverflowError, OSError):
+        return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(stamp))
+    return repr(stamp)
 
 
 async def _cancel_all(tasks: list[asyncio.Task[None]]) -> None:

@@ -249,11 +249,12 @@ async def test_no_command_is_delivered_late_after_a_reconnect(
     ("topic", "payload", "why"),
     [
         pytest.param("velocity", b"not json", "not JSON", id="not-json"),
-        pytest.param("velocity", b"[1, 2]", "not a JSON object", id="not-an-object"),
+        pytest.param("velocity", b"[1, 2]", "not an object", id="not-an-object"),
         pytest.param("velocity", b'{"linear": 0.3}', "'angular' must be a number", id="missing-field"),
         pytest.param("velocity", b'{"linear": "fast", "angular": 0}', "'linear' must be a number", id="a-string"),
         pytest.param("velocity", b'{"linear": true, "angular": 0}', "'linear' must be a number", id="a-bool"),
-        pytest.param("velocity", b'{"linear": NaN, "angular": 0}', "'linear' must be finite", id="nan"),
+        pytest.param("velocity", b'{"linear": NaN, "angular": 0}', "NaN is not JSON", id="nan"),
+        pytest.param("velocity", b'{"linear": 1e999, "angular": 0}', "'linear' must be finite", id="infinite"),
         pytest.param("velocity", b'{"linear": 1e9, "angular": 0}', "out of range", id="out-of-range"),
         pytest.param("velocity", b'{"linear": 0, "angular": 99}', "angular", id="angular-too-fast"),
         pytest.param("estop", b'{"engaged": "yes"}', "'engaged' must be true or false", id="estop-not-bool"),
@@ -421,6 +422,8 @@ async def test_the_bridge_command_logs_in_over_tls_and_says_when_it_cannot(
     right, wrong = tmp_path / "right", tmp_path / "wrong"
     right.write_text("secret-r1\n")
     wrong.write_text("guess\n")
+    right.chmod(0o600)  # a password file others may read is refused
+    wrong.chmod(0o600)
     extra = (
         f"cafile {cert}\ncertfile {cert}\nkeyfile {key}\n"
         f"allow_anonymous false\npassword_file {users}\n"

@@ -1,14 +1,19 @@
 """``chassis-sdk bridge``: one device on an MQTT broker, for as long as the service runs.
 
 The device is opened once, with ``reconnect=True``; the broker connection is made again
-with backoff whenever it is lost (the robot is stopped first, every time).
+with backoff whenever it is lost (the robot is stopped first, every time). The bridge's
+owner id is made once per process, so a reconnect is the same owner; ``--take-over``
+applies to the first start only (a bridge that came back must never take the robot id
+from one that started while it was away).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import ssl
+import stat
 import urllib.parse
 from pathlib import Path
 
@@ -41,16 +46,11 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     try:
         import aiomqtt
 
-        from ..bridge import MqttBridge, connection_will
+        from ..bridge import CommandInbox, MqttBridge, connection_will, new_owner
     except ImportError:
         raise ChassisError("bridge needs aiomqtt: pip install 'chassis-sdk[mqtt]'") from None
     host, broker_port, tls = _broker(args.broker)
-    password = None
-    if args.password_file:
-        try:
-            password = Path(args.password_file).read_text().strip()  # noqa: ASYNC240 (once, small)
-        except OSError as exc:
-            raise ChassisError(f"cannot read --password-file: {exc.strerror}") from None
+    password = _password(args.password_file) if args.password_file else None
     context = None
     if tls or args.tls:
         context = ssl.create_default_context(cafile=args.cafile)
@@ -59,14 +59,19 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
         where = f"{args.prefix}/{args.robot_id}"
         out(f"bridging {port} ({device.name}) as {where} on {args.broker}")
         backoff = Backoff(_BACKOFF_START, _BACKOFF_CAP)
+        owner = new_owner()
+        take_over = bool(args.take_over)
         while True:
             client = aiomqtt.Client(
                 host,
                 broker_port,
-                identifier=f"chassis-sdk-{args.prefix}-{args.robot_id}",
+                # One client id per bridge process: a shared one would make the broker
+                # hand the session back and forth between two bridges of one robot id.
+                identifier=f"chassis-sdk-{args.prefix}-{args.robot_id}-{owner.rpartition(':')[2]}",
                 protocol=aiomqtt.ProtocolVersion.V5,
-                will=connection_will(args.robot_id, args.prefix),
+                will=connection_will(args.robot_id, args.prefix, owner),
                 clean_start=True,
+                queue_type=CommandInbox,
                 username=args.username,
                 password=password,
                 tls_context=context,
@@ -79,15 +84,39 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 prefix=args.prefix,
                 rate=args.rate,
                 read_only=args.read_only,
+                owner=owner,
+                take_over=take_over,
+                require_timestamp=args.require_timestamp,
             )
             started = asyncio.get_running_loop().time()
             try:
-                await bridge.run()
+                await bridge.run()  # RobotIdTaken ends the command with its one line
             except aiomqtt.MqttError as exc:
+                take_over = take_over and not bridge.online
                 if asyncio.get_running_loop().time() - started > 5.0:
                     backoff.reset()  # it had been up: start the backoff over
                 delay = backoff.next()
                 out(f"broker {args.broker}: {exc}; the robot is stopped; retrying in {delay:.1f} s")
                 await asyncio.sleep(delay)
                 continue
+            take_over = take_over and not bridge.online
             await asyncio.sleep(backoff.next())
+
+
+def _password(path: str) -> str:
+    """The broker password: the file's content without its final newline (a password
+    may end in a space). Like ssh with a private key, a file that group or others may
+    read is refused: the password is as good as published."""
+    try:
+        mode = os.stat(path).st_mode
+        if mode & 0o077:
+            raise ChassisError(
+                f"--password-file {path} is open to group or others (mode "
+                f"{stat.S_IMODE(mode):04o}); chmod 600 it"
+            )
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ChassisError(f"cannot read --password-file: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ChassisError(f"--password-file {path} is not UTF-8 text") from None
+    return text.removesuffix("\n").removesuffix("\r")
