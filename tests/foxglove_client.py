@@ -11,11 +11,13 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
+import time
 from collections import defaultdict
 from typing import Any
+from urllib.parse import urlencode
 
 import websockets
-from websockets.typing import Subprotocol
+from websockets.typing import Origin, Subprotocol
 
 SUBPROTOCOLS = [Subprotocol("foxglove.websocket.v1"), Subprotocol("foxglove.sdk.v1")]
 
@@ -30,13 +32,29 @@ class FoxgloveClient:
     """Connects, records what the server advertises, subscribes, calls services and
     publishes on channels of its own."""
 
-    def __init__(self, url: str) -> None:
-        self.url = url
+    def __init__(
+        self,
+        url: str,
+        *,
+        origin: str | None = None,
+        token: str | None = None,
+        bearer: str | None = None,
+        subprotocols: list[str] | None = None,
+    ) -> None:
+        """``origin``: the ``Origin`` header to send (as a browser would; none by
+        default, as a native client). ``token``: sent as the query parameter
+        ``?token=``; ``bearer``: as ``Authorization: Bearer``."""
+        self.url = url if token is None else f"{url}/?{urlencode({'token': token})}"
+        self.origin = origin
+        self.headers = {"Authorization": f"Bearer {bearer}"} if bearer is not None else {}
+        self.offered = [Subprotocol(p) for p in subprotocols] if subprotocols else SUBPROTOCOLS
         self.server_info: dict[str, Any] = {}
         self.channels: dict[str, dict[str, Any]] = {}  # by topic
         self.services: dict[str, dict[str, Any]] = {}  # by name
         self.statuses: list[dict[str, Any]] = []
         self.received: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
+        #: The same messages with the client's monotonic clock when each arrived.
+        self.arrived: dict[str, list[tuple[float, bytes]]] = defaultdict(list)
         self._subs: dict[int, str] = {}
         self._next_sub = 1
         self._next_call = 1
@@ -46,7 +64,12 @@ class FoxgloveClient:
         self._reader: asyncio.Task[None] | None = None
 
     async def __aenter__(self) -> FoxgloveClient:
-        self._ws = await websockets.connect(self.url, subprotocols=SUBPROTOCOLS)
+        self._ws = await websockets.connect(
+            self.url,
+            subprotocols=self.offered,
+            origin=Origin(self.origin) if self.origin is not None else None,
+            additional_headers=self.headers,
+        )
         self._reader = asyncio.create_task(self._read())
         return self
 
@@ -66,6 +89,7 @@ class FoxgloveClient:
             elif frame[0] == _MESSAGE_DATA:
                 sub, ts = struct.unpack_from("<IQ", frame, 1)
                 self.received[self._subs[sub]].append((ts, bytes(frame[13:])))
+                self.arrived[self._subs[sub]].append((time.monotonic(), bytes(frame[13:])))
             elif frame[0] == _SERVICE_RESPONSE:
                 _, call, n = struct.unpack_from("<III", frame, 1)
                 future = self._calls.pop(call)
@@ -120,8 +144,15 @@ class FoxgloveClient:
         await self._ws.send(header + encoding + request)
         return json.loads(await asyncio.wait_for(future, timeout))
 
-    async def advertise(self, channel_id: int, topic: str, schema_name: str) -> None:
-        channel = {"id": channel_id, "topic": topic, "encoding": "json", "schemaName": schema_name}
+    async def advertise(
+        self, channel_id: int, topic: str, schema_name: str, encoding: str = "json"
+    ) -> None:
+        channel = {
+            "id": channel_id,
+            "topic": topic,
+            "encoding": encoding,
+            "schemaName": schema_name,
+        }
         await self._ws.send(json.dumps({"op": "advertise", "channels": [channel]}))
 
     async def unadvertise(self, channel_id: int) -> None:
@@ -129,6 +160,14 @@ class FoxgloveClient:
 
     async def publish(self, channel_id: int, payload: bytes) -> None:
         await self._ws.send(struct.pack("<BI", _CLIENT_MESSAGE, channel_id) + payload)
+
+    async def send_raw(self, frame: str | bytes) -> None:
+        """Send a frame as it is (text or binary), whatever it holds."""
+        await self._ws.send(frame)
+
+    def abort(self) -> None:
+        """Vanish as a crashed client or a dropped network does: no closing handshake."""
+        self._ws.transport.abort()
 
     def messages(self, topic: str) -> list[Any]:
         return [json.loads(data) for _, data in self.received[topic]]

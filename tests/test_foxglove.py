@@ -309,6 +309,9 @@ async def test_foxglove_client_sees_streams_calls_services_and_drives(tmp_path: 
         assert client.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
         assert {"clientPublish", "services"} <= set(client.server_info["capabilities"])
         await client.wait_for(lambda: {"/chassis/pose", "/tf"} <= set(client.channels))
+        # Each advertisement is a message of its own: wait for the services' as well
+        # (through the front they can arrive a loop turn after the channels').
+        await client.wait_for(lambda: len(client.services) == 4)
         assert client.channels["/chassis/telemetry"]["encoding"] == "json"
         assert client.channels["/chassis/pose"]["schemaName"] == "foxglove.PoseInFrame"
         assert set(client.services) == {

@@ -2,6 +2,10 @@
 
 The device is opened once, with ``reconnect=True``; Ctrl-C or SIGTERM stops the server,
 then the device (zero velocity first, as always).
+
+Who may connect is checked before the device opens: ``--host`` beyond loopback needs
+``--token``/``--token-file`` (or an explicit ``--no-token``), and ``--allow-origin``
+values must be origins. The token is never printed.
 """
 
 from __future__ import annotations
@@ -9,24 +13,76 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import logging
+import os
+import stat
 import sys
+from pathlib import Path
 
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
 from ..errors import ChassisError
 from .common import first_frame, out
 
-__all__ = ["serve"]
+__all__ = ["read_token_file", "serve"]
+
+
+def read_token_file(path: str) -> str:
+    """The token in ``path``: the file's text without its final newline (nothing else
+    is stripped). Refused, as ssh refuses a private key, if others may read the file.
+
+    Raises:
+        ChassisError: The file cannot be read, may be read by others, or is empty.
+    """
+    file = Path(path)
+    try:
+        mode = file.stat().st_mode
+        text = file.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ChassisError(f"cannot read the token file {path}: {exc}") from None
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise ChassisError(
+            f"the token file {path} may be read by others (mode {stat.S_IMODE(mode):o}): "
+            f"chmod 600 {path}"
+        )
+    token = text.removesuffix("\n").removesuffix("\r")
+    if not token:
+        raise ChassisError(f"the token file {path} is empty")
+    return token
+
+
+def _show_refusals() -> None:
+    """Refused connections and messages are warnings of ``chassis_sdk.live`` (already
+    rate-limited); the CLI shows only errors unless ``-v``, so show these on stderr."""
+    log = logging.getLogger("chassis_sdk.live")
+    if log.getEffectiveLevel() > logging.WARNING:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("chassis-sdk serve: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.WARNING)
+        log.propagate = False
 
 
 async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
     """Serve until Ctrl-C, SIGTERM or ``--seconds``."""
     try:
-        from ..live import FoxgloveServer
+        from ..live import FoxgloveServer, check_access
     except ImportError:
         raise ChassisError(
             "serve needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
         ) from None
+    if args.token is not None and args.token_file is not None:
+        raise ChassisError("give --token or --token-file, not both")
+    token = read_token_file(args.token_file) if args.token_file is not None else args.token
+    if token is None and os.environ.get("CHASSIS_SDK_FOXGLOVE_TOKEN"):
+        token = os.environ["CHASSIS_SDK_FOXGLOVE_TOKEN"]
+    origins = args.allow_origin or []
+    try:  # before the device opens: a refused option moves nothing
+        check_access(args.host, allow_origins=origins, token=token, allow_no_token=args.no_token)
+    except ValueError as exc:
+        hint = " (--token-file FILE, or --no-token)" if "needs a token" in str(exc) else ""
+        raise ChassisError(f"{exc}{hint}") from None
+    _show_refusals()
     limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
     async with device.device(
         port,
@@ -43,16 +99,27 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
                 port=args.foxglove_port,
                 read_only=args.read_only,
                 record=args.record,
+                allow_origins=origins,
+                token=token,
+                allow_no_token=args.no_token,
             )
             server.start()
         except RuntimeError as exc:  # the address is taken, or cannot be bound
             raise ChassisError(f"cannot serve on {args.host}:{args.foxglove_port}: {exc}") from None
         try:
             mode = "read-only" if args.read_only else "Teleop and services on"
-            out(f"serving {port} ({device.name}) to Foxglove at {server.url} ({mode})")
+            access = "token required" if token is not None else "no token"
+            out(f"serving {port} ({device.name}) to Foxglove at {server.url} ({mode}; {access})")
+            if token is None and args.no_token:
+                print(
+                    f"chassis-sdk serve: WARNING: {args.host} without a token: anyone who "
+                    "reaches the port can drive the robot",
+                    file=sys.stderr,
+                )
             print(
-                "open it in the Foxglove app (Open connection > Foxglove WebSocket); "
-                "Ctrl-C to quit",
+                "open it in the Foxglove app (Open connection > Foxglove WebSocket"
+                + ("; add ?token=<the token> to the address" if token is not None else "")
+                + "); Ctrl-C to quit",
                 file=sys.stderr,
             )
             with contextlib.suppress(TimeoutError):
