@@ -6,10 +6,11 @@ connects to ``127.0.0.1:PORT``, publishes ``rate`` messages a second for ``secon
 (bounded in count and time: at most ``rate * seconds`` messages, and it gives up
 ``seconds + 5`` after starting), disconnects cleanly and prints one JSON line::
 
-    {"sent": 20000, "first": 1764612345.1, "last": 1764612347.1}
+    {"sent": 20000, "first": 1764612345.1, "last": 1764612347.1, "last_monotonic": 912.3}
 
 ``first`` and ``last`` are the wall-clock times the first and last packet were handed
-to the kernel. Writing the packets by hand keeps the sender cheap (a Python MQTT
+to the kernel, ``last_monotonic`` the last on ``time.monotonic()`` (one clock for every
+process of the machine, as the simulators stamp what they receive). Writing the packets by hand keeps the sender cheap (a Python MQTT
 client would be the bottleneck at 10,000/s) and independent of the client under test.
 """
 
@@ -72,7 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("topic")
     parser.add_argument("--rate", type=float, default=10_000.0, help="messages per second")
     parser.add_argument("--seconds", type=float, default=1.0)
-    parser.add_argument("--kind", default="velocity", choices=("velocity", "junk", "deep", "bigint"))
+    parser.add_argument(
+        "--kind", default="velocity", choices=("velocity", "junk", "deep", "bigint")
+    )
     args = parser.parse_args(argv)
     total = int(args.rate * args.seconds)
     give_up = time.monotonic() + args.seconds + 5.0
@@ -83,23 +86,29 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         fixed = args.kind in ("velocity", "deep", "bigint")
         one = publish_packet(args.topic, payload_for(args.kind, 0)) if fixed else b""
-        sent, first, last = 0, 0.0, 0.0
+        sent, first, last, last_monotonic = 0, 0.0, 0.0, 0.0
         start = time.monotonic()
         while sent < total and time.monotonic() < give_up:
             # Paced in 1 ms batches: the rate holds without a syscall per message.
             due = min(total, int((time.monotonic() - start) * args.rate) + 1)
             if due > sent:
                 batch = range(sent, due)
-                data = one * len(batch) if fixed else b"".join(
-                    publish_packet(args.topic, payload_for(args.kind, n)) for n in batch
+                data = (
+                    one * len(batch)
+                    if fixed
+                    else b"".join(
+                        publish_packet(args.topic, payload_for(args.kind, n)) for n in batch
+                    )
                 )
                 sock.sendall(data)
-                last = time.time()
+                last, last_monotonic = time.time(), time.monotonic()
                 first = first or last
                 sent = due
             time.sleep(0.001)
         sock.sendall(b"\xe0\x00")  # DISCONNECT, normal
-    print(json.dumps({"sent": sent, "first": first, "last": last}))
+    print(
+        json.dumps({"sent": sent, "first": first, "last": last, "last_monotonic": last_monotonic})
+    )
     return 0
 
 

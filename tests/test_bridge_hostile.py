@@ -1,0 +1,607 @@
+"""The MQTT bridge under hostile input (issue 23, points 1-8), against a real mosquitto
+on loopback and the simulators on ptys: no message ends it, a flood neither keeps the
+robot driving nor holds an e-stop up, stale commands are refused, two bridges never
+drive for one robot id, retained commands are refused, the password file is handled
+as ssh would, and JSON that is not quite JSON is refused.
+
+Floods come from ``tests/mqtt_flood.py`` in a process of its own, bounded in count and
+time, to 127.0.0.1 only. Where timing is measured on the wire, the bridge runs as the
+real ``chassis-sdk bridge`` in a process of its own too, as in the field.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import datetime as dt
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+
+from chassis_sdk import Board, Chassis
+from chassis_sdk.bridge import MqttBridge, RobotIdTaken
+from chassis_sdk.protocol import CommandId, DriveVelocity
+from chassis_sdk.sim import ChassisSimulator
+
+from .mqtt_broker import Broker, broker
+from .test_bridge import Observer, bridge_client, drives, request, wait_until
+
+ROOT = Path(__file__).resolve().parent.parent
+
+pytestmark = pytest.mark.timeout(60)
+
+DEEP = b"[" * 100_000 + b"]" * 100_000
+DEEP_SMALL = b"[" * 2_000 + b"]" * 2_000  # within the size limit: the parser's own depth
+BIGINT = b'{"linear": ' + b"9" * 5000 + b', "angular": 0}'
+UTF16 = '{"linear": 0.3, "angular": 0}'.encode("utf-16")
+DUPLICATE = b'{"linear": 0.3, "angular": 0, "linear": 0}'
+
+
+class Watcher(Observer):
+    """An observer of everything a bridge publishes, but not of commands: a flood must
+    load the bridge, not the test."""
+
+    async def __aenter__(self) -> Watcher:
+        await self.client.__aenter__()
+        for topic in ("connection", "info", "link", "errors", "telemetry/#"):
+            await self.client.subscribe(f"robots/+/{topic}", qos=1)
+        self._task = asyncio.create_task(self._collect())
+        return self
+
+
+@contextlib.asynccontextmanager
+async def running(
+    b: Broker, device: Chassis | Board, robot_id: str = "r1", **options: Any
+) -> AsyncIterator[tuple[MqttBridge, asyncio.Task[None]]]:
+    """A bridge in this process, and its task (cancelled at the end)."""
+    bridge = MqttBridge(device, bridge_client(b, robot_id), robot_id, **options)
+    task = asyncio.create_task(bridge.run())
+    try:
+        yield bridge, task
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError, RobotIdTaken):
+            await task
+
+
+@pytest.fixture
+async def stand() -> AsyncIterator[tuple[Broker, ChassisSimulator, Chassis, Watcher]]:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port, reconnect=True) as robot,
+        Watcher(b) as obs,
+    ):
+        yield b, sim, robot, obs
+
+
+def props(response: str | None = None) -> Properties:
+    p = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
+    if response is not None:
+        p.ResponseTopic = response
+    p.CorrelationData = b"c"
+    return p
+
+
+def moving(sim: ChassisSimulator) -> list[tuple[float, DriveVelocity]]:
+    return [
+        (t, c) for t, c in sim.firmware.received if isinstance(c, DriveVelocity) and c.linear_mm
+    ]
+
+
+def estops(sim: ChassisSimulator) -> list[float]:
+    return [
+        t
+        for t, c in sim.firmware.received
+        if getattr(c, "id", None) == CommandId.EMERGENCY_STOP and getattr(c, "value", 0) == 1
+    ]
+
+
+async def ready(obs: Observer, robot_id: str = "r1", timeout: float = 5.0) -> None:
+    """Wait until the bridge is subscribed: its telemetry starts after that."""
+    await obs.wait(lambda: bool(obs.on(f"robots/{robot_id}/telemetry/telemetry")), timeout)
+
+
+def owner_of(obs: Observer, robot_id: str = "r1") -> Any:
+    """The owner in the latest connection message (None before there is one)."""
+    states = obs.on(f"robots/{robot_id}/connection")
+    return states[-1].get("owner") if states else None
+
+
+def now_iso(offset: float = 0.0) -> str:
+    return dt.datetime.fromtimestamp(time.time() + offset, dt.UTC).isoformat()
+
+
+async def flood(
+    b: Broker, topic: str, *, kind: str, rate: float = 10_000, seconds: float = 2.0
+) -> asyncio.subprocess.Process:
+    return await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "tests.mqtt_flood", str(b.port), topic,
+        "--rate", str(rate), "--seconds", str(seconds), "--kind", kind,
+        cwd=ROOT, stdout=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+
+
+async def flood_result(proc: asyncio.subprocess.Process) -> dict[str, Any]:
+    out, _ = await asyncio.wait_for(proc.communicate(), 20)
+    result: dict[str, Any] = json.loads(out)
+    return result
+
+
+@contextlib.asynccontextmanager
+async def cli_bridge(
+    b: Broker, sim: ChassisSimulator, obs: Observer, robot_id: str, *extra: str, wait: bool = True
+) -> AsyncIterator[asyncio.subprocess.Process]:
+    """The real ``chassis-sdk bridge`` in a process of its own, ONLINE when yielded."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "chassis_sdk.cli", "bridge", sim.port,
+        "--broker", f"mqtt://127.0.0.1:{b.port}", "--robot-id", robot_id, *extra,
+        cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        if wait:
+            await ready(obs, robot_id, timeout=20)
+        yield proc
+    finally:
+        if proc.returncode is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                await asyncio.wait_for(proc.wait(), 10)
+            except TimeoutError:
+                proc.kill()
+                await proc.wait()
+
+
+def peak_rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmHWM")
+
+
+async def hostile(obs: Observer, robot_id: str) -> None:
+    """Everything of the issue that ended the bridge, and a few more."""
+    base = f"robots/{robot_id}"
+    for topic, payload in (
+        ("cmd/velocity", DEEP),
+        ("cmd/velocity", DEEP_SMALL),
+        ("cmd/estop", DEEP),
+        ("cmd/estop", DEEP_SMALL),
+        ("cmd/stop", DEEP),
+        ("cmd/velocity", BIGINT),
+        ("cmd/velocity", b'{"linear": 1' + b"0" * 400 + b', "angular": 0}'),
+        ("cmd/velocity", UTF16),
+        ("cmd/velocity", b"\xff\xfe\x00"),
+        ("cmd/velocity", b"x" * 2_000_000),
+    ):
+        await obs.publish(f"{base}/{topic}", payload)
+    for response in ("replies/#", "replies/+/x", f"robots/{robot_id}/cmd/stop"):
+        await obs.client.publish(f"{base}/request/diagnose", b"", properties=props(response))
+    await obs.client.publish(f"{base}/request/diagnose", b"", properties=props(None))
+    await obs.publish(f"{base}/request/{'x' * 300}", b"")
+
+
+# --- 1. no payload, topic or property ends the bridge ------------------------------------
+
+
+@pytest.mark.parametrize("read_only", [False, True], ids=["commands", "read-only"])
+async def test_no_message_ends_the_bridge(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher], read_only: bool
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot, read_only=read_only) as (bridge, task):
+        await ready(obs)
+        await hostile(obs, "r1")
+        assert (await request(obs, "r1", "get_firmware_version"))["result"]
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert not task.done()
+        assert obs.on("robots/r1/connection")[-1]["state"] == "ONLINE"
+        assert moving(sim) == []
+        if read_only:  # commands are never even subscribed to; requests are refused
+            assert bridge.rejected == 5
+        else:
+            assert bridge.rejected == 14  # 9 commands (a stop is a stop whatever it says)
+            await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
+            await wait_until(lambda: bool(moving(sim)))  # it still takes commands
+
+
+async def test_a_wildcard_response_topic_is_refused_on_errors(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, _sim, robot, obs = stand
+    async with running(b, robot):
+        await ready(obs)
+        await obs.client.publish("robots/r1/request/diagnose", b"", properties=props("a/#"))
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert "wildcard" in obs.on("robots/r1/errors")[0]["error"]
+
+
+async def test_an_error_of_its_own_ends_the_bridge_with_its_last_will(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    b, sim, robot, obs = stand
+
+    async def broken(self: MqttBridge) -> None:
+        await asyncio.sleep(0.3)
+        raise RuntimeError("a bug in the bridge")
+
+    monkeypatch.setattr(MqttBridge, "_events", broken)
+    await robot.set_velocity(0.3, 0.0, duration=30)
+    task = asyncio.create_task(MqttBridge(robot, bridge_client(b, "r1"), "r1").run())
+    with pytest.raises(RuntimeError, match="a bug"):
+        await asyncio.wait_for(task, 10)
+    # The fleet learns it: the broker published the will, not a clean goodbye.
+    await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "CONNECTIONBROKEN")
+    assert drives(sim)[-1] == DriveVelocity(0, 0.0)
+
+
+async def test_the_bridge_command_lives_through_hostile_messages() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        ChassisSimulator() as viewer_sim,
+        Watcher(b) as obs,
+        cli_bridge(b, sim, obs, "r7") as proc,
+        cli_bridge(b, viewer_sim, obs, "r8", "--read-only") as viewer,
+    ):
+        for robot_id in ("r7", "r8"):
+            await hostile(obs, robot_id)
+        for robot_id in ("r7", "r8"):
+            assert (await request(obs, robot_id, "get_firmware_version"))["result"]
+        assert (proc.returncode, viewer.returncode) == (None, None)
+        assert obs.on("robots/r7/connection")[-1]["state"] == "ONLINE"
+        assert obs.on("robots/r8/connection")[-1]["state"] == "ONLINE"
+        assert moving(sim) == []
+        assert moving(viewer_sim) == []
+
+
+# --- 2. a flood: velocity is state, the deadman runs from the last one published ---------
+
+
+async def test_a_velocity_flood_stops_within_the_deadman_of_its_end() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Watcher(b) as obs,
+        cli_bridge(b, sim, obs, "r1") as proc,
+    ):
+        assert proc.pid is not None
+        rss = peak_rss_mb(proc.pid)
+        sender = await flood(b, "robots/r1/cmd/velocity", kind="velocity", seconds=2.0)
+        await wait_until(lambda: bool(moving(sim)), timeout=5)
+        # While it floods: telemetry keeps its rate, and a request is answered at once.
+        first, start = len(obs.on("robots/r1/telemetry/telemetry")), time.monotonic()
+        asked = time.monotonic()
+        assert (await request(obs, "r1", "get_firmware_version"))["result"]
+        answered = time.monotonic() - asked
+        await asyncio.sleep(1.0)
+        rate = (len(obs.on("robots/r1/telemetry/telemetry")) - first) / (time.monotonic() - start)
+        sent = await flood_result(sender)
+        last_published = sent["last_monotonic"]
+        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=10)
+        zero_at = next(t for t, c in reversed(sim.firmware.received) if c == DriveVelocity(0, 0.0))
+        assert sent["sent"] == 20_000
+        assert zero_at - last_published < 0.5 + 0.2  # command_timeout + 0.2 s
+        assert answered < 1.0
+        assert rate >= 7.0
+        assert peak_rss_mb(proc.pid) - rss < 15  # bounded: no queue of 20,000 messages
+
+
+# --- 3. stop and e-stop never wait behind anything --------------------------------------
+
+
+async def test_an_estop_behind_a_junk_flood_reaches_the_wire_within_50_ms() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Watcher(b) as obs,
+        cli_bridge(b, sim, obs, "r1") as proc,
+    ):
+        assert proc.pid is not None
+        rss = peak_rss_mb(proc.pid)
+        sender = await flood(b, "robots/r1/cmd/velocity", kind="junk", seconds=2.0)
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        await asyncio.sleep(0.5)  # deep in the flood
+        published = time.monotonic()
+        await obs.publish("robots/r1/cmd/estop", {"engaged": True})
+        await wait_until(lambda: bool(estops(sim)), timeout=10)
+        latency = estops(sim)[0] - published
+        sent = await flood_result(sender)
+        await asyncio.sleep(1.2)  # the last summary of the flood
+        errors = obs.on("robots/r1/errors")
+        assert sent["sent"] == 20_000
+        assert latency < 0.050
+        # Summarised: the first at once, then about one a second, with the counts.
+        assert len(errors) <= 6
+        assert sum(e["count"] for e in errors) == errors[-1]["total"] >= 19_000
+        assert peak_rss_mb(proc.pid) - rss < 15
+
+
+async def test_a_stop_cancels_the_velocity_command_before_it(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot) as (bridge, _):
+        await ready(obs)
+        lanes = bridge._inbox.lanes  # sorted as paho hands them over, in this order:
+        for name, payload in (
+            ("velocity", b'{"linear": 0.3, "angular": 0}'),
+            ("stop", b""),
+            ("estop", b'{"engaged": true}'),
+            ("velocity", b'{"linear": 0.2, "angular": 0}'),
+        ):
+            message = aiomqtt.Message(f"robots/r1/cmd/{name}", payload, 0, False, 1, None)
+            bridge._inbox.put_nowait(message)
+        assert [k for k, _ in lanes.urgent] == ["stop", "engage"]
+        assert lanes.velocity is not None
+        assert b"0.2" in bytes(lanes.velocity.payload)
+        assert bridge.superseded == 1  # the 0.3 came before the stop: never acted on
+        await wait_until(lambda: bool(estops(sim)))
+        assert all(c.linear_mm != 300 for c in drives(sim))
+
+
+# --- 4. timestamps: a late command never moves the robot ---------------------------------
+
+
+@pytest.mark.parametrize(
+    ("stamp", "why"),
+    [
+        pytest.param(lambda: time.time() - 2.0, "old", id="epoch-2s-old"),
+        pytest.param(lambda: now_iso(-2.0), "old", id="iso-2s-old"),
+        pytest.param(lambda: time.time() + 2.0, "future", id="future"),
+        pytest.param(lambda: "yesterday", "ISO 8601", id="not-a-time"),
+        pytest.param(lambda: "2026-12-01T10:00:00", "UTC offset", id="no-offset"),
+    ],
+)
+async def test_a_stale_command_is_refused(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher], stamp: Any, why: str
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot):
+        await ready(obs)
+        command = {"linear": 0.3, "angular": 0.0, "timestamp": stamp()}
+        await obs.publish("robots/r1/cmd/velocity", command)
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert why in obs.on("robots/r1/errors")[0]["error"]
+        await obs.publish("robots/r1/cmd/velocity", {**command, "timestamp": now_iso()})
+        await wait_until(lambda: bool(moving(sim)))  # a fresh one drives
+
+
+async def test_require_timestamp_refuses_a_command_without_one(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot, require_timestamp=True):
+        await ready(obs)
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.3, "angular": 0.0})
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert "no 'timestamp'" in obs.on("robots/r1/errors")[0]["error"]
+        assert moving(sim) == []
+        await obs.publish("robots/r1/cmd/estop", {"engaged": True})  # never refused
+        await wait_until(lambda: bool(estops(sim)))
+        stamped = {"linear": 0.3, "angular": 0.0, "timestamp": time.time()}
+        await obs.publish("robots/r1/cmd/estop", {"engaged": False, "timestamp": time.time()})
+        await obs.publish("robots/r1/cmd/velocity", stamped)
+        await wait_until(lambda: bool(moving(sim)))
+
+
+async def test_commands_held_up_by_a_stall_never_drive_when_it_ends() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Watcher(b) as obs,
+        cli_bridge(b, sim, obs, "r1") as proc,
+    ):
+        os.kill(proc.pid, signal.SIGSTOP)  # the link to the bridge stalls
+        try:
+            for _ in range(10):  # an operator drives for a second and lets go
+                command = {"linear": 0.3, "angular": 0.0, "timestamp": now_iso()}
+                await obs.publish("robots/r1/cmd/velocity", command)
+                await asyncio.sleep(0.1)
+            await asyncio.sleep(1.5)
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        await obs.wait(lambda: sum(e.get("count", 1) for e in obs.on("robots/r1/errors")) >= 10)
+        assert all("old" in e["error"] for e in obs.on("robots/r1/errors"))
+        assert moving(sim) == []
+
+
+# --- 5. one robot id, one bridge ---------------------------------------------------------
+
+
+async def test_a_second_bridge_for_an_online_robot_id_refuses_to_start() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as first_sim,
+        ChassisSimulator() as second_sim,
+        Watcher(b) as obs,
+        cli_bridge(b, first_sim, obs, "r1"),
+    ):
+        owner = obs.on("robots/r1/connection")[-1]["owner"]
+        async with cli_bridge(b, second_sim, obs, "r1", wait=False) as second:
+            _, err = await asyncio.wait_for(second.communicate(), 20)
+        lines = err.decode().strip().splitlines()
+        assert second.returncode == 1
+        assert len(lines) == 1, lines
+        assert f"robots/r1 is already bridged by {owner}" in lines[0]
+        assert "--take-over" in lines[0]
+        # The first one's state is back, and its robot alone takes the commands.
+        await obs.wait(lambda: owner_of(obs) == owner)
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
+        await wait_until(lambda: bool(moving(first_sim)))
+        assert moving(second_sim) == []
+
+
+async def test_a_take_over_stops_the_old_bridge_and_no_command_reaches_both() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as old_sim,
+        ChassisSimulator() as new_sim,
+        Chassis(old_sim.port) as old_robot,
+        Chassis(new_sim.port) as new_robot,
+        Watcher(b) as obs,
+    ):
+        old = asyncio.create_task(MqttBridge(old_robot, bridge_client(b, "r1"), "r1").run())
+        await ready(obs)
+        sent: list[int] = []
+
+        async def joystick() -> None:  # each command a value of its own
+            for k in range(1, 200):
+                sent.append(100 + k)
+                await obs.publish(
+                    "robots/r1/cmd/velocity", {"linear": (100 + k) / 1000, "angular": 0}
+                )
+                await asyncio.sleep(0.01)
+
+        driving = asyncio.create_task(joystick())
+        await wait_until(lambda: len(sent) > 30)
+        client = aiomqtt.Client(
+            "127.0.0.1", b.port, identifier="bridge-r1-new", protocol=aiomqtt.ProtocolVersion.V5
+        )
+        new = MqttBridge(new_robot, client, "r1", take_over=True)
+        async with running_task(new.run()):
+            with pytest.raises(RobotIdTaken, match="taken over by"):
+                await asyncio.wait_for(old, 10)
+            await driving
+            await wait_until(lambda: bool(moving(new_sim)))
+        old_values = {c.linear_mm for _, c in moving(old_sim)}
+        new_values = {c.linear_mm for _, c in moving(new_sim)}
+        assert old_values
+        assert new_values
+        assert not old_values & new_values  # no command reached two robots
+        assert drives(old_sim)[-1] == DriveVelocity(0, 0.0)  # the old one stopped its robot
+
+
+async def test_two_bridges_started_at_once_leave_one_owner(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, _sim, robot, obs = stand
+    async with ChassisSimulator() as other_sim, Chassis(other_sim.port) as other:
+        bridges = [
+            MqttBridge(robot, bridge_client(b, "r1"), "r1"),
+            MqttBridge(
+                other,
+                aiomqtt.Client(
+                    "127.0.0.1",
+                    b.port,
+                    identifier="bridge-r1-b",
+                    protocol=aiomqtt.ProtocolVersion.V5,
+                ),
+                "r1",
+            ),
+        ]
+        tasks = [asyncio.create_task(x.run()) for x in bridges]
+        done, pending = await asyncio.wait(tasks, timeout=10, return_when=asyncio.FIRST_COMPLETED)
+        assert len(done) == 1
+        assert len(pending) == 1
+        with pytest.raises(RobotIdTaken, match="already bridged by"):
+            done.pop().result()
+        winner = next(x for x in bridges if x.online)
+        await obs.wait(lambda: owner_of(obs) == winner.owner)
+        for task in pending:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+
+@contextlib.asynccontextmanager
+async def running_task(work: Any) -> AsyncIterator[asyncio.Task[None]]:
+    task: asyncio.Task[None] = asyncio.create_task(work)
+    try:
+        yield task
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError, RobotIdTaken):
+            await task
+
+
+# --- 6. retained commands, live or stored ------------------------------------------------
+
+
+async def test_a_retained_command_published_while_the_bridge_runs_is_refused(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot):
+        await ready(obs)
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.3, "angular": 0.0}, retain=True)
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert "retained" in obs.on("robots/r1/errors")[0]["error"]
+        assert moving(sim) == []
+    await obs.publish("robots/r1/cmd/velocity", b"", retain=True)  # clear it
+
+
+# --- 7. the password file ----------------------------------------------------------------
+
+
+async def test_a_password_file_others_may_read_is_refused(tmp_path: Path) -> None:
+    secret = tmp_path / "password"
+    secret.write_text("secret\n")
+    secret.chmod(0o644)
+    async with broker() as b, ChassisSimulator() as sim, Watcher(b) as obs:
+        async with cli_bridge(b, sim, obs, "r1", "--password-file", str(secret), wait=False) as p:
+            _, err = await asyncio.wait_for(p.communicate(), 20)
+        lines = err.decode().strip().splitlines()
+        assert p.returncode == 1
+        assert lines == [
+            f"chassis-sdk: --password-file {secret} is open to group or others (mode 0644); chmod 600 it"
+        ]
+        assert obs.on("robots/r1/connection") == []
+
+
+@pytest.fixture
+def users(tmp_path: Path) -> Path:
+    """A mosquitto password file: r1 (a password that ends in a space), dashboard."""
+    users = tmp_path / "passwd"
+    subprocess.run(["mosquitto_passwd", "-b", "-c", str(users), "r1", "pass word "], check=True)
+    subprocess.run(["mosquitto_passwd", "-b", str(users), "dashboard", "d"], check=True)
+    return users
+
+
+async def test_a_password_that_ends_in_a_space_logs_in(tmp_path: Path, users: Path) -> None:
+    secret = tmp_path / "password"
+    secret.write_text("pass word \n")
+    secret.chmod(0o600)
+    extra = f"allow_anonymous false\npassword_file {users}\n"
+    async with (
+        broker(extra) as b,
+        ChassisSimulator() as sim,
+        Watcher(b, username="dashboard", password="d") as obs,
+        cli_bridge(b, sim, obs, "r1", "--username", "r1", "--password-file", str(secret)),
+    ):
+        assert obs.on("robots/r1/connection")[-1]["state"] == "ONLINE"
+
+
+# --- 8. JSON that is not quite JSON ------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("payload", "why"),
+    [
+        pytest.param(UTF16, "not UTF-8", id="utf-16"),
+        pytest.param('{"linear": 0.3, "angular": 0}'.encode("utf-32"), "not UTF-8", id="utf-32"),
+        pytest.param(b'\xef\xbb\xbf{"linear": 0.3, "angular": 0}', "byte order mark", id="utf-8-bom"),
+        pytest.param(DUPLICATE, "appears twice", id="duplicate-key"),
+    ],
+)  # fmt: skip
+async def test_json_that_is_not_quite_json_is_refused(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher], payload: bytes, why: str
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot):
+        await ready(obs)
+        await obs.publish("robots/r1/cmd/velocity", payload)
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert why in obs.on("robots/r1/errors")[0]["error"]
+        assert drives(sim) == []
