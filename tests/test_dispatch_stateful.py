@@ -19,7 +19,14 @@ from hypothesis.stateful import (
     rule,
 )
 
-from chassis_sdk.core.dispatch import Broadcast, Reply, RequestTable, Subscription
+from chassis_sdk.core.dispatch import (
+    LATENCY_MARGIN,
+    MAX_LATENCY,
+    Broadcast,
+    Reply,
+    RequestTable,
+    Subscription,
+)
 
 T = TypeVar("T")
 KEYS = st.sampled_from([0x87, 0x88, 0x89, ("led", 1), ("led", 2)])
@@ -67,7 +74,9 @@ class _Call:
 class RequestTableMachine(RuleBasedStateMachine):
     """The table against a model of its rule: one call per key (the others wait in
     order), replies counted in flight per key, a reply with no live call is late if one
-    was in flight, and a key with overdue replies is quarantined."""
+    was in flight, and a key with overdue replies is quarantined: for ``QUARANTINE``
+    after its release, and until its last write is ``LATENCY_MARGIN`` times the worst
+    latency seen old (each reply measured from the oldest write still waiting)."""
 
     calls = Bundle("calls")
 
@@ -78,7 +87,8 @@ class RequestTableMachine(RuleBasedStateMachine):
         # The model, per key: the call holding it, replies in flight, quarantine end,
         # calls waiting in order.
         self.holder: dict[Any, _Call | None] = {}
-        self.in_flight: dict[Any, int] = {}
+        self.sent_at: dict[Any, deque[float]] = {}
+        self.latency = 0.0
         self.until: dict[Any, float] = {}
         self.waiting: dict[Any, deque[_Call]] = {}
 
@@ -91,10 +101,16 @@ class RequestTableMachine(RuleBasedStateMachine):
         queue = self.waiting.setdefault(key, deque())
         if self.holder.get(key) is not None or not queue:
             return
-        if self.in_flight.get(key, 0) and self.loop.now < self.until.get(key, 0.0):
+        if self.in_flight(key) and self.loop.now < self.until.get(key, 0.0):
             return
         self.holder[key] = queue.popleft()
-        self.in_flight[key] = 0
+        self.sent_at[key] = deque()
+
+    def in_flight(self, key: Any) -> int:
+        return len(self.sent_at.get(key, ()))
+
+    def overdue(self, key: Any) -> float:
+        return self.sent_at[key][-1] + LATENCY_MARGIN * self.latency
 
     @rule(target=calls, key=KEYS)
     def start(self, key: Any) -> _Call:
@@ -109,15 +125,18 @@ class RequestTableMachine(RuleBasedStateMachine):
     def send(self, call: _Call) -> None:
         if self.holder.get(call.key) is call:
             self.table.sent(call.key)
-            self.in_flight[call.key] += 1
+            self.sent_at[call.key].append(self.loop.now)
 
     @rule(key=KEYS, value=st.integers())
     def reply(self, key: Any, value: int) -> None:
         holder = self.holder.get(key)
         live = holder is not None and not holder.task.result().done()
-        had = self.in_flight.get(key, 0)
+        had = self.in_flight(key)
         if had:
-            self.in_flight[key] = had - 1
+            latency = self.loop.now - self.sent_at[key].popleft()
+            self.latency = max(self.latency, min(latency, MAX_LATENCY))
+            if holder is None and self.in_flight(key):
+                self.until[key] = max(self.until.get(key, 0.0), self.overdue(key))
         expected = Reply.MATCHED if live else Reply.LATE if had else Reply.UNMATCHED
         assert self.table.resolve(key, value) is expected
         if live:
@@ -133,8 +152,8 @@ class RequestTableMachine(RuleBasedStateMachine):
         if self.holder.get(call.key) is call:
             self.table.release(call.key)
             self.holder[call.key] = None
-            if self.in_flight.get(call.key):
-                self.until[call.key] = self.loop.now + QUARANTINE
+            if self.in_flight(call.key):
+                self.until[call.key] = max(self.loop.now + QUARANTINE, self.overdue(call.key))
         elif call in self.waiting.get(call.key, ()):
             call.task.cancel()
             self.waiting[call.key].remove(call)
@@ -163,7 +182,7 @@ class RequestTableMachine(RuleBasedStateMachine):
             for call in queue:
                 assert isinstance(call.task.exception(), ConnectionError)
         self.holder.clear()
-        self.in_flight.clear()
+        self.sent_at.clear()
         self.until.clear()
         self.waiting.clear()
 
@@ -175,7 +194,7 @@ class RequestTableMachine(RuleBasedStateMachine):
                 assert holder.task.done(), "the model gave it the key"
             for call in self.waiting.get(key, ()):
                 assert not call.task.done(), "the model has it waiting"
-            assert self.table.in_flight(key) == self.in_flight.get(key, 0) or (
+            assert self.table.in_flight(key) == self.in_flight(key) or (
                 holder is None and not self.waiting.get(key)
             )
         assert len(self.table) == sum(1 for h in self.holder.values() if h is not None)

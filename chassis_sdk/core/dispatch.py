@@ -284,15 +284,20 @@ class Reply(enum.Enum):
 class _Slot(Generic[T]):
     """One key's state: the call holding it, its replies in flight, who waits for it."""
 
-    __slots__ = ("call", "in_flight", "quarantine_until", "queue", "waiter")
+    __slots__ = ("call", "quarantine_until", "queue", "sent_at", "waiter")
 
     def __init__(self) -> None:
         self.call: asyncio.Future[T] | None = None
         #: The task waiting for ``call`` (see :meth:`RequestTable.wait`), woken directly.
         self.waiter: asyncio.Future[None] | None = None
-        self.in_flight = 0
+        #: When each request whose reply is still expected was written, oldest first.
+        self.sent_at: deque[float] = deque()
         self.quarantine_until = 0.0
         self.queue: deque[_Turn] = deque()
+
+    @property
+    def in_flight(self) -> int:
+        return len(self.sent_at)
 
 
 def _wake(fut: asyncio.Future[None] | None) -> None:
@@ -329,6 +334,14 @@ class _Turn:
                 self._fut = self._loop.create_future()  # ready for the next wake
 
 
+#: A key stays out of use until this many times the worst latency seen has passed since
+#: its last request was written (jitter on top of the latency measured).
+LATENCY_MARGIN = 2.0
+#: The most latency the table believes (a reply that lost its request, counted against
+#: an older write, must not shut a key for minutes).
+MAX_LATENCY = 30.0
+
+
 class RequestTable(Generic[K, T]):
     """Calls waiting for replies, keyed by what the reply carries; built so that a late
     reply can never answer a later call.
@@ -346,21 +359,35 @@ class RequestTable(Generic[K, T]):
       is **late**: dropped, and reported as such.
     * **Quarantine.** When a call gives up with replies still in flight, its key is not
       handed to the next call until those replies have arrived (and been dropped) or
-      ``quarantine`` seconds have passed; after that they are taken as lost.
+      they are overdue by the latency this device has shown; after that they are
+      taken as lost.
+
+    Why the quarantine follows the device's latency: a fixed one (``request_timeout``)
+    expires before the late reply of a device slower than that arrives, and the next
+    call takes it (seen: latency 0.35 s, timeout 0.3 s, a call answered with the reply
+    to the previous call's second attempt). So every reply's latency is measured (from
+    the write of the oldest request still waiting for one: replies come back in order),
+    and a key with replies in flight stays out of use until ``quarantine`` after its
+    release *and* :data:`LATENCY_MARGIN` times the worst latency seen after its last
+    write. The first late reply of a slow device teaches the table that latency, and
+    extends the quarantine of the replies still behind it at once.
 
     The cost: after a timeout, the next request for that key waits for the late reply
     or the quarantine; concurrent calls for one protocol A reply id are served one
-    after another.
+    after another. What no table can know: the replies of a device that has never
+    answered anything, slower than ``quarantine`` past the call's last attempt.
 
     Args:
-        quarantine: Seconds a key whose replies are overdue stays out of use.
+        quarantine: Seconds a key whose replies are overdue stays out of use at least.
         clock: Monotonic clock (replaceable in tests).
     """
 
-    __slots__ = ("_clock", "_slots", "_watchers", "quarantine")
+    __slots__ = ("_clock", "_slots", "_watchers", "latency", "quarantine")
 
     def __init__(self, quarantine: float, clock: Callable[[], float] = time.monotonic) -> None:
         self.quarantine = quarantine
+        #: The worst reply latency seen, seconds (capped at :data:`MAX_LATENCY`).
+        self.latency = 0.0
         self._clock = clock
         self._slots: dict[K, _Slot[T]] = {}
         self._watchers: list[asyncio.Future[None]] = []
@@ -423,7 +450,7 @@ class RequestTable(Generic[K, T]):
                 raise
             slot.queue.remove(turn)
         # Replies still counted past the quarantine are taken as lost.
-        slot.in_flight = 0
+        slot.sent_at.clear()
         slot.call = call = loop.create_future()
         return call
 
@@ -453,24 +480,33 @@ class RequestTable(Generic[K, T]):
 
     def sent(self, key: K) -> None:
         """Count one request written for ``key``: one more reply in flight."""
-        self._slots[key].in_flight += 1
+        self._slots[key].sent_at.append(self._clock())
 
     def resolve(self, key: K, value: T) -> Reply:
         """Attribute a reply for ``key``; see the class docstring for the rule."""
         slot = self._slots.get(key)
         if slot is None:
             return Reply.UNMATCHED
-        expected = slot.in_flight > 0
+        expected = bool(slot.sent_at)
         if expected:
-            slot.in_flight -= 1
+            latency = self._clock() - slot.sent_at.popleft()
+            if latency > self.latency:
+                self.latency = min(latency, MAX_LATENCY)
         call = slot.call
         if call is not None and not call.done():
             call.set_result(value)
             _wake(slot.waiter)
             return Reply.MATCHED
         if slot.call is None:
+            if slot.sent_at:  # more late replies behind this one: hold them as long
+                slot.quarantine_until = max(slot.quarantine_until, self._overdue(slot))
             self._next(key, slot)
         return Reply.LATE if expected else Reply.UNMATCHED
+
+    def _overdue(self, slot: _Slot[T]) -> float:
+        """When the replies still in flight for ``slot`` are overdue by this device's
+        latency."""
+        return slot.sent_at[-1] + LATENCY_MARGIN * self.latency
 
     def release(self, key: K) -> None:
         """End the call holding ``key`` (answered, timed out or cancelled); replies still
@@ -479,8 +515,8 @@ class RequestTable(Generic[K, T]):
         if slot is None:
             return
         slot.call = None
-        if slot.in_flight:
-            slot.quarantine_until = self._clock() + self.quarantine
+        if slot.sent_at:
+            slot.quarantine_until = max(self._clock() + self.quarantine, self._overdue(slot))
         self._next(key, slot)
 
     def _next(self, key: K, slot: _Slot[T]) -> None:
