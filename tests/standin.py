@@ -18,6 +18,7 @@ import asyncio
 import contextlib
 import os
 import random
+import socket
 import struct
 import time
 import tty
@@ -49,6 +50,8 @@ class PtyPeer:
     tcp: bool = False
     #: When False, the periodic output (telemetry) pauses; replies still go out.
     streaming: bool = True
+    #: (TCP) The receive buffer of the device's socket, bytes (``None``: the system's).
+    tcp_rcvbuf: int | None = None
     frames: list[Received] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -74,6 +77,8 @@ class PtyPeer:
         #: Set when the host has closed the line and every byte it sent was read.
         self.eof = asyncio.Event()
         self._reading = True
+        self._resumed = asyncio.Event()
+        self._resumed.set()
 
     async def __aenter__(self) -> Any:
         self._cond = asyncio.Condition()
@@ -97,14 +102,24 @@ class PtyPeer:
         self.unplug()
 
     def stop_reading(self) -> None:
-        """Stop reading what the host sends, like a hung MCU (pty)."""
-        assert not self.tcp, "a TCP peer's buffers are too large to fill this way"
+        """Stop reading what the host sends, like a hung MCU. Over TCP the kernel's
+        buffers take some 20 KiB more first (with ``tcp_rcvbuf`` small)."""
         self._reading = False
-        asyncio.get_running_loop().remove_reader(self._master)
+        if self.tcp:
+            self._resumed.clear()
+            if self._writer is not None:  # the stream's own buffer would take 128 KiB
+                self._writer.transport.pause_reading()
+        else:
+            asyncio.get_running_loop().remove_reader(self._master)
 
     def resume_reading(self) -> None:
         self._reading = True
-        asyncio.get_running_loop().add_reader(self._master, self._readable)
+        if self.tcp:
+            self._resumed.set()
+            if self._writer is not None:
+                self._writer.transport.resume_reading()
+        else:
+            asyncio.get_running_loop().add_reader(self._master, self._readable)
 
     def fill_line(self) -> int:
         """Fill the kernel's buffer between host and device with zero bytes (what a
@@ -153,7 +168,12 @@ class PtyPeer:
     async def replug(self) -> None:
         """(TCP) Listen on the same port again."""
         assert self.tcp, "a pty cannot be re-plugged at the same path"
-        self._server = await asyncio.start_server(self._serve, "127.0.0.1", self._tcp_port)
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if self.tcp_rcvbuf is not None:  # before listen(): accepted sockets inherit it
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.tcp_rcvbuf)
+        sock.bind(("127.0.0.1", self._tcp_port))
+        self._server = await asyncio.start_server(self._serve, sock=sock)
         self._tcp_port = self._server.sockets[0].getsockname()[1]
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -167,7 +187,11 @@ class PtyPeer:
         self.accepted.set()
         self.eof.clear()
         try:
-            while data := await reader.read(4096):
+            while True:
+                await self._resumed.wait()
+                data = await reader.read(4096)
+                if not data:
+                    break
                 self._on_bytes(data)
         except ConnectionError:
             pass

@@ -28,6 +28,7 @@ from typing import Any
 
 import pytest
 
+import chassis_sdk
 from chassis_sdk import (
     Board,
     Chassis,
@@ -37,6 +38,7 @@ from chassis_sdk import (
     PortOpenError,
     RequestTimeoutError,
 )
+from chassis_sdk.protocol import ChassisDecoder, Telemetry
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec
 
 from .standin import (
@@ -147,10 +149,11 @@ async def test_stuck_device_never_freezes_the_loop_and_close_sends_nothing_stale
         assert closing < 1.5
         assert open_fds_on(dev.port) == 0, "close() left the port open"
         assert robot.stats.frames_discarded >= 4
-        # The device reads again: nothing the host wrote while it was stuck arrives.
+        # The device reads again: nothing the host wrote while it was stuck arrives but
+        # the final zero (kept when the rest was discarded).
         dev.resume_reading()
         await asyncio.wait_for(dev.eof.wait(), 3.0)
-        assert drive_frames(dev.frames) == []
+        assert [velocity(f) for f in drive_frames(dev.frames)] == [(0, 0.0)]
 
 
 @pytest.mark.parametrize("expired", [False, True], ids=["newest", "expired-to-zero"])
@@ -173,6 +176,94 @@ async def test_stuck_device_gets_only_the_newest_velocity_when_it_reads_again(
                 assert velocity(first) == ((0, 0.0) if expired else (300, 0.0))
                 assert robot.stats.frames_discarded >= 2
         assert all(velocity(f)[0] in (0, 300) for f in drive_frames(dev.frames))
+
+
+async def _drive_until_the_link_blocks(dev: ChassisStandIn, robot: Chassis) -> asyncio.Task[None]:
+    """A control task driving at 0.5 m/s as fast as the loop lets it, against a device
+    that has stopped reading, until the port takes nothing more (frames are replaced)."""
+
+    async def control() -> None:
+        with contextlib.suppress(NotConnectedError):
+            while True:
+                await robot.set_velocity(0.5, 0.0)
+                await asyncio.sleep(0)
+
+    dev.stop_reading()
+    if not dev.tcp:
+        dev.fill_line()  # the kernel's buffer is full: what minutes of not reading leave
+    task = asyncio.create_task(control())
+    await until(lambda: robot.stats.frames_discarded >= 3, timeout=20)
+    return task
+
+
+@pytest.mark.parametrize("tcp", TRANSPORTS)
+@pytest.mark.parametrize("stall", [0.4, 6.0])
+async def test_a_device_slow_to_read_at_close_gets_the_zero_as_its_last_frame(
+    tcp: bool, stall: float
+) -> None:
+    # Before: close() drained 0.25 s, then discarded and flushed everything, the zero
+    # included, so the last frame the device ever got was 0.5 m/s.
+    async with ChassisStandIn(noise=False, tcp=tcp, tcp_rcvbuf=4096) as dev:
+        robot = Chassis(dev.port, close_linger=stall + 3.0)
+        await robot.connect()
+        dev.release_line()
+        with unstick_after(dev, 30.0) if not tcp else contextlib.nullcontext():
+            stalled = time.monotonic()
+            control = await _drive_until_the_link_blocks(dev, robot)
+            t0 = time.monotonic()
+            await robot.close()
+            assert time.monotonic() - t0 < 1.0, "close() waited for the device"
+            await control
+            await asyncio.sleep(max(0.0, stall - (time.monotonic() - stalled)))
+            dev.resume_reading()
+            await asyncio.wait_for(dev.eof.wait(), 5.0)  # the host closed the line
+        drives = drive_frames(dev.frames)
+        assert drives, "the device got no drive frame at all"
+        assert is_zero_drive(drives[-1]), f"the last frame was {velocity(drives[-1])}"
+        assert open_fds_on(dev.port) == 0 if not tcp else dev.live_connections == 0
+
+
+async def test_past_close_linger_nothing_stale_reaches_the_device() -> None:
+    # A socket's kernel buffer cannot be flushed: when the bound passes, the connection
+    # is reset, so the device never gets the stale frames (nor the zero) it held.
+    async with ChassisStandIn(noise=False, tcp=True, tcp_rcvbuf=4096) as dev:
+        robot = Chassis(dev.port, close_linger=0.3)
+        await robot.connect()
+        control = await _drive_until_the_link_blocks(dev, robot)
+        await robot.close()
+        await control
+        await until(lambda: dev.live_connections == 0 or dev.eof.is_set(), timeout=3.0)
+        read_before = len(drive_frames(dev.frames))
+        dev.resume_reading()
+        await asyncio.wait_for(dev.eof.wait(), 3.0)
+        assert len(drive_frames(dev.frames)) == read_before, "stale frames arrived late"
+
+
+async def test_run_waits_for_the_final_zero_of_a_device_slow_to_read() -> None:
+    # Under chassis_sdk.run the program ends only once a lingering zero has left (or
+    # its bound passed): here the device reads again 0.5 s after main() returned.
+    dev = ChassisStandIn(noise=False, tcp=True, tcp_rcvbuf=4096)
+    timings: dict[str, float] = {}
+
+    async def main() -> None:
+        await dev.__aenter__()
+        robot = Chassis(dev.port, close_linger=5.0)
+        await robot.connect()
+        control = await _drive_until_the_link_blocks(dev, robot)
+        await robot.close()
+        await control
+        asyncio.get_running_loop().call_later(0.5, dev.resume_reading)
+        timings["main returned"] = time.monotonic()
+
+    def scenario() -> None:
+        chassis_sdk.run(main(), uvloop=False)
+        timings["run returned"] = time.monotonic()
+
+    await asyncio.to_thread(scenario)
+    drives = drive_frames(dev.frames)
+    assert drives
+    assert is_zero_drive(drives[-1])
+    assert 0.4 < timings["run returned"] - timings["main returned"] < 3.0
 
 
 # --- 2. close() fences off every writer --------------------------------------------------------
@@ -278,6 +369,33 @@ async def test_a_device_slower_than_the_timeout_never_returns_stale_data() -> No
             with pytest.raises(RequestTimeoutError):
                 await robot.get_firmware_version()
         await until(lambda: robot.stats.late_replies == 3)
+        assert robot.stats.unmatched_replies == 0
+
+
+@pytest.mark.parametrize("tcp", TRANSPORTS)
+@pytest.mark.parametrize("factor", [1.1, 1.5, 3.0])
+async def test_on_a_slow_device_every_reply_answers_its_own_call(tcp: bool, factor: float) -> None:
+    # Every reply comes `factor` request timeouts after its request, numbered by the
+    # request it answers: a call may only ever return one of its own attempts' numbers.
+    # Before the latency-following quarantine, at 1.5x a call got the reply to the
+    # previous call's second attempt (the quarantine, one request_timeout, ran out first).
+    timeout = 0.15
+    async with (
+        _NumberedReplies(noise=False, tcp=tcp, delays=[factor * timeout] * 40) as dev,
+        Chassis(dev.port, request_timeout=timeout, retries=2) as robot,
+    ):
+        answers = []
+        for _ in range(4):
+            before = len(dev.of_kind(0x07))
+            try:
+                answer: int | None = await robot.get_firmware_version()
+            except RequestTimeoutError:
+                answer = None
+            await until(lambda: len(dev.frames) >= robot.stats.frames_sent)  # all read
+            own = range(before + 1, len(dev.of_kind(0x07)) + 1)
+            answers.append((list(own), answer))
+        assert all(a is None or a in own for own, a in answers), answers
+        assert sum(a is not None for _, a in answers) >= 2, answers  # the device does answer
         assert robot.stats.unmatched_replies == 0
 
 
@@ -443,6 +561,37 @@ async def test_close_during_connect_returns_only_once_nothing_is_open(tcp: bool)
 
 
 # --- 6. exclusive ports --------------------------------------------------------------------------
+
+
+async def test_the_first_telemetry_after_opening_is_fresh_however_long_nobody_read() -> None:
+    # A simulator (1 kHz telemetry) runs with nobody reading until its line is full and
+    # it drops bytes, as a device left powered with no host does. Before: the first
+    # telemetry() loop got seconds-old frames (64 KiB the simulator held, behind what the
+    # kernel held), thousands within milliseconds; now the port's input is flushed on
+    # open and a device holds no more than a UART's worth, so the first frame is fresh.
+    produced: list[tuple[float, bytes]] = []
+    async with ChassisSimulator(ChassisSpec(telemetry_period=0.001)) as sim:
+        send = sim.send
+
+        def record(data: bytes) -> None:
+            produced.append((time.monotonic(), data))
+            send(data)
+
+        sim.send = record  # type: ignore[method-assign]
+        async with asyncio.timeout(30):
+            while sim.bytes_discarded == 0:  # the line is full: the device drops bytes
+                await asyncio.sleep(0.05)
+        async with Chassis(sim.port) as robot:
+            async for first in robot.telemetry():  # noqa: B007 (the first one is wanted)
+                break
+            decoder = ChassisDecoder()
+            made_at: dict[int, float] = {}
+            for at, data in produced:
+                for m in decoder.feed(data):
+                    if isinstance(m, Telemetry):
+                        made_at.setdefault(m.seq, at)
+            age = first.timestamp - made_at[first.seq]
+            assert age < 0.1, f"the first telemetry was made {age:.3f} s before it arrived"
 
 
 async def test_a_second_open_of_a_serial_port_fails_at_once_naming_the_holder() -> None:

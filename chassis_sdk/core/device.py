@@ -116,6 +116,7 @@ class Device(Motion, Observation, Generic[M, K]):
         limits: MotionLimits | None = None,
         battery_low: float | None = None,
         connect_timeout: float = 2.0,
+        close_linger: float = 5.0,
         logger: logging.Logger | None = None,
         record: str | os.PathLike[str] | None = None,
     ) -> None:
@@ -129,6 +130,7 @@ class Device(Motion, Observation, Generic[M, K]):
         self.queue_size = check_int(queue_size, "queue_size", low=1)
         link_timeout = check_optional(link_timeout, "link_timeout", **_POSITIVE)
         connect_timeout = check_real(connect_timeout, "connect_timeout", **_POSITIVE)
+        close_linger = check_real(close_linger, "close_linger", low=0, unit="s")
         self._record_path = _recording_path(record)
         self._recording: Recording | None = None
         self.port = port
@@ -146,6 +148,7 @@ class Device(Motion, Observation, Generic[M, K]):
             port,
             baudrate=baudrate,
             connect_timeout=connect_timeout,
+            close_linger=close_linger,
             link_timeout=link_timeout,
             reconnect=bool(reconnect),
             queue_size=queue_size,

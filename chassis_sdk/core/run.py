@@ -99,6 +99,20 @@ def run(
         raise SystemExit(1) from None
 
 
+async def _final_zeros() -> None:
+    """Before the loop ends: wait for every device that stopped reading to take its
+    final zero (each bounded by its ``close_linger``), through further cancellations
+    (a second signal ends the process anyway)."""
+    from .transport import wait_lingering
+
+    while True:
+        try:
+            await wait_lingering()
+            return
+        except asyncio.CancelledError:
+            continue
+
+
 def _program() -> str:
     return os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "python"
 
@@ -162,6 +176,7 @@ def _run(
         try:
             return await main
         finally:
+            await _final_zeros()
             for sig in installed:
                 loop.remove_signal_handler(sig)
 

@@ -45,7 +45,11 @@ __all__ = [
 ]
 
 _log = logging.getLogger("chassis_sdk.sim")
-_MAX_BACKLOG = 64 * 1024  # bytes held for a reader that does not read, like a full UART
+#: Bytes the device holds while the host does not read: a firmware's transmit ring.
+#: A real device cannot keep more (its UART sends on, and what the host's kernel cannot
+#: take is lost); a simulator that held 64 KiB fed a host that opened the port late
+#: seconds of old frames after the open had flushed the kernel's buffer.
+_MAX_BACKLOG = 256
 
 
 def next_slot(previous: float, period: float, now: float) -> float:

@@ -258,6 +258,7 @@ class LinkSupervisor(Generic[M]):
         *,
         baudrate: int,
         connect_timeout: float,
+        close_linger: float = 0.0,
         link_timeout: float | None,
         reconnect: bool,
         queue_size: int,
@@ -268,6 +269,7 @@ class LinkSupervisor(Generic[M]):
         self.port = port
         self.baudrate = baudrate
         self.connect_timeout = connect_timeout
+        self.close_linger = close_linger
         self.link_timeout = link_timeout
         self.reconnect = reconnect
         self._log = log
@@ -385,7 +387,7 @@ class LinkSupervisor(Generic[M]):
         self._lost.set()
 
     async def _close_link(self, link: Link[M]) -> None:
-        await link.aclose(CLOSE_TIMEOUT)
+        await link.aclose(CLOSE_TIMEOUT, self.close_linger)
         self._on_lost(link, None)  # in case connection_lost did not come in time
 
     # --- background -------------------------------------------------------------------------

@@ -27,9 +27,16 @@ sends minutes-old velocity commands the moment the device reads again. So:
 * writes are **eager** (pyserial-asyncio would hold every frame until the loop's next
   writer callback, so a frame queued just before the application blocks the loop
   would leave a whole block later);
-* :meth:`Link.aclose` drains with a bound; what has not left by then is discarded
-  (kernel output queue flushed with ``tcflush``, transport aborted) and the descriptors
-  are closed, so nothing stale is sent after ``close()``.
+* :meth:`Link.aclose` drains with a bound. If the device is still not reading then,
+  every stale frame is discarded (what the link holds, and the kernel's output queue,
+  with ``tcflush``) **but the final zero is kept**: it goes out at once where the flush
+  made room (a serial port), or waits in the background (a socket whose kernel buffer
+  cannot be flushed, a serial line held by flow control) for at most ``linger``
+  seconds after ``close()`` has returned. So the last frame a device ever gets, however
+  late it reads again within that bound, is the zero; the descriptors are closed once
+  it has left (the kernel's output queue is empty) or the bound has passed, and then
+  whatever is still held is discarded (a socket is reset, so the kernel sends nothing
+  stale either).
 
 Opening is bounded and never blocks the loop: device paths are opened in a daemon
 thread (pyserial's open, its advisory ``flock`` and termios set-up are blocking calls),
@@ -54,12 +61,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import fcntl
 import functools
 import importlib
 import logging
 import math
 import os
 import socket
+import struct
 import termios
 import threading
 import time
@@ -108,7 +117,7 @@ _OPEN_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, termios.er
 if BACKEND == "serialx":
     _OPEN_ERRORS += (_serial_asyncio.SerialException,)
 
-__all__ = ["BACKEND", "Link", "Tap", "open_link"]
+__all__ = ["BACKEND", "Link", "Tap", "open_link", "wait_lingering"]
 
 M = TypeVar("M")
 
@@ -122,6 +131,31 @@ READ_SIZE = 64 * 1024
 #: Bytes of non-velocity frames held while the port cannot take them (requests and
 #: commands are at most a few dozen bytes each; past this the device is not reading).
 QUEUE_LIMIT = 1024
+
+#: The kernel send buffer of a ``socket://`` link (Linux doubles it): some 20 ms of a
+#: 1 Mbaud line, so what a device that stops reading has not taken waits in the link.
+SOCKET_SNDBUF = 4096
+
+#: How often a lingering link looks whether its final zero has left the kernel.
+_LINGER_POLL = 0.02
+#: Links closing in the background (their final zero not yet out), by port: a program
+#: that reopens a port waits for its earlier link to finish, and :func:`wait_lingering`
+#: lets a program end only once every zero has left (or its bound has passed).
+_lingering: dict[str, Link[Any]] = {}
+
+
+async def wait_lingering(timeout: float | None = None) -> None:
+    """Wait until no link is closing in the background any more (every final zero has
+    left, or its ``close_linger`` bound has passed), at most ``timeout`` seconds.
+
+    :func:`chassis_sdk.run` calls this before the program ends; under a plain
+    :func:`asyncio.run`, a link still lingering when the loop ends discards its zero
+    (nothing stale is ever sent either way).
+    """
+    async with asyncio.timeout(timeout):
+        while _lingering:
+            link = next(iter(_lingering.values()))
+            await asyncio.shield(link.closed)
 
 
 class Decoder(Protocol[M]):
@@ -190,6 +224,10 @@ class Link(asyncio.Protocol, Generic[M]):
         self.accounted = False
         #: Sees every byte both ways (a recorder), or ``None``.
         self.tap: Tap | None = None
+        #: The port's name (set by :func:`open_link`), for the lingering registry.
+        self.url = ""
+        self._linger: asyncio.Task[None] | None = None
+        self._finished = False  # closed, or half-closed (a socket), with nothing held
 
     # --- asyncio.Protocol ---------------------------------------------------------------
 
@@ -230,6 +268,21 @@ class Link(asyncio.Protocol, Generic[M]):
     def resume_writing(self) -> None:
         self._blocked = False
         self._send_held()
+
+    def flush_input(self) -> None:
+        """Discard what the port received before now (a serial port's kernel buffer and
+        any part-frame the decoder holds), so the first frame handed on is fresh.
+
+        A USB serial adapter keeps receiving while no program has the port open, and a
+        device's frames pile up in the kernel; opening (and reopening after an outage)
+        must not hand them to the application as if they were new. Both pyserial and
+        serialx flush on open today, but this promise is the SDK's, so it is kept here
+        whatever the transport does. A TCP connection is new: nothing in it is old.
+        """
+        if self._wfd is not None:
+            with contextlib.suppress(OSError, termios.error):
+                termios.tcflush(self._wfd, termios.TCIFLUSH)
+            self._decoder.reset()
 
     # --- writing -----------------------------------------------------------------------
 
@@ -404,36 +457,169 @@ class Link(asyncio.Protocol, Generic[M]):
             pass
         return self._is_flushed()
 
-    async def aclose(self, timeout: float) -> None:
-        """Close the port and wait (bounded) until it is really closed.
+    def _kernel_pending(self) -> int:
+        """Bytes a serial port's kernel driver has not sent yet (``TIOCOUTQ``; 0 for a
+        socket, or where the driver cannot tell). Closing a tty with bytes pending
+        blocks in the kernel (``closing_wait``, 30 s by default) or discards them."""
+        wfd = self._wfd
+        if wfd is None:
+            return 0
+        try:
+            buf = fcntl.ioctl(wfd, termios.TIOCOUTQ, b"\0\0\0\0")
+        except OSError:
+            return 0
+        pending: int = struct.unpack("i", buf)[0]
+        return pending
 
-        If bytes are still held (the device is not reading), they are discarded: the
-        transport is aborted and the kernel's output queue flushed, so nothing written
-        before the close can reach the device afterwards.
+    def _is_out(self) -> bool:
+        """Everything written has left: the link holds nothing and neither does the
+        kernel (a serial port); a socket's kernel buffer is ordered ahead of its FIN."""
+        return self._is_flushed() and not self._kernel_pending()
+
+    def _discard_stale(self) -> None:
+        """The device is not reading and the link is closing: discard every frame still
+        held and the kernel's output queue, but keep the final zero (if it waits) and
+        send it at once where that made room."""
+        zero = self._velocity if self._velocity_closed else None
+        before = self.discarded
+        self._drop_held()
+        wfd = self._wfd
+        if wfd is not None:
+            with contextlib.suppress(OSError, termios.error):
+                termios.tcflush(wfd, termios.TCOFLUSH)
+            if self._blocked:  # the flush made room: write again now
+                self._loop.remove_writer(wfd)
+                self._blocked = False
+        if zero is not None:
+            self.discarded -= 1
+            self._velocity = zero
+            self._send_held()
+        self._log.warning(
+            "the device is not reading; discarded %d stale frame(s) on closing%s",
+            self.discarded - before,
+            "" if zero is None else ", kept the final zero",
+        )
+
+    def _finish(self, transport: asyncio.WriteTransport) -> None:
+        """Close a port whose bytes have all left.
+
+        A socket is half-closed (its FIN goes after every byte written) and read on
+        until the peer closes: closing a socket with received bytes unread (telemetry
+        keeps coming) resets the connection instead, and a reset can drop what the
+        peer had not read yet, the final zero with it.
+        """
+        self._finished = True
+        if self._wfd is None and transport.can_write_eof():
+            self._on_messages = _ignore_messages  # what comes now is of no one's use
+            self.tap = None
+            transport.write_eof()
+        else:
+            transport.close()
+
+    def _give_up(self) -> None:
+        """Close now, discarding whatever has not left: nothing stale may reach the
+        device afterwards (a socket is reset, so its kernel buffer is dropped too)."""
+        transport = self.transport
+        if transport is None:
+            return
+        if not self._is_out() or (self._wfd is None and self._finished):
+            self._drop_held()
+            wfd = self._wfd
+            if wfd is not None:
+                with contextlib.suppress(OSError, termios.error):
+                    termios.tcflush(wfd, termios.TCOFLUSH)
+            else:
+                if transport.get_write_buffer_size():
+                    self.discarded += 1  # what asyncio's transport still held
+                sock = transport.get_extra_info("socket")
+                if sock is not None:
+                    with contextlib.suppress(OSError):
+                        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _RESET)
+        transport.abort()
+
+    async def aclose(self, timeout: float, linger: float = 0.0) -> None:
+        """Close the port: at once if everything written has left, else see the module
+        docstring (stale frames discarded, the final zero kept).
+
+        Args:
+            timeout: The most this waits for the port to report closing (without
+                ``linger``).
+            linger: Seconds the final zero may take to leave, in the background after
+                this has returned, for a device that is not reading (and a socket's
+                peer to close after it); 0 closes at once, discarding what has not
+                left.
         """
         transport = self.transport
         if transport is not None and not transport.is_closing():
-            if self._is_flushed():
-                transport.close()
-            else:
-                before = self.discarded
-                self._drop_held()
-                if self._wfd is None and transport.get_write_buffer_size():
-                    self.discarded += 1  # what asyncio's transport still held
-                else:
-                    with contextlib.suppress(OSError, termios.error):
-                        termios.tcflush(cast(int, self._wfd), termios.TCOFLUSH)
-                self._log.warning(
-                    "the device is not reading; discarded %d unsent frame(s) on closing",
-                    self.discarded - before,
-                )
-                transport.abort()
+            if not self._is_flushed():
+                self._discard_stale()
+            if self._is_out():
+                self._finish(transport)
+            elif linger <= 0:
+                self._give_up()
+        if linger > 0 and not self.closed.done():
+            with contextlib.suppress(TimeoutError):  # a moment to close by itself
+                await asyncio.wait_for(asyncio.shield(self.closed), CLOSE_GRACE)
+            if not self.closed.done():
+                _lingering[self.url] = self  # now: an open of this port from here on waits
+                self._linger = asyncio.ensure_future(self._linger_then_close(linger))
+                return
+        await self._wait_closed(timeout)
+
+    async def _wait_closed(self, timeout: float) -> None:
         if not self.closed.done():
             try:
                 await asyncio.wait_for(asyncio.shield(self.closed), timeout)
             except TimeoutError:
-                self._log.warning("port did not report closing within %.1f s", timeout)
+                if self.transport is not None:  # a peer keeping its half open, or stuck
+                    self._log.warning("port did not close within %.1f s; aborted", timeout)
+                    self._give_up()
+                else:
+                    self._log.warning("port did not report closing within %.1f s", timeout)
         self._release_wfd()
+
+    async def _linger_then_close(self, bound: float) -> None:
+        """Hold the port open (in the background) until the final zero has left and the
+        port (or the socket's peer) has closed, or ``bound`` seconds have passed."""
+        self._log.info("the device is not reading; the final zero waits up to %g s", bound)
+        try:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(bound):
+                    if not self._finished:
+                        await self.drain(bound)
+                        while self._kernel_pending() and self.is_open:  # noqa: ASYNC110
+                            await asyncio.sleep(_LINGER_POLL)  # (no event for TIOCOUTQ)
+                        transport = self.transport
+                        if transport is not None and not transport.is_closing():
+                            self._finish(transport)
+                    await asyncio.shield(self.closed)
+            if not self.closed.done():
+                self._log.warning(
+                    "the device did not read for %g s after closing; what it had not "
+                    "taken is discarded (the final zero with it)",
+                    bound,
+                )
+                self._give_up()
+            await self._wait_closed(CLOSE_WAIT)
+        except asyncio.CancelledError:  # the loop is ending: nothing stale, ever
+            self._give_up()
+            self._release_wfd()
+            raise
+        finally:
+            if _lingering.get(self.url) is self:
+                del _lingering[self.url]
+
+
+def _ignore_messages(messages: list[Any], now: float) -> None:
+    """The sink of a link that is closing."""
+
+
+#: How long a port (or a socket's peer) closing by itself may take before a lingering
+#: close goes on in the background, and before a given-up close is taken as done.
+CLOSE_GRACE = 0.1
+CLOSE_WAIT = 1.0
+#: ``SO_LINGER`` on, 0 s: ``close()`` resets the connection and drops unsent data.
+_RESET = struct.pack("ii", 1, 0)
 
 
 # --- opening ---------------------------------------------------------------------------
@@ -621,8 +807,14 @@ async def open_link(
     loop = asyncio.get_running_loop()
     parsed = urllib.parse.urlsplit(url)
     transport: asyncio.BaseTransport | None = None
+    earlier = _lingering.get(url)
     try:
         async with asyncio.timeout(timeout):
+            if earlier is not None:
+                # The previous link's final zero still waits for the device: it must be
+                # the last frame of that session, so this open waits for it (bounded).
+                await asyncio.shield(earlier.closed)
+                earlier = None
             if parsed.scheme == "socket":
                 try:
                     port = parsed.port
@@ -633,6 +825,13 @@ async def open_link(
                 transport, protocol = await loop.create_connection(
                     link_factory, parsed.hostname, port
                 )
+                sock = transport.get_extra_info("socket")
+                if sock is not None:
+                    # A small kernel send buffer: frames then wait in the link, where
+                    # velocity is state, not in megabytes of kernel buffer the device
+                    # would work through, seconds of stale commands, if it read again.
+                    with contextlib.suppress(OSError):
+                        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SNDBUF)
             elif "://" in url:
                 raise ValueError(
                     f"unsupported URL scheme {parsed.scheme!r}: use a device path or "
@@ -651,6 +850,11 @@ async def open_link(
                     loop, link_factory, ser
                 )
     except TimeoutError:
+        if earlier is not None:
+            raise PortOpenError(
+                f"could not open {url}: the previous connection's final stop still waits "
+                f"for the device to read (close_linger), after {timeout:g} s"
+            ) from None
         raise PortOpenError(
             f"could not open {url}: no answer within {timeout:g} s (connect_timeout)"
         ) from None
@@ -661,4 +865,6 @@ async def open_link(
     # pyserial's transports only schedule connection_made() (call_soon): the link can
     # write from now on.
     link.connection_made(transport)
+    link.url = url
+    link.flush_input()
     return link

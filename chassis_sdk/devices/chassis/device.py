@@ -72,6 +72,10 @@ class Chassis(ChassisCommands):
             (and ``BATTERY_OK`` 0.2 V above it); ``None`` (default) does not watch.
         connect_timeout: Seconds each open (and reconnect attempt) may take; the port
             is opened off the event loop, so nothing else waits for it.
+        close_linger: Seconds the final zero of :meth:`close` may wait, in the
+            background after ``close()`` has returned, for a device that has stopped
+            reading (stale frames are discarded at once; the zero is the last frame it
+            gets if it reads again within this bound). 0 discards it with the rest.
         logger: Logger to use instead of ``logging.getLogger("chassis_sdk")``.
         record: Record the session to this file while connected: ``.mcap`` (raw
             bytes both ways, every stream, the commands written, odometry and events;
