@@ -853,7 +853,7 @@ class _Front:
 
     async def _up(self, client: Any, backend: Any) -> None:
         """Client -> server: frames as they come, with channel ids kept honest."""
-        advertised: set[int] = set()
+        advertised: dict[int, tuple[Any, Any, Any]] = {}
         async for frame in client:
             if isinstance(frame, str):
                 for out in _rewrite(frame, advertised):
@@ -882,36 +882,52 @@ def _select_subprotocol(connection: Any, offered: Any) -> Any:
     raise NegotiationError(f"the subprotocol {SUBPROTOCOL} is required")
 
 
-def _rewrite(frame: str, advertised: set[int]) -> list[str]:
+def _rewrite(frame: str, advertised: dict[int, tuple[Any, Any, Any]]) -> list[str]:
     """A client's text frame as the server should see it.
 
     foxglove-sdk ignores an ``advertise`` of a channel id the client has already
     advertised, keeping the first schema: a channel re-advertised as ``std_msgs/String``
-    would still be taken as a Twist. So such an advertise goes as an ``unadvertise``
-    of the id, then the ``advertise``: the server's view follows the client's. The
-    front's reserved id is taken out. Anything else goes unchanged (the server
-    answers what it cannot read).
+    would still be taken as a Twist. So an advertise that changes a channel's topic,
+    encoding or schema goes as an ``unadvertise`` of the id, then the ``advertise``:
+    the server's view follows the client's (and a Twist channel that changes stops the
+    robot at once). One that changes nothing is dropped, as the server would ignore it.
+    The front's reserved id is taken out. Anything else goes unchanged: the server
+    answers what it cannot read as it always did.
+
+    Args:
+        frame: The text frame from the client.
+        advertised: The connection's channels, by id, as (topic, encoding, schema
+            name); updated.
     """
     try:
         msg = json.loads(frame)
         op = msg.get("op") if isinstance(msg, dict) else None
-        if op == "advertise" and isinstance(msg.get("channels"), list):
+        channels = msg.get("channels") if op == "advertise" else None
+        if isinstance(channels, list) and all(isinstance(c, dict) for c in channels):
             out = []
-            for channel in msg["channels"]:
-                cid = channel.get("id") if isinstance(channel, dict) else None
+            for channel in channels:
+                cid = channel.get("id")
                 if cid == _HELLO_ID:
                     continue
-                if isinstance(cid, int) and cid in advertised:
-                    out.append(json.dumps({"op": "unadvertise", "channelIds": [cid]}))
-                if isinstance(cid, int):
-                    advertised.add(cid)
+                if isinstance(cid, int) and not isinstance(cid, bool):
+                    shape = (
+                        channel.get("topic"),
+                        channel.get("encoding"),
+                        channel.get("schemaName"),
+                    )
+                    before = advertised.get(cid)
+                    if before == shape:
+                        continue
+                    if before is not None:
+                        out.append(json.dumps({"op": "unadvertise", "channelIds": [cid]}))
+                    advertised[cid] = shape
                 out.append(json.dumps({"op": "advertise", "channels": [channel]}))
             return out
         if op == "unadvertise" and isinstance(msg.get("channelIds"), list):
             ids = [i for i in msg["channelIds"] if i != _HELLO_ID]
             for cid in ids:
                 if isinstance(cid, int):
-                    advertised.discard(cid)
+                    advertised.pop(cid, None)
             return [json.dumps({"op": "unadvertise", "channelIds": ids})]
     except (ValueError, RecursionError, AttributeError, TypeError):
         pass  # not ours to judge: the server refuses it as it would have

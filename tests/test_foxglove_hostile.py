@@ -20,7 +20,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 
 from chassis_sdk import Chassis
-from chassis_sdk.live import APP_ORIGINS, FoxgloveServer
+from chassis_sdk.live import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
@@ -31,6 +31,9 @@ pytestmark = pytest.mark.timeout(60)
 
 TOKEN = "s3cret-token-0123456789"
 EVIL = "http://evil.example"
+#: What the Foxglove web app and the Electron desktop apps (Foxglove Studio, Lichtblick:
+#: pages loaded from file://) send as Origin.
+APP_ORIGINS = ("https://app.foxglove.dev", "https://studio.foxglove.dev", "file://")
 
 
 def twist(linear: float, angular: float = 0.0) -> bytes:
@@ -326,10 +329,18 @@ async def test_a_twist_channel_advertised_again_as_another_schema_stops_at_once(
         await until(lambda: server.rejected >= 6, 2.0)
         assert not any(sim.firmware.target)
         assert robot.commanded_velocity is None
-        # Advertised as a Twist again (a new panel), it drives again.
+        # Advertised as a Twist again (a new panel), it drives again; the same
+        # advertisement once more changes nothing (no stop, no refusal).
         await client.advertise(1, "/cmd_vel", "geometry_msgs/Twist")
         await client.publish(1, twist(0.1))
         await moving(sim, True, 2.0)
+        rejected, before = server.rejected, len(drives(sim))
+        await client.advertise(1, "/cmd_vel", "geometry_msgs/Twist")
+        await client.publish(1, twist(0.15))
+        await until(lambda: robot.commanded_velocity == (0.15, 0.0), 2.0)
+        await until(lambda: drives(sim)[-1].linear_mm == 150, 2.0)
+        assert all(d.linear_mm for d in drives(sim)[before:])  # no zero in between
+        assert server.rejected == rejected
         # The same for a Twist channel re-advertised with another encoding.
         await client.advertise(1, "/cmd_vel", "geometry_msgs/Twist", encoding="cbor")
         assert await moving(sim, False, 0.5) < 0.5
