@@ -332,37 +332,36 @@ class FoxgloveServer:
         from foxglove.websocket import Capability
 
         self._loop = asyncio.get_running_loop()
+        # Fresh reporters: the last stop() took every interval as passed.
+        self._reports = Refusals(REPORT_INTERVAL, clock=self._report_clock)
+        self._handshake_reports = Refusals(REPORT_INTERVAL, clock=self._report_clock)
         wanted = SAFE_SERVICES if self.read_only else SERVICES
         services = [self._service(n) for n in wanted if callable(getattr(self.device, n, None))]
         capabilities = [Capability.Services]
         if not self.read_only:
             capabilities.append(Capability.ClientPublish)
-        backend_host = _private_loopback()
-        try:
-            self._server = self._fg.start_server(
+        listener = self._listener()
+
+        def start_server(host: str) -> Any:
+            return self._fg.start_server(
                 name=self.name,
-                host=backend_host,
-                port=0,
+                host=host,
+                port=0,  # private: only the front connects (see _private_loopback)
                 capabilities=capabilities,
                 supported_encodings=["json"],
                 services=services,
-                server_listener=self._listener(),
+                server_listener=listener,
                 context=self._context,
             )
+
+        backend_host = _private_loopback()
+        try:
+            self._server = start_server(backend_host)
         except RuntimeError:
             if backend_host == "127.0.0.1":
                 raise
-            backend_host = "127.0.0.1"  # a system with only 127.0.0.1 on its loopback
-            self._server = self._fg.start_server(
-                name=self.name,
-                host=backend_host,
-                port=0,
-                capabilities=capabilities,
-                supported_encodings=["json"],
-                services=services,
-                server_listener=self._listener(),
-                context=self._context,
-            )
+            backend_host = "127.0.0.1"  # a Linux whose loopback has only 127.0.0.1
+            self._server = start_server(backend_host)
         front = _Front(self, f"ws://{backend_host}:{self._server.port}")
         try:
             front.start(self.host, self._port)

@@ -454,6 +454,26 @@ async def test_cli_serve_beyond_loopback_needs_a_token_before_the_device_opens(
         assert not sim.firmware.received  # the device never opened
 
 
+async def test_cli_serve_takes_the_token_from_the_environment(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("CHASSIS_SDK_FOXGLOVE_TOKEN", TOKEN)
+    async with (
+        ChassisSimulator() as sim,
+        running("serve", sim.port, "--foxglove-port", "0", "--seconds", "20") as serve,
+    ):
+        line = await serve.wait_for_line(lambda line: "serving" in line)
+        assert "token required" in line
+        url = _url(line)
+        assert await refused(url) == 401
+        async with FoxgloveClient(url, bearer=TOKEN) as client:
+            await client.wait_for(lambda: bool(client.server_info))
+        serve.proc.send_signal(signal.SIGTERM)
+        code, out, err = await serve.finish()
+    assert code == 128 + signal.SIGTERM, err
+    assert TOKEN not in out + err
+
+
 async def test_a_token_file_keeps_every_character_but_the_final_newline(tmp_path: Path) -> None:
     from chassis_sdk.cli.serve_command import read_token_file
 
