@@ -186,7 +186,9 @@ def _check_allowed_origin(origin: object) -> str:
     if key == "*":
         raise ValueError("'*' is not an origin; to allow any page, there is no option")
     parts = urlsplit(key)
-    if parts.scheme not in ("http", "https") or not parts.netloc or parts.path or parts.query:
+    # Any scheme: a desktop app may send its own (app://..., as Electron apps can); the
+    # refusal's log line shows what a refused app sent.
+    if not parts.scheme or not parts.netloc or parts.path or parts.query or parts.fragment:
         raise ValueError(
             f"an allowed origin is scheme://host[:port] (as a browser sends it), got {origin!r}"
         )

@@ -123,12 +123,14 @@ async def test_a_page_of_another_origin_is_refused_at_the_handshake_and_never_dr
 
 async def test_origins_let_in_native_clients_the_apps_and_allowed_pages() -> None:
     lichtblick = "http://lichtblick.lan:8080"
-    async with served(allow_origins=[lichtblick]) as (sim, _, server):
-        for origin in (None, *APP_ORIGINS, lichtblick, "HTTPS://APP.FOXGLOVE.DEV"):
+    async with served(allow_origins=[lichtblick, "app://desktop/"]) as (sim, _, server):
+        for origin in (None, *APP_ORIGINS, lichtblick, "app://desktop", "HTTPS://APP.FOXGLOVE.DEV"):
             async with FoxgloveClient(server.url, origin=origin) as client:
                 await client.wait_for(lambda: bool(client.server_info))
         for origin in ("null", "https://app.foxglove.dev.evil.example", "http://lichtblick.lan"):
             assert await refused(server.url, origin=origin) == 403, origin
+        # As foxglove-sdk itself: a client offering only the old subprotocol name gets 400.
+        assert await refused(server.url, subprotocols=["foxglove.websocket.v1"]) == 400
         async with FoxgloveClient(server.url, origin="https://app.foxglove.dev") as app:
             await teleop(app)
             await app.publish(1, twist(0.2))
@@ -138,7 +140,7 @@ async def test_origins_let_in_native_clients_the_apps_and_allowed_pages() -> Non
 
 def test_bad_access_options_are_refused_before_anything_opens() -> None:
     robot = Chassis("/dev/null")
-    for origin in ("null", "*", "http://x.example/path", "ftp://x.example", ""):
+    for origin in ("null", "*", "http://x.example/path", "x.example", "http://", ""):
         with pytest.raises(ValueError, match="origin"):
             FoxgloveServer(robot, allow_origins=[origin])
     with pytest.raises(ValueError, match="list of origins"):
