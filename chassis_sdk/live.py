@@ -549,18 +549,18 @@ class FoxgloveServer:
         is_twist = channel.schema_name in TWIST_SCHEMAS and channel.encoding == "json"
         if is_twist and not self._is_fronted(client.id):
             self._refuse(
-                f"channel {channel.topic!r}",
+                f"channel {_shown(channel.topic)}",
                 "the client did not come through the front (Origin and token checks)",
             )
         elif is_twist:
             with self._lock:
-                self._teleop[key] = str(channel.topic)
-            _log.info("client %d drives on %s", client.id, channel.topic)
+                self._teleop[key] = _shown(channel.topic)
+            _log.info("client %d drives on %s", client.id, _shown(channel.topic))
             return
         else:
             self._refuse(
-                f"channel {channel.topic!r}",
-                f"{channel.schema_name} ({channel.encoding}) is not taken: "
+                f"channel {_shown(channel.topic)}",
+                f"{_shown(channel.schema_name)} ({_shown(channel.encoding)}) is not taken: "
                 f"only JSON {TWIST_SCHEMAS[0]} drives",
             )
         self._drop_teleop(key)  # a Twist channel advertised again as anything else
@@ -674,6 +674,14 @@ class FoxgloveServer:
                 server.publish_status(
                     message[:1000], StatusLevel.Warning, id=f"refused-{time.monotonic_ns()}"
                 )
+
+
+def _shown(text: object, limit: int = 80) -> str:
+    """A client's text as it goes into a log line or a status: bounded, and without
+    quotes when it is plain (``/cmd_vel``), else as a repr (no control characters)."""
+    value = str(text)
+    short = value if len(value) <= limit else value[:limit] + "..."
+    return short if short.isprintable() and " " not in short else repr(short)
 
 
 def _given_tokens(headers: Any, path: str) -> list[str]:

@@ -348,6 +348,16 @@ async def test_a_twist_channel_advertised_again_as_another_schema_stops_at_once(
         assert await moving(sim, False, 0.5) < 0.5
 
 
+async def test_what_a_client_names_is_shown_bounded_in_reports() -> None:
+    async with served() as (_, _, server), FoxgloveClient(server.url) as client:
+        await client.wait_for(lambda: bool(client.server_info))
+        await client.advertise(1, "/x" * 20_000 + "\n", "y" * 20_000)
+        await client.wait_for(lambda: bool(client.statuses))
+        assert len(client.statuses[0]["message"]) < 400
+        assert "\n" not in client.statuses[0]["message"]
+        assert server.rejected == 1
+
+
 async def test_an_error_in_a_callback_is_caught_counted_and_reported(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
