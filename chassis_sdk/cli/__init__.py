@@ -509,6 +509,14 @@ def _parser() -> argparse.ArgumentParser:
     br.add_argument("--prefix", default="robots", help="the first topic level")
     br.add_argument("--rate", type=_positive("rate"), default=10.0, help="telemetry per second")
     br.add_argument("--read-only", action="store_true", help="never take a command")
+    br.add_argument(
+        "--take-over", action="store_true", help="start even if another bridge has this robot id"
+    )
+    br.add_argument(
+        "--require-timestamp",
+        action="store_true",
+        help="refuse velocity commands without a 'timestamp' (clocks must be in sync)",
+    )
     br.add_argument("--username", help="broker user name")
     br.add_argument("--password-file", help="a file holding the broker password")
     br.add_argument("--tls", action="store_true", help="TLS (implied by mqtts://)")
@@ -533,6 +541,17 @@ def _parser() -> argparse.ArgumentParser:
         "--host", default="127.0.0.1", help="address to bind (default: this computer only)"
     )
     sv.add_argument("--read-only", action="store_true", help="no Teleop; only stop services")
+    sv.add_argument(
+        "--allow-origin",
+        action="append",
+        metavar="ORIGIN",
+        help="also let in web pages of this origin (scheme://host[:port]); repeatable",
+    )
+    sv.add_argument("--token", help="a secret clients must give (?token=...); visible in ps")
+    sv.add_argument("--token-file", metavar="FILE", help="read the token from FILE (mode 600)")
+    sv.add_argument(
+        "--no-token", action="store_true", help="allow --host beyond loopback without a token"
+    )
     sv.add_argument("--record", metavar="FILE.mcap", help="also record the session")
     sv.add_argument(
         "--max-linear", type=_positive("max_linear"), default=DRIVE_MAX_LINEAR, help="m/s"
