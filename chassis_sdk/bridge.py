@@ -454,6 +454,7 @@ class MqttBridge:
                     raise
                 except Exception:
                     await _cancel_all(workers)
+                    await self._stop_robot()  # first the robot, then the fleet
                     await self._fail_loudly()
                     raise
                 except BaseException:  # KeyboardInterrupt, SystemExit: the process ends

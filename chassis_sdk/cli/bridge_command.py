@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import socket
 import ssl
 import stat
 import urllib.parse
@@ -76,6 +77,9 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 password=password,
                 tls_context=context,
                 timeout=5.0,
+                # Replies, errors and telemetry leave at once, not after the ACK of
+                # the previous packet (Nagle's algorithm and a delayed ACK: 40 ms).
+                socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)],
             )
             bridge = MqttBridge(
                 dev,
