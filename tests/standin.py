@@ -24,7 +24,7 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 # A noise mix: random bytes, and false heads of both protocols that must be skipped.
 _NOISE = [b"\x00", b"\xff\x13\x37", b"\xed", b"\xed\xde\x05", b"\xfe", b"\xfe\xce\x11", b"\xab"]
@@ -108,7 +108,7 @@ class PtyPeer:
         if self.tcp:
             self._resumed.clear()
             if self._writer is not None:  # the stream's own buffer would take 128 KiB
-                self._writer.transport.pause_reading()
+                cast(asyncio.ReadTransport, self._writer.transport).pause_reading()
         else:
             asyncio.get_running_loop().remove_reader(self._master)
 
@@ -117,7 +117,7 @@ class PtyPeer:
         if self.tcp:
             self._resumed.set()
             if self._writer is not None:
-                self._writer.transport.resume_reading()
+                cast(asyncio.ReadTransport, self._writer.transport).resume_reading()
         else:
             asyncio.get_running_loop().add_reader(self._master, self._readable)
 

@@ -154,8 +154,7 @@ async def wait_lingering(timeout: float | None = None) -> None:
     """
     async with asyncio.timeout(timeout):
         while _lingering:
-            link = next(iter(_lingering.values()))
-            await asyncio.shield(link.closed)
+            await next(iter(_lingering.values())).lingered()
 
 
 class Decoder(Protocol[M]):
@@ -566,6 +565,15 @@ class Link(asyncio.Protocol, Generic[M]):
                 return
         await self._wait_closed(timeout)
 
+    async def lingered(self) -> None:
+        """Wait until this link's background close (if any) is over; a cancellation
+        stops the wait, not the close."""
+        linger = self._linger
+        if linger is not None and not linger.done():
+            await asyncio.wait((linger,))
+        if _lingering.get(self.url) is self:  # a task cancelled before it ever ran
+            del _lingering[self.url]
+
     async def _wait_closed(self, timeout: float) -> None:
         if not self.closed.done():
             try:
@@ -595,8 +603,8 @@ class Link(asyncio.Protocol, Generic[M]):
                     await asyncio.shield(self.closed)
             if not self.closed.done():
                 self._log.warning(
-                    "the device did not read for %g s after closing; what it had not "
-                    "taken is discarded (the final zero with it)",
+                    "the device did not read for %g s after closing; what had not left "
+                    "is discarded",
                     bound,
                 )
                 self._give_up()
@@ -813,7 +821,7 @@ async def open_link(
             if earlier is not None:
                 # The previous link's final zero still waits for the device: it must be
                 # the last frame of that session, so this open waits for it (bounded).
-                await asyncio.shield(earlier.closed)
+                await earlier.lingered()
                 earlier = None
             if parsed.scheme == "socket":
                 try:

@@ -1,0 +1,239 @@
+"""The port under a slow or stalled device, on every transport: the figures behind the
+safety promises of issue 23's last three points (not speed: what the device gets).
+
+    python benchmarks/stalled_port.py [--quick]
+    PYTHONPATH=/path/to/an/older/checkout python benchmarks/stalled_port.py   # "before"
+
+Printed per transport (pyserial-asyncio, pyserial-asyncio-fast, serialx: each run in a
+child process with ``CHASSIS_SDK_BACKEND`` set):
+
+* **replies on a slow device**: four ``get_firmware_version()`` calls in a row with
+  ``request_timeout`` 0.3 s and ``retries=2`` against a stand-in that answers every
+  request after 1.1x, 1.5x and 3x that, numbered by the request it answers; each call
+  as ``(its own attempts, the request whose reply it returned)``, and whether every
+  reply answered its own call (the goal: always);
+* **the last frame a stalled device gets**: a control task drives at 0.5 m/s, the
+  device stops reading, ``close()`` is called; the device reads again 0.4 s or 6 s
+  after it stopped (pty and TCP). Printed: how long ``close()`` took, the last drive
+  frame the device got (the goal: 0 mm/s), and the drive frames it got after reading
+  again;
+* **the first telemetry after an unread line**: a simulator at 1 kHz runs unread until
+  it drops bytes; then a ``Chassis`` opens it. Printed: the age of the first telemetry
+  message (from the simulator's write to the SDK's receipt) and how many frames came in
+  the first 30 ms (the floor: a fresh line gives 30).
+
+The stand-ins are the tests' own (tests/standin.py, loaded from this checkout by path),
+so an older ``chassis_sdk`` first on ``PYTHONPATH`` is measured against the same devices.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import importlib.util
+import inspect
+import json
+import os
+import platform
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+BACKENDS = ("pyserial-asyncio", "pyserial-asyncio-fast", "serialx")
+TIMEOUT = 0.3
+
+
+def _standin() -> Any:
+    spec = importlib.util.spec_from_file_location("_standin", ROOT / "tests" / "standin.py")
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["_standin"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _numbered(standin: Any, latency: float, tcp: bool) -> Any:
+    """A stand-in answering the n-th 0x07 request with version n after ``latency``."""
+
+    class Numbered(standin.ChassisStandIn):  # type: ignore[misc]
+        def on_frame(self, rec: Any) -> None:
+            if rec.kind != 0x07:
+                super().on_frame(rec)
+                return
+            n = len(self.of_kind(0x07))
+            reply = standin.frame_a(0x87, struct.pack("<H", n), self.next_seq(0x87))
+            asyncio.get_running_loop().call_later(latency, self.send, reply)
+
+    return Numbered(noise=False, tcp=tcp)
+
+
+async def _replies(factor: float, tcp: bool) -> dict[str, Any]:
+    from chassis_sdk import Chassis, RequestTimeoutError
+
+    standin = _standin()
+    async with (
+        _numbered(standin, factor * TIMEOUT, tcp) as dev,
+        Chassis(dev.port, request_timeout=TIMEOUT, retries=2) as robot,
+    ):
+        calls = []
+        for _ in range(4):
+            before = len(dev.of_kind(0x07))
+            try:
+                answer: int | None = await robot.get_firmware_version()
+            except RequestTimeoutError:
+                answer = None
+            async with asyncio.timeout(2):
+                while len(dev.frames) < robot.stats.frames_sent:  # noqa: ASYNC110 (a counter)
+                    await asyncio.sleep(0.005)
+            calls.append((list(range(before + 1, len(dev.of_kind(0x07)) + 1)), answer))
+    right = all(a is None or a in own for own, a in calls)
+    return {"factor": factor, "tcp": tcp, "calls": calls, "every reply its own": right}
+
+
+async def _stall(stall: float, tcp: bool) -> dict[str, Any]:
+    from chassis_sdk import Chassis, NotConnectedError
+
+    standin = _standin()
+    options: dict[str, Any] = {}
+    if "close_linger" in inspect.signature(Chassis).parameters:
+        options["close_linger"] = stall + 3.0
+    async with standin.ChassisStandIn(noise=False, tcp=tcp, tcp_rcvbuf=4096) as dev:
+        robot = Chassis(dev.port, **options)
+        await robot.connect()
+        dev.release_line()
+
+        async def control() -> None:
+            with contextlib.suppress(NotConnectedError):
+                while True:
+                    await robot.set_velocity(0.5, 0.0)
+                    await asyncio.sleep(0)
+
+        task = asyncio.create_task(control())
+        await dev.wait_for(lambda fs: bool(standin.drive_frames(fs)))  # driving at 0.5 m/s
+        stalled = time.monotonic()
+        dev.stop_reading()
+        if not tcp:
+            dev.fill_line()
+        async with asyncio.timeout(20):
+            while robot.stats.frames_discarded < 3:  # noqa: ASYNC110 (a counter)
+                await asyncio.sleep(0.005)
+        t0 = time.monotonic()
+        await robot.close()
+        closing = time.monotonic() - t0
+        await task
+        read_before = len(standin.drive_frames(dev.frames))
+        await asyncio.sleep(max(0.0, stall - (time.monotonic() - stalled)))
+        dev.resume_reading()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(dev.eof.wait(), 5.0)
+        drives = standin.drive_frames(dev.frames)
+    last = struct.unpack_from("<Hh", drives[-1].payload)[1] if drives else None
+    return {
+        "stall": stall,
+        "tcp": tcp,
+        "close s": round(closing, 3),
+        "last frame mm/s": last,
+        "frames after reading again": len(drives) - read_before,
+    }
+
+
+async def _first_telemetry() -> dict[str, Any]:
+    from chassis_sdk import Chassis
+    from chassis_sdk.protocol import ChassisDecoder, Telemetry
+    from chassis_sdk.sim import ChassisSimulator, ChassisSpec
+
+    produced: list[tuple[float, bytes]] = []
+    async with ChassisSimulator(ChassisSpec(telemetry_period=0.001)) as sim:
+        send = sim.send
+
+        def record(data: bytes) -> None:
+            produced.append((time.monotonic(), data))
+            send(data)
+
+        sim.send = record  # type: ignore[method-assign]
+        async with asyncio.timeout(30):
+            while sim.bytes_discarded == 0:  # noqa: ASYNC110 (a counter)
+                await asyncio.sleep(0.05)
+        async with Chassis(sim.port) as robot:
+            got: list[Telemetry] = []
+            async with asyncio.timeout(5):
+                async for t in robot.telemetry():
+                    got.append(t)
+                    if t.timestamp - got[0].timestamp > 0.03:
+                        break
+        decoder = ChassisDecoder()
+        made_at: dict[int, float] = {}
+        for at, data in produced:
+            for m in decoder.feed(data):
+                if isinstance(m, Telemetry):
+                    made_at.setdefault(m.seq, at)
+    age = got[0].timestamp - made_at[got[0].seq]
+    return {"age of the first s": round(age, 4), "frames in the first 30 ms": len(got) - 1}
+
+
+async def _all(quick: bool) -> dict[str, Any]:
+    out: dict[str, Any] = {"replies": [], "stall": [], "first": None}
+    for factor in (1.1, 1.5, 3.0):
+        out["replies"].append(await _replies(factor, False))
+    for tcp in (False, True):
+        for stall in (0.4,) if quick else (0.4, 6.0):
+            out["stall"].append(await _stall(stall, tcp))
+    out["first"] = await _first_telemetry()
+    return out
+
+
+def _child(quick: bool) -> None:
+    print(json.dumps(asyncio.run(_all(quick))))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the 0.4 s stall only")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        _child(args.quick)
+        return
+    import chassis_sdk
+
+    print(f"stalled_port.py: chassis_sdk from {Path(chassis_sdk.__file__).parent}")
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores,")
+    print(f"  Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}")
+    for backend in BACKENDS:
+        env = {**os.environ, "CHASSIS_SDK_BACKEND": backend}
+        argv = [sys.executable, __file__, "--child"] + (["--quick"] * args.quick)
+        proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
+        if proc.returncode != 0:
+            print(f"\n== {backend}: failed\n{proc.stderr[-2000:]}")
+            sys.exit(1)
+        figures = json.loads(proc.stdout.strip().splitlines()[-1])
+        print(f"\n== {backend}")
+        print(f"replies on a slow device (request_timeout {TIMEOUT} s, retries 2, pty):")
+        for r in figures["replies"]:
+            calls = ", ".join(f"({own}, {answer})" for own, answer in r["calls"])
+            verdict = "every reply its own call" if r["every reply its own"] else "WRONG"
+            print(f"  latency {r['factor']}x: {calls}  -> {verdict}")
+        print("the last frame a stalled device gets (goal: 0 mm/s):")
+        for s in figures["stall"]:
+            print(
+                f"  {'tcp' if s['tcp'] else 'pty'}, reads again after {s['stall']} s: "
+                f"close() {s['close s']} s, last frame {s['last frame mm/s']} mm/s, "
+                f"{s['frames after reading again']} drive frame(s) after reading again"
+            )
+        f = figures["first"]
+        print(
+            f"first telemetry after an unread line: {f['age of the first s'] * 1000:.1f} ms "
+            f"old; {f['frames in the first 30 ms']} frames in its first 30 ms "
+            "(floor, a fresh 1 kHz line: 30)"
+        )
+    print(f"\nload after: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
