@@ -54,10 +54,12 @@ message is sorted as paho hands it over, in bounded work, before anything waits:
 Memory is therefore bounded whatever arrives (a lane holds at most a few messages).
 
 Two bridges must never drive for one robot id. Each bridge has an owner id (host,
-process, random) that it puts in its ``connection`` payload; before it subscribes to
-commands it publishes ``ONLINE`` and reads the topic back: if the message before its
-own says another owner is ``ONLINE``, it puts that message back and refuses to start
-(:class:`RobotIdTaken`), unless it was told to take over. A running bridge that sees a
+process, random) that it puts in its ``connection`` payload; before it acts on any
+command it publishes ``ONLINE`` and reads the topic back (commands routed before its
+``ONLINE`` are dropped: they may have reached the previous owner; those after it are
+held): if the message before its own says another owner is ``ONLINE``, it drops what
+it held, puts that message back and refuses to start (:class:`RobotIdTaken`), unless
+it was told to take over. A running bridge that sees a
 take-over stops taking commands at once (in the order the broker delivered them, so
 no command routed to the new bridge reaches the old one), stops its robot and ends
 with :class:`RobotIdTaken`.
@@ -262,6 +264,12 @@ class _Lanes:
         assert message is not None  # asyncio.Queue gets only when len() > 0
         return message
 
+    def clear(self) -> None:
+        """Drop every pending command."""
+        self.superseded += len(self)
+        self.urgent.clear()
+        self.velocity = None
+
     def clear_motion(self) -> None:
         """Drop whatever could move the robot (the velocity command, releases)."""
         if self.velocity is not None:
@@ -375,7 +383,8 @@ class MqttBridge:
         #: True once this bridge is the robot id's owner on the broker (it has read its
         #: own ``ONLINE`` back and found no other bridge before it).
         self.online = False
-        #: Commands that arrived after another bridge took over (never acted on).
+        #: Commands never acted on for ownership: routed before this bridge's ONLINE,
+        #: or after another bridge took over.
         self.dropped = 0
         self._refusals = Refusals(float(report_interval))
         self._reports: deque[RefusalReport] = deque(maxlen=4)
@@ -480,6 +489,7 @@ class MqttBridge:
         """
         self._online_payload = _state("ONLINE", self.owner, take_over=self.take_over)
         await self.client.subscribe(f"{self.topic}/connection", options=SubscribeOptions(qos=1))
+        await self._subscribe_commands()  # held until the claim is settled (see _sort)
         await self._publish("connection", self._online_payload, qos=1, retain=True)
         try:
             async with asyncio.timeout(_ECHO_TIMEOUT):
@@ -493,6 +503,7 @@ class MqttBridge:
         other = self._other_owner(self._before)
         if other is not None and not self.take_over:
             assert self._before is not None
+            self._inbox.lanes.clear()  # none of them is ours to act on
             raw, state = self._before
             # Ours replaced theirs as the retained state: put it back before leaving.
             await self._publish("connection", raw, qos=1, retain=True)
@@ -599,7 +610,7 @@ class MqttBridge:
             info[name.removeprefix("get_")] = plain(value)
         await self._publish("info", json.dumps(info).encode(), qos=1, retain=True)
 
-    async def _subscribe(self) -> None:
+    async def _subscribe_commands(self) -> None:
         # QoS 0 and a clean session: a command is never kept for later. Retain As
         # Published (MQTT 5 §3.8.3.1): a live retained command keeps RETAIN 1, so it is
         # refused like a stored one (without it the broker clears the flag).
@@ -607,6 +618,8 @@ class MqttBridge:
             await self.client.subscribe(
                 f"{self.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
             )
+
+    async def _subscribe(self) -> None:
         await self.client.subscribe(f"{self.topic}/request/+", qos=0)
 
     # --- out ---------------------------------------------------------------------------
@@ -733,12 +746,23 @@ class MqttBridge:
             raise CommandError("a retained command is never acted on (it would be stale)")
         if name == "velocity":
             self._velocity_of(message)  # junk and stale ones never take the slot
+            lane = "velocity"
+        elif name == "stop":
+            lane = "stop"
+        elif name == "estop":
+            lane = "engage" if self._estop_of(message) else "release"
+        else:
+            raise CommandError(f"unknown command {name[:40]!r}: velocity, stop or estop")
+        if not self._echoed.is_set():
+            # Routed before our ONLINE, in the broker's order: it may have reached the
+            # bridge that owned the robot id until then. Those after it are held until
+            # the claim is settled (the consumer starts only then; a lost claim clears
+            # them), so the robot is commanded from the moment ONLINE is seen.
+            self.dropped += 1
+            return False
+        if lane == "velocity":
             return lanes.put_velocity(message)
-        if name == "stop":
-            return lanes.put_urgent("stop", message)
-        if name == "estop":
-            return lanes.put_urgent("engage" if self._estop_of(message) else "release", message)
-        raise CommandError(f"unknown command {name[:40]!r}: velocity, stop or estop")
+        return lanes.put_urgent(lane, message)
 
     def _on_connection(self, message: aiomqtt.Message) -> None:
         raw = message.payload if isinstance(message.payload, bytes) else b""
