@@ -269,6 +269,7 @@ class _Lanes:
         self.superseded += len(self)
         self.urgent.clear()
         self.velocity = None
+        self.requests.clear()
 
     def clear_motion(self) -> None:
         """Drop whatever could move the robot (the velocity command, releases)."""
@@ -478,7 +479,6 @@ class MqttBridge:
     async def _start(self) -> None:
         await self._claim()
         await self._publish_info()
-        await self._subscribe()
 
     async def _claim(self) -> None:
         """Become the robot id's owner, or raise :class:`RobotIdTaken`.
@@ -618,8 +618,6 @@ class MqttBridge:
             await self.client.subscribe(
                 f"{self.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
             )
-
-    async def _subscribe(self) -> None:
         await self.client.subscribe(f"{self.topic}/request/+", qos=0)
 
     # --- out ---------------------------------------------------------------------------
@@ -732,6 +730,9 @@ class MqttBridge:
         kind, _, name = sub.partition("/")
         lanes = self._inbox.lanes
         if kind == "request" and name and "/" not in name:
+            if not self._echoed.is_set():
+                self.dropped += 1  # as a command: the previous owner answers it
+                return False
             if len(lanes.requests) >= _REQUESTS_MAX:
                 raise CommandError(f"{_REQUESTS_MAX} requests are pending already")
             lanes.requests.append(message)
