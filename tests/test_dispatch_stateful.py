@@ -132,7 +132,9 @@ class RequestTableMachine(RuleBasedStateMachine):
         holder = self.holder.get(key)
         live = holder is not None and not holder.task.result().done()
         had = self.in_flight(key)
-        if had:
+        if had and holder is None and self.loop.now >= self.until.get(key, 0.0):
+            self.sent_at[key].clear()  # taken as lost already: not measured
+        elif had:
             latency = self.loop.now - self.sent_at[key].popleft()
             self.latency = max(self.latency, min(latency, MAX_LATENCY))
             if holder is None and self.in_flight(key):

@@ -192,9 +192,9 @@ class Device(Motion, Observation, Generic[M, K]):
         return None
 
     def _reply_quarantine(self) -> float:
-        """How long a key whose reply is overdue stays out of use (see RequestTable):
-        one more ``request_timeout``, so a reply up to twice that late is still
-        recognised as late; a later one is taken as lost."""
+        """The least time a key whose reply is overdue stays out of use (see
+        RequestTable, which keeps it out longer on a device that has shown itself
+        slower): one more ``request_timeout``."""
         return self.request_timeout
 
     # --- what the link supervisor needs (core.supervisor.Supervised) -------------------------

@@ -337,8 +337,8 @@ class _Turn:
 #: A key stays out of use until this many times the worst latency seen has passed since
 #: its last request was written (jitter on top of the latency measured).
 LATENCY_MARGIN = 2.0
-#: The most latency the table believes (a reply that lost its request, counted against
-#: an older write, must not shut a key for minutes).
+#: The most latency the table believes unless told otherwise (a reply that lost its
+#: request, counted against an older write, must not shut a key for minutes).
 MAX_LATENCY = 30.0
 
 
@@ -382,12 +382,15 @@ class RequestTable(Generic[K, T]):
         clock: Monotonic clock (replaceable in tests).
     """
 
-    __slots__ = ("_clock", "_slots", "_watchers", "latency", "quarantine")
+    __slots__ = ("_clock", "_slots", "_watchers", "latency", "max_latency", "quarantine")
 
     def __init__(self, quarantine: float, clock: Callable[[], float] = time.monotonic) -> None:
         self.quarantine = quarantine
-        #: The worst reply latency seen, seconds (capped at :data:`MAX_LATENCY`).
+        #: The worst reply latency seen, seconds (at most :attr:`max_latency`).
         self.latency = 0.0
+        #: The most latency believed: a reply later than a whole call with its retries
+        #: (the requester sets it) is a lost request's, not a measure of the device.
+        self.max_latency = MAX_LATENCY
         self._clock = clock
         self._slots: dict[K, _Slot[T]] = {}
         self._watchers: list[asyncio.Future[None]] = []
@@ -489,9 +492,14 @@ class RequestTable(Generic[K, T]):
             return Reply.UNMATCHED
         expected = bool(slot.sent_at)
         if expected:
-            latency = self._clock() - slot.sent_at.popleft()
-            if latency > self.latency:
-                self.latency = min(latency, MAX_LATENCY)
+            now = self._clock()
+            if slot.call is None and now >= slot.quarantine_until:
+                # Its requests were taken as lost already: nothing to measure by.
+                slot.sent_at.clear()
+            else:
+                latency = now - slot.sent_at.popleft()
+                if latency > self.latency:
+                    self.latency = min(latency, self.max_latency)
         call = slot.call
         if call is not None and not call.done():
             call.set_result(value)

@@ -71,6 +71,7 @@ class Requester(Generic[K]):
         """
         attempts = self.retries + 1 if read_only else 1
         table = self.table
+        table.max_latency = self.timeout * (self.retries + 1)
         key: K | None = None
         call: asyncio.Future[Any] | None = None
         try:

@@ -132,16 +132,17 @@ READ_SIZE = 64 * 1024
 #: commands are at most a few dozen bytes each; past this the device is not reading).
 QUEUE_LIMIT = 1024
 
-#: The kernel send buffer of a ``socket://`` link (Linux doubles it): some 20 ms of a
-#: 1 Mbaud line, so what a device that stops reading has not taken waits in the link.
+#: The kernel send buffer of a ``socket://`` link, asked for (Linux doubles it, and
+#: counts each small frame at several hundred bytes: some 14 frames in all), so what a
+#: device that stops reading has not taken waits in the link, where velocity is state.
 SOCKET_SNDBUF = 4096
 
 #: How often a lingering link looks whether its final zero has left the kernel.
-_LINGER_POLL = 0.02
+_LINGER_POLL = 0.005
 #: Links closing in the background (their final zero not yet out), by port: a program
 #: that reopens a port waits for its earlier link to finish, and :func:`wait_lingering`
 #: lets a program end only once every zero has left (or its bound has passed).
-_lingering: dict[str, Link[Any]] = {}
+_lingering: dict[tuple[asyncio.AbstractEventLoop, str], Link[Any]] = {}
 
 
 async def wait_lingering(timeout: float | None = None) -> None:
@@ -152,9 +153,10 @@ async def wait_lingering(timeout: float | None = None) -> None:
     :func:`asyncio.run`, a link still lingering when the loop ends discards its zero
     (nothing stale is ever sent either way).
     """
+    loop = asyncio.get_running_loop()
     async with asyncio.timeout(timeout):
-        while _lingering:
-            await next(iter(_lingering.values())).lingered()
+        while mine := [link for (lp, _), link in _lingering.items() if lp is loop]:
+            await mine[0].lingered()
 
 
 class Decoder(Protocol[M]):
@@ -213,6 +215,7 @@ class Link(asyncio.Protocol, Generic[M]):
         self._queued_bytes = 0
         self._velocity: tuple[bytes, float] | None = None  # newest held frame, its expiry
         self._velocity_closed = False
+        self._zero: bytes | None = None  # the final zero, once close_velocity() wrote it
         self._write_error: Exception | None = None
         self._flushed: asyncio.Future[None] | None = None
         #: Frames the link discarded: velocity frames replaced by newer ones or expired
@@ -289,7 +292,7 @@ class Link(asyncio.Protocol, Generic[M]):
     def is_open(self) -> bool:
         """True while frames can be handed to the port."""
         transport = self.transport
-        return transport is not None and not transport.is_closing()
+        return transport is not None and not transport.is_closing() and not self._finished
 
     def write(self, frame: bytes) -> bool:
         """Write a frame that is not a velocity command (a request, an e-stop, ...).
@@ -340,6 +343,7 @@ class Link(asyncio.Protocol, Generic[M]):
         """
         sent = self.write_velocity(zero)
         self._velocity_closed = True
+        self._zero = zero
         return sent
 
     def _emit(self, frame: bytes) -> bool:
@@ -457,14 +461,23 @@ class Link(asyncio.Protocol, Generic[M]):
         return self._is_flushed()
 
     def _kernel_pending(self) -> int:
-        """Bytes a serial port's kernel driver has not sent yet (``TIOCOUTQ``; 0 for a
-        socket, or where the driver cannot tell). Closing a tty with bytes pending
-        blocks in the kernel (``closing_wait``, 30 s by default) or discards them."""
-        wfd = self._wfd
-        if wfd is None:
+        """Bytes the kernel still holds: not yet sent (a serial port's driver) or not
+        yet acknowledged by the peer (a TCP socket): ``TIOCOUTQ`` / ``SIOCOUTQ``; 0
+        where the driver cannot tell (a pty always says 0).
+
+        Closing a tty with bytes pending blocks in the kernel (``closing_wait``, 30 s
+        by default) or discards them; closing a socket with received bytes unread
+        (telemetry keeps coming) resets it, and the kernel drops what the peer has not
+        acknowledged, the final zero with it. Once this is 0, nothing can be lost.
+        """
+        fd = self._wfd
+        if fd is None and self.transport is not None:
+            sock = self.transport.get_extra_info("socket")
+            fd = sock.fileno() if sock is not None else None
+        if fd is None or fd < 0:
             return 0
         try:
-            buf = fcntl.ioctl(wfd, termios.TIOCOUTQ, b"\0\0\0\0")
+            buf = fcntl.ioctl(fd, termios.TIOCOUTQ, b"\0\0\0\0")
         except OSError:
             return 0
         pending: int = struct.unpack("i", buf)[0]
@@ -472,15 +485,25 @@ class Link(asyncio.Protocol, Generic[M]):
 
     def _is_out(self) -> bool:
         """Everything written has left: the link holds nothing and neither does the
-        kernel (a serial port); a socket's kernel buffer is ordered ahead of its FIN."""
+        kernel."""
         return self._is_flushed() and not self._kernel_pending()
+
+    async def _until_out(self, limit: float) -> bool:
+        """Wait (at most ``limit`` s) until everything written has left; return whether
+        it has."""
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(limit):
+                await self.drain(limit)
+                while self._kernel_pending() and self.transport is not None:  # noqa: ASYNC110
+                    await asyncio.sleep(_LINGER_POLL)  # (the kernel's queue has no event)
+        return self._is_out()
 
     def _discard_stale(self) -> None:
         """The device is not reading and the link is closing: discard every frame still
-        held and the kernel's output queue, but keep the final zero (if it waits) and
-        send it at once where that made room."""
-        zero = self._velocity if self._velocity_closed else None
+        held (and, for a serial port, the kernel's output queue), but keep the final
+        zero, whole, and send it at once where that made room."""
         before = self.discarded
+        held_zero = self._velocity is not None and self._velocity_closed
         self._drop_held()
         wfd = self._wfd
         if wfd is not None:
@@ -489,31 +512,42 @@ class Link(asyncio.Protocol, Generic[M]):
             if self._blocked:  # the flush made room: write again now
                 self._loop.remove_writer(wfd)
                 self._blocked = False
-        if zero is not None:
-            self.discarded -= 1
-            self._velocity = zero
+        if self._zero is not None and (held_zero or wfd is not None):
+            # Held, or (a serial port) flushed from the kernel with the rest, even part
+            # sent: written again whole, the last frame the device will get. A device
+            # that took the head of a frame before the flush resynchronises on it.
+            self.discarded -= held_zero
+            self._velocity = (self._zero, math.inf)
             self._send_held()
-        self._log.warning(
+        stale = self.discarded - before
+        self._log.log(
+            logging.WARNING if stale else logging.INFO,
             "the device is not reading; discarded %d stale frame(s) on closing%s",
-            self.discarded - before,
-            "" if zero is None else ", kept the final zero",
+            stale,
+            "" if self._zero is None else ", kept the final zero",
         )
 
-    def _finish(self, transport: asyncio.WriteTransport) -> None:
-        """Close a port whose bytes have all left.
+    async def _finish(self, wait: float) -> bool:
+        """Close a port whose bytes have all left; return whether it is closed.
 
-        A socket is half-closed (its FIN goes after every byte written) and read on
-        until the peer closes: closing a socket with received bytes unread (telemetry
-        keeps coming) resets the connection instead, and a reset can drop what the
-        peer had not read yet, the final zero with it.
+        A socket is half-closed and read on until its peer closes too (at most
+        ``wait`` seconds here): closing a socket with received bytes unread (telemetry
+        keeps coming) resets it, and a peer reading through a buffered stream (asyncio's
+        own) loses on a reset what it had not read yet, the final zero with it.
         """
+        transport = self.transport
+        if transport is None or transport.is_closing():
+            return True
         self._finished = True
-        if self._wfd is None and transport.can_write_eof():
-            self._on_messages = _ignore_messages  # what comes now is of no one's use
-            self.tap = None
-            transport.write_eof()
-        else:
+        self._on_messages = _ignore_messages  # what comes now is of no one's use
+        self.tap = None
+        if self._wfd is not None or not transport.can_write_eof():
             transport.close()
+            return True
+        transport.write_eof()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(self.closed), wait)
+        return self.closed.done()
 
     def _give_up(self) -> None:
         """Close now, discarding whatever has not left: nothing stale may reach the
@@ -521,7 +555,8 @@ class Link(asyncio.Protocol, Generic[M]):
         transport = self.transport
         if transport is None:
             return
-        if not self._is_out() or (self._wfd is None and self._finished):
+        self._finished = True
+        if not self._is_out():
             self._drop_held()
             wfd = self._wfd
             if wfd is not None:
@@ -541,29 +576,43 @@ class Link(asyncio.Protocol, Generic[M]):
         docstring (stale frames discarded, the final zero kept).
 
         Args:
-            timeout: The most this waits for the port to report closing (without
-                ``linger``).
+            timeout: The most this waits for the port to report closing.
             linger: Seconds the final zero may take to leave, in the background after
-                this has returned, for a device that is not reading (and a socket's
-                peer to close after it); 0 closes at once, discarding what has not
-                left.
+                this has returned, for a device that is not reading; 0: what has not
+                left within a moment is discarded, the zero with it.
         """
-        transport = self.transport
-        if transport is not None and not transport.is_closing():
-            if not self._is_flushed():
-                self._discard_stale()
-            if self._is_out():
-                self._finish(transport)
-            elif linger <= 0:
+        try:
+            transport = self.transport
+            if transport is not None and not transport.is_closing() and not self._finished:
+                # A moment for what is on its way (the kernel of a healthy line empties
+                # in a millisecond or two), then what is still held is stale.
+                if not await self._until_out(CLOSE_GRACE):
+                    self._discard_stale()
+                if await self._until_out(CLOSE_GRACE):
+                    if not await self._finish(CLOSE_GRACE):  # a peer slow to close
+                        if linger > 0:
+                            self._hand_over(linger)
+                            return
+                        transport.close()
+                elif linger > 0:
+                    self._hand_over(linger)
+                    return
+                else:
+                    self._give_up()
+            await self._wait_closed(timeout)
+        except BaseException:  # cancelled (the loop is ending): never leave it open
+            if self._linger is None:
                 self._give_up()
-        if linger > 0 and not self.closed.done():
-            with contextlib.suppress(TimeoutError):  # a moment to close by itself
-                await asyncio.wait_for(asyncio.shield(self.closed), CLOSE_GRACE)
-            if not self.closed.done():
-                _lingering[self.url] = self  # now: an open of this port from here on waits
-                self._linger = asyncio.ensure_future(self._linger_then_close(linger))
-                return
-        await self._wait_closed(timeout)
+                self._release_wfd()
+            raise
+
+    def _hand_over(self, linger: float) -> None:
+        """Go on closing in the background: the caller's close() returns now."""
+        # Nobody is listening any more (a recording is closed once close() returns).
+        self._on_messages = _ignore_messages
+        self.tap = None
+        _lingering[self._loop, self.url] = self  # an open of this port from now on waits
+        self._linger = asyncio.ensure_future(self._linger_then_close(linger))
 
     async def lingered(self) -> None:
         """Wait until this link's background close (if any) is over; a cancellation
@@ -571,15 +620,17 @@ class Link(asyncio.Protocol, Generic[M]):
         linger = self._linger
         if linger is not None and not linger.done():
             await asyncio.wait((linger,))
-        if _lingering.get(self.url) is self:  # a task cancelled before it ever ran
-            del _lingering[self.url]
+        if _lingering.get((self._loop, self.url)) is self:  # a task that never ran
+            del _lingering[self._loop, self.url]
+            self._give_up()
+            self._release_wfd()
 
     async def _wait_closed(self, timeout: float) -> None:
         if not self.closed.done():
             try:
                 await asyncio.wait_for(asyncio.shield(self.closed), timeout)
             except TimeoutError:
-                if self.transport is not None:  # a peer keeping its half open, or stuck
+                if self.transport is not None:  # stuck: never leave it open
                     self._log.warning("port did not close within %.1f s; aborted", timeout)
                     self._give_up()
                 else:
@@ -587,35 +638,38 @@ class Link(asyncio.Protocol, Generic[M]):
         self._release_wfd()
 
     async def _linger_then_close(self, bound: float) -> None:
-        """Hold the port open (in the background) until the final zero has left and the
-        port (or the socket's peer) has closed, or ``bound`` seconds have passed."""
+        """Hold the port open (in the background) until the final zero has left and, for
+        a socket, the peer has closed after it, or ``bound`` seconds have passed."""
         self._log.info("the device is not reading; the final zero waits up to %g s", bound)
+        deadline = self._loop.time() + bound
         try:
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(bound):
-                    if not self._finished:
-                        await self.drain(bound)
-                        while self._kernel_pending() and self.is_open:  # noqa: ASYNC110
-                            await asyncio.sleep(_LINGER_POLL)  # (no event for TIOCOUTQ)
-                        transport = self.transport
-                        if transport is not None and not transport.is_closing():
-                            self._finish(transport)
-                    await asyncio.shield(self.closed)
-            if not self.closed.done():
-                self._log.warning(
-                    "the device did not read for %g s after closing; what had not left "
-                    "is discarded",
-                    bound,
-                )
-                self._give_up()
+            if not self._finished:
+                if await self._until_out(bound):
+                    await self._finish(max(deadline - self._loop.time(), 0.0))
+                elif self.transport is not None:
+                    self._log.warning(
+                        "the device did not read for %g s after closing; what had not "
+                        "left is discarded",
+                        bound,
+                    )
+                    self._give_up()
+            elif not self.closed.done():  # half-closed: the peer has it all; let it close
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(
+                        asyncio.shield(self.closed), max(deadline - self._loop.time(), 0.0)
+                    )
+            transport = self.transport
+            if transport is not None and not transport.is_closing():
+                self._log.info("the peer kept the connection open after the final zero")
+                transport.close()
             await self._wait_closed(CLOSE_WAIT)
-        except asyncio.CancelledError:  # the loop is ending: nothing stale, ever
+        except BaseException:  # cancelled (the loop is ending): nothing stale, ever
             self._give_up()
             self._release_wfd()
             raise
         finally:
-            if _lingering.get(self.url) is self:
-                del _lingering[self.url]
+            if _lingering.get((self._loop, self.url)) is self:
+                del _lingering[self._loop, self.url]
 
 
 def _ignore_messages(messages: list[Any], now: float) -> None:
@@ -815,7 +869,7 @@ async def open_link(
     loop = asyncio.get_running_loop()
     parsed = urllib.parse.urlsplit(url)
     transport: asyncio.BaseTransport | None = None
-    earlier = _lingering.get(url)
+    earlier = _lingering.get((loop, url))
     try:
         async with asyncio.timeout(timeout):
             if earlier is not None:
