@@ -118,6 +118,9 @@ _log = logging.getLogger("chassis_sdk.bridge")
 _URGENT_MAX = 16
 #: Requests pending; more are refused (a request is answered or refused, never late).
 _REQUESTS_MAX = 16
+#: Least seconds between two velocity commands written (50 a second, the rate of the
+#: chassis's telemetry; a joystick sends 10 to 50): the newest in between counts.
+_VELOCITY_PERIOD = 0.02
 #: Workers answering requests (each may wait for the device for a few seconds).
 _REQUEST_WORKERS = 2
 #: Seconds to wait for the broker to send a bridge's own ``ONLINE`` back at start.
@@ -391,6 +394,7 @@ class MqttBridge:
         self._reports: deque[RefusalReport] = deque(maxlen=4)
         self._report_wanted = asyncio.Event()
         self._request_ready = asyncio.Event()
+        self._urgent = asyncio.Event()
         self._owner_wanted = asyncio.Event()
         self._online_payload = b""
         self._echoed = asyncio.Event()
@@ -763,6 +767,7 @@ class MqttBridge:
             return False
         if lane == "velocity":
             return lanes.put_velocity(message)
+        self._urgent.set()  # a velocity command held for its period gives way
         return lanes.put_urgent(lane, message)
 
     def _on_connection(self, message: aiomqtt.Message) -> None:
@@ -812,9 +817,31 @@ class MqttBridge:
         return engaged
 
     async def _commands(self) -> None:
+        loop = asyncio.get_running_loop()
+        lanes = self._inbox.lanes
+        next_velocity = -math.inf
         async for message in self.client.messages:
             try:
+                velocity = message.topic.value.endswith("/cmd/velocity")
+                wait = next_velocity - loop.time()
+                if velocity and wait > 0:
+                    # At most one velocity command per period reaches the device, the
+                    # newest: the work (and the serial line) stays bounded whatever
+                    # the rate. It waits in its slot, where a newer one replaces it
+                    # and a stop or e-stop cancels it and is served at once.
+                    if lanes.velocity is None:
+                        lanes.velocity = message
+                    else:
+                        lanes.superseded += 1
+                    self._urgent.clear()
+                    if not lanes.urgent:
+                        with contextlib.suppress(TimeoutError):
+                            async with asyncio.timeout(wait):
+                                await self._urgent.wait()
+                    continue
                 await self._act(message)
+                if velocity:
+                    next_velocity = loop.time() + _VELOCITY_PERIOD
             except Exception as exc:  # any failure is this message's refusal, no more
                 self._refuse(_topic(message), _why(exc))
 
