@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import logging
 import os
 import select
 import signal
@@ -24,6 +25,7 @@ import time
 import tty
 from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -223,6 +225,27 @@ async def test_a_device_slow_to_read_at_close_gets_the_zero_as_its_last_frame(
         assert drives, "the device got no drive frame at all"
         assert is_zero_drive(drives[-1]), f"the last frame was {velocity(drives[-1])}"
         assert open_fds_on(dev.port) == 0 if not tcp else dev.live_connections == 0
+
+
+async def test_a_recording_does_not_cost_a_stalled_device_its_zero(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # The recording is closed when close() returns, while the zero may still wait for
+    # the device: telemetry arriving then must not reach the closed file (before: an
+    # error logged for every chunk read while the zero waited).
+    async with ChassisStandIn(noise=False, tcp=True, tcp_rcvbuf=4096) as dev:
+        robot = Chassis(dev.port, close_linger=5.0, record=tmp_path / "run.jsonl")
+        await robot.connect()
+        control = await _drive_until_the_link_blocks(dev, robot)
+        await robot.close()
+        await control
+        for _ in range(20):  # telemetry keeps coming while the zero waits
+            dev.send(dev.telemetry_frame())
+            await asyncio.sleep(0.005)
+        dev.resume_reading()
+        await asyncio.wait_for(dev.eof.wait(), 5.0)
+        assert is_zero_drive(drive_frames(dev.frames)[-1])
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR] == []
 
 
 async def test_past_close_linger_the_port_is_released_and_nothing_more_is_sent() -> None:

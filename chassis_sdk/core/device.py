@@ -320,10 +320,15 @@ class Device(Motion, Observation, Generic[M, K]):
         """Stop the robot, close the port and stop the background tasks.
 
         A zero-velocity frame is written and given a bounded time to leave before the
-        port closes. Safe to call more than once, and from any task; a second call
-        waits for the first to finish. Cancelling it does not interrupt it: the port is
-        closed (within about a second) before the cancellation goes on.
-        With ``record``, the recording ends after the zero frame, which it holds.
+        port closes. If the device is not reading, every stale frame is discarded but
+        the zero, which may go on waiting for it in the background for up to
+        ``close_linger`` seconds after this returns (see the safety model); under
+        :func:`chassis_sdk.run` the program ends only once it has left. Safe to call
+        more than once, and from any task; a second call waits for the first to
+        finish. Cancelling it does not interrupt it: it returns (within about a second)
+        before the cancellation goes on.
+        With ``record``, the recording ends after the zero frame, which it holds unless
+        the zero had to wait for a device that was not reading.
         """
         try:
             await self._link.close()
