@@ -406,6 +406,24 @@ async def test_require_timestamp_refuses_a_command_without_one(
         await wait_until(lambda: bool(moving(sim)))
 
 
+async def test_a_burst_of_held_up_commands_moves_the_robot_only_as_the_newest_says(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot):
+        await ready(obs)
+        sent = time.time()
+        for k in range(10):  # what a stalled link delivers at once: 2-3 s old, then fresh
+            old = {"linear": 0.3, "angular": 0.0, "timestamp": sent - 3.0 + k * 0.1}
+            await obs.publish("robots/r1/cmd/velocity", old)
+        await obs.publish(
+            "robots/r1/cmd/velocity", {"linear": 0.1, "angular": 0.0, "timestamp": sent}
+        )
+        await wait_until(lambda: bool(moving(sim)))
+        await obs.wait(lambda: sum(e.get("count", 1) for e in obs.on("robots/r1/errors")) >= 10)
+        assert {c.linear_mm for _, c in moving(sim)} == {100}
+
+
 async def test_commands_held_up_by_a_stall_never_drive_when_it_ends() -> None:
     async with (
         broker() as b,
