@@ -26,6 +26,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import math
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -168,6 +169,10 @@ def check_fresh(
     return age
 
 
+_NUMBERS = re.compile(r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+_MAX_REASON_CHARS = 160
+
+
 @dataclass(frozen=True, slots=True)
 class RefusalReport:
     """What was refused since the previous report."""
@@ -180,7 +185,9 @@ class RefusalReport:
     where: str
     #: Why the latest one was refused.
     why: str
-    #: The reasons in this report with their counts (at most eight; the rest as "...").
+    #: The reasons in this report with their counts (at most eight), each with its
+    #: numbers as ``N`` (a stale command's age must not make every refusal a reason
+    #: of its own).
     reasons: dict[str, int]
     #: Refusals not reported at all (the reasons past eight), in this report.
     unlisted: int
@@ -231,10 +238,11 @@ class Refusals:
         self._count += 1
         self._where, self._why = where, why
         reasons = self._reasons
-        if why in reasons:
-            reasons[why] += 1
+        key = _NUMBERS.sub("N", why[:_MAX_REASON_CHARS])
+        if key in reasons:
+            reasons[key] += 1
         elif len(reasons) < self._MAX_REASONS:
-            reasons[why] = 1
+            reasons[key] = 1
         else:
             self._unlisted += 1
         return self.due()

@@ -157,12 +157,25 @@ def test_refusals_report_the_first_at_once_then_one_summary_per_interval() -> No
     assert refusals.due() is None
 
 
+def test_refusal_reasons_are_counted_by_their_text_without_numbers() -> None:
+    clock = [0.0]
+    refusals = Refusals(1.0, clock=lambda: clock[0])
+    refusals.add("t", "first")
+    for age in (0.81, 0.9, 1.25, 30.0):
+        refusals.add("t", f"the command is {age:.3f} s old (older than 0.5 s + 0.25 s skew)")
+    clock[0] = 5.0
+    report = refusals.due()
+    assert report is not None
+    assert report.reasons == {"the command is N s old (older than N s + N s skew)": 4}
+    assert report.why.startswith("the command is 30.000 s old")  # the latest, as it was
+
+
 def test_refusals_keep_at_most_eight_reasons() -> None:
     clock = [0.0]
     refusals = Refusals(1.0, clock=lambda: clock[0])
     refusals.add("t", "first")
     for i in range(20):
-        refusals.add("t", f"reason {i}")
+        refusals.add("t", f"reason {chr(ord('a') + i)}")
     clock[0] = 5.0
     report = refusals.due()
     assert report is not None
