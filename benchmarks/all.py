@@ -31,6 +31,8 @@ SCRIPTS = [
     "load.py",
     "phantoms.py",
     "mqtt_fleet.py",
+    "mqtt_hostile.py",
+    "stalled_port.py",
     "recording.py",
     "scaling.py",
 ]

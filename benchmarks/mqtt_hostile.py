@@ -267,7 +267,10 @@ async def main() -> None:
     parser.add_argument("--rate", type=float, default=10_000.0)
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--bound", type=float, default=30.0, help="longest wait for a figure")
+    parser.add_argument("--quick", action="store_true", help="floods of 1 s (as in CI)")
     args = parser.parse_args()
+    if args.quick:
+        args.seconds = min(args.seconds, 1.0)
     load_before = os.getloadavg()
     print(f"chassis_sdk from {Path(chassis_sdk.__file__).parent}")
     print(

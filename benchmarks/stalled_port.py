@@ -44,7 +44,11 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-BACKENDS = ("pyserial-asyncio", "pyserial-asyncio-fast", "serialx")
+BACKENDS = {
+    "pyserial-asyncio": "serial_asyncio",
+    "pyserial-asyncio-fast": "serial_asyncio_fast",
+    "serialx": "serialx",
+}
 TIMEOUT = 0.3
 
 
@@ -205,7 +209,10 @@ def main() -> None:
     print(f"stalled_port.py: chassis_sdk from {Path(chassis_sdk.__file__).parent}")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores,")
     print(f"  Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}")
-    for backend in BACKENDS:
+    for backend, module in BACKENDS.items():
+        if importlib.util.find_spec(module) is None:
+            print(f"\n== {backend}: not installed, skipped")
+            continue
         env = {**os.environ, "CHASSIS_SDK_BACKEND": backend}
         argv = [sys.executable, __file__, "--child"] + (["--quick"] * args.quick)
         proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
