@@ -22,8 +22,9 @@ child process with ``CHASSIS_SDK_BACKEND`` set):
   message (from the simulator's write to the SDK's receipt) and how many frames came in
   the first 30 ms (the floor: a fresh line gives 30).
 
-The stand-ins are the tests' own (tests/standin.py, loaded from this checkout by path),
-so an older ``chassis_sdk`` first on ``PYTHONPATH`` is measured against the same devices.
+The scenarios and stand-ins are the tests' own (tests/stalls.py, loaded from this
+checkout by path), so an older ``chassis_sdk`` first on ``PYTHONPATH`` is measured in
+the same scenarios against the same devices.
 """
 
 from __future__ import annotations
@@ -52,58 +53,40 @@ BACKENDS = {
 TIMEOUT = 0.3
 
 
-def _standin() -> Any:
-    spec = importlib.util.spec_from_file_location("_standin", ROOT / "tests" / "standin.py")
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["_standin"] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def _numbered(standin: Any, latency: float, tcp: bool) -> Any:
-    """A stand-in answering the n-th 0x07 request with version n after ``latency``."""
-
-    class Numbered(standin.ChassisStandIn):  # type: ignore[misc]
-        def on_frame(self, rec: Any) -> None:
-            if rec.kind != 0x07:
-                super().on_frame(rec)
-                return
-            n = len(self.of_kind(0x07))
-            reply = standin.frame_a(0x87, struct.pack("<H", n), self.next_seq(0x87))
-            asyncio.get_running_loop().call_later(latency, self.send, reply)
-
-    return Numbered(noise=False, tcp=tcp)
+def _scenarios() -> Any:
+    """tests/stalls.py (and the stand-ins it uses) from this checkout, as the package
+    ``_tests``: an older checkout on ``PYTHONPATH`` has its own ``tests``."""
+    if "_tests.stalls" not in sys.modules:
+        tests = ROOT / "tests"
+        spec = importlib.util.spec_from_file_location(
+            "_tests", tests / "__init__.py", submodule_search_locations=[str(tests)]
+        )
+        assert spec is not None
+        assert spec.loader is not None
+        package = importlib.util.module_from_spec(spec)
+        sys.modules["_tests"] = package
+        spec.loader.exec_module(package)
+    return importlib.import_module("_tests.stalls")
 
 
 async def _replies(factor: float, tcp: bool) -> dict[str, Any]:
-    from chassis_sdk import Chassis, RequestTimeoutError
+    from chassis_sdk import Chassis
 
-    standin = _standin()
+    stalls = _scenarios()
     async with (
-        _numbered(standin, factor * TIMEOUT, tcp) as dev,
+        stalls.NumberedReplies(noise=False, tcp=tcp, latency=factor * TIMEOUT) as dev,
         Chassis(dev.port, request_timeout=TIMEOUT, retries=2) as robot,
     ):
-        calls = []
-        for _ in range(4):
-            before = len(dev.of_kind(0x07))
-            try:
-                answer: int | None = await robot.get_firmware_version()
-            except RequestTimeoutError:
-                answer = None
-            async with asyncio.timeout(2):
-                while len(dev.frames) < robot.stats.frames_sent:  # noqa: ASYNC110 (a counter)
-                    await asyncio.sleep(0.005)
-            calls.append((list(range(before + 1, len(dev.of_kind(0x07)) + 1)), answer))
+        calls = await stalls.own_answers(dev, robot, 4)
     right = all(a is None or a in own for own, a in calls)
     return {"factor": factor, "tcp": tcp, "calls": calls, "every reply its own": right}
 
 
 async def _stall(stall: float, tcp: bool) -> dict[str, Any]:
-    from chassis_sdk import Chassis, NotConnectedError
+    from chassis_sdk import Chassis
 
-    standin = _standin()
+    stalls = _scenarios()
+    standin = sys.modules["_tests.standin"]
     options: dict[str, Any] = {}
     if "close_linger" in inspect.signature(Chassis).parameters:
         options["close_linger"] = stall + 3.0
@@ -111,22 +94,8 @@ async def _stall(stall: float, tcp: bool) -> dict[str, Any]:
         robot = Chassis(dev.port, **options)
         await robot.connect()
         dev.release_line()
-
-        async def control() -> None:
-            with contextlib.suppress(NotConnectedError):
-                while True:
-                    await robot.set_velocity(0.5, 0.0)
-                    await asyncio.sleep(0)
-
-        task = asyncio.create_task(control())
-        await dev.wait_for(lambda fs: bool(standin.drive_frames(fs)))  # driving at 0.5 m/s
         stalled = time.monotonic()
-        dev.stop_reading()
-        if not tcp:
-            dev.fill_line()
-        async with asyncio.timeout(20):
-            while robot.stats.frames_discarded < 3:  # noqa: ASYNC110 (a counter)
-                await asyncio.sleep(0.005)
+        task = await stalls.drive_until_the_link_blocks(dev, robot)
         t0 = time.monotonic()
         await robot.close()
         closing = time.monotonic() - t0
@@ -148,37 +117,8 @@ async def _stall(stall: float, tcp: bool) -> dict[str, Any]:
 
 
 async def _first_telemetry() -> dict[str, Any]:
-    from chassis_sdk import Chassis
-    from chassis_sdk.protocol import ChassisDecoder, Telemetry
-    from chassis_sdk.sim import ChassisSimulator, ChassisSpec
-
-    produced: list[tuple[float, bytes]] = []
-    async with ChassisSimulator(ChassisSpec(telemetry_period=0.001)) as sim:
-        send = sim.send
-
-        def record(data: bytes) -> None:
-            produced.append((time.monotonic(), data))
-            send(data)
-
-        sim.send = record  # type: ignore[method-assign]
-        async with asyncio.timeout(30):
-            while sim.bytes_discarded == 0:  # noqa: ASYNC110 (a counter)
-                await asyncio.sleep(0.05)
-        async with Chassis(sim.port) as robot:
-            got: list[Telemetry] = []
-            async with asyncio.timeout(5):
-                async for t in robot.telemetry():
-                    got.append(t)
-                    if t.timestamp - got[0].timestamp > 0.03:
-                        break
-        decoder = ChassisDecoder()
-        made_at: dict[int, float] = {}
-        for at, data in produced:
-            for m in decoder.feed(data):
-                if isinstance(m, Telemetry):
-                    made_at.setdefault(m.seq, at)
-    age = got[0].timestamp - made_at[got[0].seq]
-    return {"age of the first s": round(age, 4), "frames in the first 30 ms": len(got) - 1}
+    age, more = await _scenarios().first_telemetry(window=0.03)
+    return {"age of the first s": round(age, 4), "frames in the first 30 ms": more}
 
 
 async def _all(quick: bool) -> dict[str, Any]:

@@ -24,7 +24,7 @@ import threading
 import time
 import tty
 from collections.abc import Awaitable, Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,9 +41,9 @@ from chassis_sdk import (
     RequestTimeoutError,
 )
 from chassis_sdk.core.transport import wait_lingering
-from chassis_sdk.protocol import ChassisDecoder, Telemetry
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec
 
+from .stalls import NumberedReplies, drive_until_the_link_blocks, first_telemetry, own_answers
 from .standin import (
     BoardStandIn,
     ChassisStandIn,
@@ -181,25 +181,6 @@ async def test_stuck_device_gets_only_the_newest_velocity_when_it_reads_again(
         assert all(velocity(f)[0] in (0, 300) for f in drive_frames(dev.frames))
 
 
-async def _drive_until_the_link_blocks(dev: ChassisStandIn, robot: Chassis) -> asyncio.Task[None]:
-    """A control task driving at 0.5 m/s as fast as the loop lets it, against a device
-    that has stopped reading, until the port takes nothing more (frames are replaced)."""
-
-    async def control() -> None:
-        with contextlib.suppress(NotConnectedError):
-            while True:
-                await robot.set_velocity(0.5, 0.0)
-                await asyncio.sleep(0)
-
-    task = asyncio.create_task(control())
-    await dev.wait_for(lambda fs: bool(drive_frames(fs)))  # the robot drives at 0.5 m/s
-    dev.stop_reading()
-    if not dev.tcp:
-        dev.fill_line()  # the kernel's buffer is full: what minutes of not reading leave
-    await until(lambda: robot.stats.frames_discarded >= 3, timeout=20)
-    return task
-
-
 @pytest.mark.parametrize("tcp", TRANSPORTS)
 @pytest.mark.parametrize("stall", [0.4, 6.0])
 async def test_a_device_slow_to_read_at_close_gets_the_zero_as_its_last_frame(
@@ -213,7 +194,7 @@ async def test_a_device_slow_to_read_at_close_gets_the_zero_as_its_last_frame(
         dev.release_line()
         with unstick_after(dev, 30.0) if not tcp else contextlib.nullcontext():
             stalled = time.monotonic()
-            control = await _drive_until_the_link_blocks(dev, robot)
+            control = await drive_until_the_link_blocks(dev, robot)
             t0 = time.monotonic()
             await robot.close()
             assert time.monotonic() - t0 < 1.0, "close() waited for the device"
@@ -236,7 +217,7 @@ async def test_a_recording_does_not_cost_a_stalled_device_its_zero(
     async with ChassisStandIn(noise=False, tcp=True, tcp_rcvbuf=4096) as dev:
         robot = Chassis(dev.port, close_linger=5.0, record=tmp_path / "run.jsonl")
         await robot.connect()
-        control = await _drive_until_the_link_blocks(dev, robot)
+        control = await drive_until_the_link_blocks(dev, robot)
         await robot.close()
         await control
         for _ in range(20):  # telemetry keeps coming while the zero waits
@@ -255,7 +236,7 @@ async def test_past_close_linger_the_port_is_released_and_nothing_more_is_sent()
     async with ChassisStandIn(noise=False, tcp=True, tcp_rcvbuf=4096) as dev:
         robot = Chassis(dev.port, close_linger=0.3)
         await robot.connect()
-        control = await _drive_until_the_link_blocks(dev, robot)
+        control = await drive_until_the_link_blocks(dev, robot)
         t0 = time.monotonic()
         await robot.close()
         await control
@@ -278,7 +259,7 @@ async def test_run_waits_for_the_final_zero_of_a_device_slow_to_read() -> None:
         await dev.__aenter__()
         robot = Chassis(dev.port, close_linger=5.0)
         await robot.connect()
-        control = await _drive_until_the_link_blocks(dev, robot)
+        control = await drive_until_the_link_blocks(dev, robot)
         await robot.close()
         await control
         asyncio.get_running_loop().call_later(0.5, dev.resume_reading)
@@ -359,25 +340,9 @@ async def test_calls_racing_close_get_not_connected_error() -> None:
 # --- 3. a late reply never answers a later call ------------------------------------------------
 
 
-@dataclass
-class _NumberedReplies(ChassisStandIn):
-    """Answers the n-th 0x07 request with version n, after ``delays[n - 1]`` s."""
-
-    delays: list[float] = field(default_factory=list)
-
-    def on_frame(self, rec: Received) -> None:
-        if rec.kind != 0x07:
-            super().on_frame(rec)
-            return
-        n = len(self.of_kind(0x07))
-        reply = frame_a(0x87, struct.pack("<H", n), self.next_seq(0x87))
-        delay = self.delays[n - 1] if n <= len(self.delays) else 0.0
-        asyncio.get_running_loop().call_later(delay, self.send, reply)
-
-
 async def test_a_late_reply_does_not_answer_the_next_call() -> None:
     async with (
-        _NumberedReplies(noise=False, delays=[0.35, 0.3]) as dev,
+        NumberedReplies(noise=False, delays=[0.35, 0.3]) as dev,
         Chassis(dev.port, request_timeout=0.2, retries=0) as robot,
     ):
         with pytest.raises(RequestTimeoutError):
@@ -391,7 +356,7 @@ async def test_a_late_reply_does_not_answer_the_next_call() -> None:
 
 async def test_a_device_slower_than_the_timeout_never_returns_stale_data() -> None:
     async with (
-        _NumberedReplies(noise=False, delays=[0.3] * 10) as dev,
+        NumberedReplies(noise=False, delays=[0.3] * 10) as dev,
         Chassis(dev.port, request_timeout=0.2, retries=0) as robot,
     ):
         for _ in range(3):
@@ -410,19 +375,10 @@ async def test_on_a_slow_device_every_reply_answers_its_own_call(tcp: bool, fact
     # previous call's second attempt (the quarantine, one request_timeout, ran out first).
     timeout = 0.15
     async with (
-        _NumberedReplies(noise=False, tcp=tcp, delays=[factor * timeout] * 40) as dev,
+        NumberedReplies(noise=False, tcp=tcp, latency=factor * timeout) as dev,
         Chassis(dev.port, request_timeout=timeout, retries=2) as robot,
     ):
-        answers = []
-        for _ in range(4):
-            before = len(dev.of_kind(0x07))
-            try:
-                answer: int | None = await robot.get_firmware_version()
-            except RequestTimeoutError:
-                answer = None
-            await until(lambda: len(dev.frames) >= robot.stats.frames_sent)  # all read
-            own = range(before + 1, len(dev.of_kind(0x07)) + 1)
-            answers.append((list(own), answer))
+        answers = await own_answers(dev, robot, 4)
         assert all(a is None or a in own for own, a in answers), answers
         if factor < 2.5:  # (at 3x a reply comes just as its call's last attempt times out)
             assert sum(a is not None for _, a in answers) >= 2, answers  # it does answer
@@ -431,7 +387,7 @@ async def test_on_a_slow_device_every_reply_answers_its_own_call(tcp: bool, fact
 
 async def test_a_reply_to_an_earlier_attempt_answers_the_same_call() -> None:
     async with (
-        _NumberedReplies(noise=False, delays=[0.3, 0.25]) as dev,
+        NumberedReplies(noise=False, delays=[0.3, 0.25]) as dev,
         Chassis(dev.port, request_timeout=0.2, retries=2) as robot,
     ):
         # Attempt 1 at 0 s (answered at 0.3 s), attempt 2 at 0.2 s (answered at 0.45):
@@ -599,29 +555,8 @@ async def test_the_first_telemetry_after_opening_is_fresh_however_long_nobody_re
     # telemetry() loop got seconds-old frames (64 KiB the simulator held, behind what the
     # kernel held), thousands within milliseconds; now the port's input is flushed on
     # open and a device holds no more than a UART's worth, so the first frame is fresh.
-    produced: list[tuple[float, bytes]] = []
-    async with ChassisSimulator(ChassisSpec(telemetry_period=0.001)) as sim:
-        send = sim.send
-
-        def record(data: bytes) -> None:
-            produced.append((time.monotonic(), data))
-            send(data)
-
-        sim.send = record  # type: ignore[method-assign]
-        async with asyncio.timeout(30):
-            while sim.bytes_discarded == 0:  # the line is full: the device drops bytes
-                await asyncio.sleep(0.05)
-        async with Chassis(sim.port) as robot:
-            async for first in robot.telemetry():  # noqa: B007 (the first one is wanted)
-                break
-            decoder = ChassisDecoder()
-            made_at: dict[int, float] = {}
-            for at, data in produced:
-                for m in decoder.feed(data):
-                    if isinstance(m, Telemetry):
-                        made_at.setdefault(m.seq, at)
-            age = first.timestamp - made_at[first.seq]
-            assert age < 0.1, f"the first telemetry was made {age:.3f} s before it arrived"
+    age, _ = await first_telemetry()
+    assert age < 0.1, f"the first telemetry was made {age:.3f} s before it arrived"
 
 
 async def test_a_second_open_of_a_serial_port_fails_at_once_naming_the_holder() -> None:
