@@ -94,14 +94,15 @@ from .core.simulator import next_slot
 from .core.validation import check_real
 from .devices import DeviceProfile, profile
 from .errors import ChassisError
-from .inbound import CommandError as CommandError  # re-exported: it was defined here
 from .inbound import (
+    TIMESTAMP_SKEW,
     RefusalReport,
     Refusals,
     check_fresh,
     command_object,
     command_time,
 )
+from .inbound import CommandError as CommandError  # re-exported: it was defined here
 
 __all__ = [
     "CommandError",
@@ -171,6 +172,22 @@ class RobotIdTaken(ChassisError):
     over and stopped its robot. The message names the other bridge's owner."""
 
 
+def _deadman(device: Device[Any, Any]) -> float:
+    """The device's ``command_timeout`` (its deadman), or 0.5 s if it has none."""
+    timeout = getattr(device, "command_timeout", None)  # a public one, where it exists
+    if timeout is None:
+        # Device has no public accessor yet: its velocity watchdog holds the setting.
+        timeout = getattr(getattr(device, "_watchdog", None), "command_timeout", None)
+    if (
+        isinstance(timeout, int | float)
+        and not isinstance(timeout, bool)
+        and math.isfinite(timeout)
+        and timeout > 0
+    ):
+        return float(timeout)
+    return 0.5
+
+
 def _number(payload: dict[str, Any], key: str) -> float:
     try:
         return check_real(payload.get(key), repr(key))
@@ -220,6 +237,13 @@ class _Lanes:
         self.requests: deque[aiomqtt.Message] = deque()
         #: Commands dropped because a newer one made them moot.
         self.superseded = 0
+        #: Stops and e-stops sorted so far (and take-overs): a velocity command sorted
+        #: before the latest of them must never act, wherever it is when it moves on.
+        self.epoch = 0
+        #: The epoch the velocity command in the slot was sorted in.
+        self._velocity_epoch = 0
+        #: The velocity command last taken out by ``pop()``, and its epoch.
+        self._taken: tuple[aiomqtt.Message, int] | None = None
 
     def __len__(self) -> int:  # what ``get()`` can return (requests are not in it)
         return len(self.urgent) + (self.velocity is not None)
@@ -229,9 +253,28 @@ class _Lanes:
         if not new:
             self.superseded += 1
         self.velocity = message
+        self._velocity_epoch = self.epoch
         return new
 
+    def current(self, message: aiomqtt.Message) -> bool:
+        """Whether ``message``, a velocity command taken out by ``pop()``, was sorted
+        after the latest stop or e-stop (only then may it act)."""
+        taken = self._taken
+        return taken is not None and taken[0] is message and taken[1] == self.epoch
+
+    def put_back(self, message: aiomqtt.Message) -> None:
+        """Return a velocity command taken out by ``pop()`` to its slot, to wait there
+        for its period: dropped if a stop or e-stop came after it (paho sorted one
+        while it was out of the slot, so the stop could not cancel it), or if a newer
+        velocity command is in the slot already."""
+        if self.velocity is not None or not self.current(message):
+            self.superseded += 1
+            return
+        self.velocity = message
+        self._velocity_epoch = self.epoch
+
     def put_urgent(self, kind: str, message: aiomqtt.Message) -> bool:
+        self.epoch += 1  # a velocity command out of its slot now cannot act either
         if self.velocity is not None:  # it came before this stop: it must not follow it
             self.velocity = None
             self.superseded += 1
@@ -265,10 +308,12 @@ class _Lanes:
             return self.urgent.popleft()[1]
         message, self.velocity = self.velocity, None
         assert message is not None  # asyncio.Queue gets only when len() > 0
+        self._taken = (message, self._velocity_epoch)
         return message
 
     def clear(self) -> None:
         """Drop every pending command."""
+        self.epoch += 1
         self.superseded += len(self)
         self.urgent.clear()
         self.velocity = None
@@ -276,6 +321,7 @@ class _Lanes:
 
     def clear_motion(self) -> None:
         """Drop whatever could move the robot (the velocity command, releases)."""
+        self.epoch += 1
         if self.velocity is not None:
             self.velocity = None
             self.superseded += 1
@@ -341,8 +387,10 @@ class MqttBridge:
         require_timestamp: Refuse velocity commands and e-stop releases without a
             ``timestamp``.
         max_age: The oldest a command may be, by its ``timestamp`` (seconds; plus
-            :data:`chassis_sdk.inbound.TIMESTAMP_SKEW`): the device's
-            ``command_timeout``.
+            :data:`chassis_sdk.inbound.TIMESTAMP_SKEW`); default the device's
+            ``command_timeout`` (0.5 if it has none). A stamped velocity command holds
+            only until its stamp plus ``command_timeout`` (plus the skew), by this
+            computer's clock: its age is never given back to it.
         report_interval: Least seconds between two reports on ``errors``.
 
     Raises:
@@ -362,13 +410,17 @@ class MqttBridge:
         owner: str | None = None,
         take_over: bool = False,
         require_timestamp: bool = False,
-        max_age: float = 0.5,
+        max_age: float | None = None,
         report_interval: float = 1.0,
     ) -> None:
         for name, value in (("robot_id", robot_id), ("prefix", prefix)):
             if not value or not all(c.isalnum() or c in "-_" for c in value):
                 raise ValueError(f"{name} must be letters, digits, '-' or '_', got {value!r}")
         rate = check_real(rate, "rate", low=0, low_open=True, high=100, unit="per second")
+        #: The device's deadman: a stamped command holds until its stamp plus this.
+        self.deadman = _deadman(device)
+        if max_age is None:
+            max_age = self.deadman
         max_age = check_real(max_age, "max_age", low=0, low_open=True, unit="s")
         report_interval = check_real(report_interval, "report_interval", low=0, low_open=True)
         self.device = device
@@ -492,7 +544,12 @@ class MqttBridge:
         our own is the state we replaced (a retained one, or a racing bridge's claim).
         """
         self._online_payload = _state("ONLINE", self.owner, take_over=self.take_over)
-        await self.client.subscribe(f"{self.topic}/connection", options=SubscribeOptions(qos=1))
+        # Retain As Published (MQTT 5 §3.8.3.1): a bridge publishes its state retained,
+        # so a claim or take-over keeps RETAIN 1; a message without it is nobody's.
+        await self.client.subscribe(
+            f"{self.topic}/connection",
+            options=SubscribeOptions(qos=1, retainAsPublished=True),
+        )
         await self._subscribe_commands()  # held until the claim is settled (see _sort)
         await self._publish("connection", self._online_payload, qos=1, retain=True)
         try:
@@ -582,6 +639,8 @@ class MqttBridge:
         await self._bounded_publish(_state("CONNECTIONBROKEN", self.owner))  # aiomqtt changed
 
     async def _stop_robot(self) -> None:
+        if self.read_only:
+            return  # a viewer never writes to the device, not even a zero
         with contextlib.suppress(ChassisError):
             await self.device.stop()
 
@@ -775,6 +834,15 @@ class MqttBridge:
         if raw == self._online_payload and raw:
             self._echoed.set()
             return
+        if not message.retain:
+            # Every bridge publishes its state retained: a message without RETAIN is
+            # not a bridge's claim, and one of them must not end this bridge (it
+            # would leave the robot id ONLINE with nobody behind it). Refused, and
+            # reported on errors like any other (rate-limited).
+            raise CommandError(
+                "a connection message that is not retained is ignored (a bridge publishes "
+                "its state retained)"
+            )
         try:
             state = command_object(raw)
         except CommandError:
@@ -793,19 +861,35 @@ class MqttBridge:
             self._reassert = True
         self._owner_wanted.set()
 
-    def _check_time(self, payload: dict[str, Any]) -> None:
+    def _check_time(self, payload: dict[str, Any]) -> float | None:
+        """The command's timestamp (epoch seconds), checked fresh; ``None`` if none."""
         stamp = payload.get("timestamp")
         if stamp is None:
             if self.require_timestamp:
                 raise CommandError("the command has no 'timestamp', and this bridge requires one")
-            return
-        check_fresh(command_time(stamp), self.max_age)
+            return None
+        seconds = command_time(stamp)
+        check_fresh(seconds, self.max_age)
+        return seconds
 
-    def _velocity_of(self, message: aiomqtt.Message) -> tuple[float, float]:
+    def _velocity_of(self, message: aiomqtt.Message) -> tuple[float, float, float | None]:
         payload = command_object(message.payload)
         linear, angular = _number(payload, "linear"), _number(payload, "angular")
-        self._check_time(payload)
-        return linear, angular
+        return linear, angular, self._check_time(payload)
+
+    def _hold(self, stamp: float | None) -> float | None:
+        """How long a velocity command stamped ``stamp`` may hold from now: until its
+        stamp plus the deadman (plus the skew), never longer than the deadman; ``None``
+        (the device's own deadman) for a command without a timestamp."""
+        if stamp is None:
+            return None
+        left = stamp + self.deadman + TIMESTAMP_SKEW - _now()
+        if left <= 0:
+            raise CommandError(
+                f"the command is {_now() - stamp:.3f} s old: its {self.deadman:g} s deadman "
+                "(plus the skew) ran out before it could act"
+            )
+        return min(self.deadman, left)
 
     def _estop_of(self, message: aiomqtt.Message) -> bool:
         payload = command_object(message.payload)
@@ -829,10 +913,7 @@ class MqttBridge:
                     # newest: the work (and the serial line) stays bounded whatever
                     # the rate. It waits in its slot, where a newer one replaces it
                     # and a stop or e-stop cancels it and is served at once.
-                    if lanes.velocity is None:
-                        lanes.velocity = message
-                    else:
-                        lanes.superseded += 1
+                    lanes.put_back(message)  # dropped if a stop came after it
                     self._urgent.clear()
                     if not lanes.urgent:
                         with contextlib.suppress(TimeoutError):
@@ -851,10 +932,18 @@ class MqttBridge:
             return
         name = message.topic.value.rpartition("/")[2]
         if name == "velocity":
+            if not self._inbox.lanes.current(message):
+                # A stop or e-stop was sorted after it (while it was out of its slot):
+                # it must never act after that stop.
+                self._inbox.lanes.superseded += 1
+                return
             # Checked again: it may have waited (a little) for a stop to be served.
-            linear, angular = self._velocity_of(message)
-            # One fresh command under the deadman: it holds command_timeout, no longer.
-            await self.device.set_velocity(linear, angular)
+            linear, angular, stamp = self._velocity_of(message)
+            # One command under the deadman, counted from when it was sent: a stamped
+            # command holds until its stamp plus command_timeout, no longer (a newer
+            # one replaces it). Nothing awaits between the epoch's check and the write
+            # (set_velocity writes before its first await), so no stop comes between.
+            await self.device.set_velocity(linear, angular, duration=self._hold(stamp))
         elif name == "stop":
             await self.device.stop()
         elif name == "estop":

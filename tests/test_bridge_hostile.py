@@ -23,7 +23,8 @@ import sys
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
+from types import SimpleNamespace
+from typing import Any, cast
 
 import aiomqtt
 import pytest
@@ -31,6 +32,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from chassis_sdk import Board, Chassis
+from chassis_sdk import bridge as bridge_module
 from chassis_sdk.bridge import MqttBridge, RobotIdTaken
 from chassis_sdk.protocol import CommandId, DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
@@ -633,3 +635,123 @@ async def test_json_that_is_not_quite_json_is_refused(
         await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
         assert why in obs.on("robots/r1/errors")[0]["error"]
         assert drives(sim) == []
+
+
+# --- review: a velocity command never acts after a stop sorted after it -----------------
+
+
+class _Messages:
+    """What ``client.messages`` is to ``MqttBridge._commands``, over the bridge's own
+    inbox: ``hook`` runs after a message is taken out and before the loop sees it, as
+    paho's callback may run between aiomqtt's get task and the loop resuming."""
+
+    def __init__(self, inbox: Any, hook: Any) -> None:
+        self.inbox, self.hook = inbox, hook
+
+    def __aiter__(self) -> _Messages:
+        return self
+
+    async def __anext__(self) -> aiomqtt.Message:
+        message: aiomqtt.Message = await self.inbox.get()
+        self.hook(message)
+        return message
+
+
+def command(name: str, payload: bytes) -> aiomqtt.Message:
+    return aiomqtt.Message(f"robots/r1/cmd/{name}", payload, 0, False, 1, None)
+
+
+async def test_a_velocity_taken_out_before_a_stop_never_acts_after_it(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    b, sim, robot, _obs = stand
+    monkeypatch.setattr(bridge_module, "_VELOCITY_PERIOD", 0.3)  # V comes within it
+    bridge = MqttBridge(robot, bridge_client(b, "r1"), "r1")
+    bridge._echoed.set()  # the claim is settled: commands are taken
+    inbox = bridge._inbox
+    late = command("velocity", b'{"linear": 0.3, "angular": 0}')
+
+    def stop_after(message: aiomqtt.Message) -> None:
+        if message is late:  # out of its slot: the stop finds the slot empty
+            inbox.put_nowait(command("stop", b""))
+
+    bridge.client = cast(Any, SimpleNamespace(messages=_Messages(inbox, stop_after)))
+    loop = asyncio.create_task(bridge._commands())
+    try:
+        inbox.put_nowait(command("velocity", b'{"linear": 0.1, "angular": 0}'))
+        await wait_until(lambda: robot.commanded_velocity == (0.1, 0.0))
+        inbox.put_nowait(late)  # within the velocity period of the first
+        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))  # the stop
+        await asyncio.sleep(0.6)  # two velocity periods: a put-back V would have acted
+    finally:
+        loop.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await loop
+    assert all(c.linear_mm != 300 for c in drives(sim))
+    assert robot.commanded_velocity is None
+    assert bridge.superseded == 1
+
+
+# --- review: a connection message without RETAIN is nobody's claim ----------------------
+
+
+async def test_a_take_over_that_is_not_retained_is_ignored_and_reported(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot) as (bridge, task):
+        await ready(obs)
+        claim = {"state": "ONLINE", "take_over": True, "owner": "x", "timestamp": time.time()}
+        await obs.publish("robots/r1/connection", claim)  # not retained: no bridge's
+        await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
+        assert "not retained" in obs.on("robots/r1/errors")[0]["error"]
+        assert not task.done()
+        assert bridge.online
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
+        await wait_until(lambda: bool(moving(sim)))  # it still owns the robot
+        assert not task.done()
+    # The retained state is the bridge's own goodbye, never an ONLINE left behind.
+    async with Watcher(b) as late:
+        await late.wait(lambda: bool(late.on("robots/r1/connection")))
+        assert late.on("robots/r1/connection")[-1]["state"] == "OFFLINE"
+        assert late.on("robots/r1/connection")[-1]["owner"] == bridge.owner
+
+
+# --- review: a command's age counts against its deadman ----------------------------------
+
+
+async def test_a_stamped_command_holds_only_until_its_stamp_plus_command_timeout() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=0.8) as robot,
+        Watcher(b) as obs,
+        running(b, robot) as (bridge, _),
+    ):
+        await ready(obs)
+        command = {"linear": 0.3, "angular": 0.0, "timestamp": time.time() - 0.6}
+        await obs.publish("robots/r1/cmd/velocity", command)
+        await wait_until(lambda: bool(moving(sim)))
+        start = moving(sim)[0][0]
+        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=3)
+        zero = next(t for t, c in sim.firmware.received if t > start and c == DriveVelocity(0, 0.0))
+        # 0.8 s after its stamp, plus the 0.25 s skew at most: 0.2-0.45 s from now.
+        assert 0.1 < zero - start < 0.5, zero - start
+        assert bridge.max_age == 0.8  # the device's deadman, not a fixed 0.5
+
+
+# --- review: a viewer never writes --------------------------------------------------------
+
+
+async def test_a_read_only_bridge_losing_its_broker_writes_no_frame(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, sim, robot, obs = stand
+    async with running(b, robot, read_only=True) as (_bridge, task):
+        await ready(obs)
+        before = len(drives(sim))
+        b.kill()
+        with pytest.raises(aiomqtt.MqttError):
+            await asyncio.wait_for(task, 10)
+        await asyncio.sleep(0.3)
+        assert len(drives(sim)) == before  # not even a zero
