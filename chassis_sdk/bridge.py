@@ -211,19 +211,50 @@ def _why(exc: Exception) -> str:
 #: ``{prefix}/{id}/cmd/...`` and ``{prefix}/{id}/request/...`` of any robot: never a
 #: response topic, or a request could command a robot (its own or another).
 _COMMAND_TREE = re.compile(r"^[^/]+/[^/]+/(cmd|request)(/|$)")
+#: The subtrees of a robot under the bridge's prefix: what a bridge publishes or takes
+#: there (a reply must not forge a robot's state, nor command one).
+_ROBOT_TREES = ("connection", "cmd", "request", "errors", "info", "link", "telemetry", "events")
+#: The longest response topic and correlation data answered (bytes): a reply is small,
+#: and a request must not make the bridge publish (or hold) much more than it sent.
+_MAX_RESPONSE_TOPIC = 1024
+_MAX_CORRELATION = 1024
 
 
-def _check_response_topic(topic: object) -> str:
-    """A response topic the bridge may publish to (MQTT 5 §3.3.2.3.5, §4.7)."""
+def _check_response_topic(topic: object, prefix: str = "robots") -> str:
+    """A response topic the bridge may publish to (MQTT 5 §3.3.2.3.5, §4.7): at most
+    1024 bytes, no wildcard, and never in a robot's subtree under ``prefix``."""
     if not isinstance(topic, str) or not topic:
         raise CommandError("a request needs an MQTT 5 response topic")
     if "#" in topic or "+" in topic:
         raise CommandError("the response topic has a wildcard ('#' or '+'; MQTT 5 §3.3.2.3.5)")
-    if "\x00" in topic or len(topic.encode()) > 65535:
-        raise CommandError("the response topic is not a valid topic name")
+    size = len(topic.encode(errors="replace"))
+    if size > _MAX_RESPONSE_TOPIC:
+        raise CommandError(
+            f"the response topic is {size} bytes; at most {_MAX_RESPONSE_TOPIC} are answered"
+        )
+    if "\x00" in topic or topic.startswith("$"):
+        raise CommandError("the response topic is not a topic a client may publish to")
     if _COMMAND_TREE.match(topic):
         raise CommandError("the response topic is a command or request topic")
+    levels = topic.split("/")
+    if len(levels) >= 3 and levels[0] == prefix and levels[2] in _ROBOT_TREES:
+        raise CommandError(
+            f"the response topic is in a robot's {levels[2]!r} subtree under {prefix!r}/"
+        )
     return topic
+
+
+def _check_correlation(data: object) -> bytes | None:
+    """The correlation data to send back, at most 1024 bytes (``None``: there is none)."""
+    if data is None:
+        return None
+    if not isinstance(data, bytes | bytearray):
+        raise CommandError(f"the correlation data is {type(data).__name__}, not bytes")
+    if len(data) > _MAX_CORRELATION:
+        raise CommandError(
+            f"the correlation data is {len(data)} bytes; at most {_MAX_CORRELATION} are answered"
+        )
+    return bytes(data)
 
 
 class _Lanes:
@@ -742,6 +773,8 @@ class MqttBridge:
                 }
                 if report.count > 1:
                     body["reasons"] = report.reasons
+                # Refusals whose reasons did not fit in ``reasons`` (at most eight).
+                body["unlisted"] = report.unlisted
                 await self._publish("errors", json.dumps(body).encode(), qos=1)
 
     async def _ownership(self) -> None:
@@ -971,9 +1004,9 @@ class MqttBridge:
     async def _request(self, message: aiomqtt.Message) -> None:
         name = message.topic.value.rpartition("/")[2]
         props = message.properties
-        response = _check_response_topic(getattr(props, "ResponseTopic", None))
+        response = _check_response_topic(getattr(props, "ResponseTopic", None), self.prefix)
+        correlation = _check_correlation(getattr(props, "CorrelationData", None))
         reply = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
-        correlation = getattr(props, "CorrelationData", None)
         if correlation is not None:
             reply.CorrelationData = correlation
         if name not in self.profile.requests:

@@ -755,3 +755,95 @@ async def test_a_read_only_bridge_losing_its_broker_writes_no_frame(
             await asyncio.wait_for(task, 10)
         await asyncio.sleep(0.3)
         assert len(drives(sim)) == before  # not even a zero
+
+
+# --- review: response topics and correlation data ----------------------------------------
+
+
+async def test_a_response_topic_in_a_robots_subtree_or_too_long_is_refused(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, _sim, robot, obs = stand
+    await obs.client.subscribe("replies/#", qos=1)
+    await obs.client.subscribe("robots/r1/replies/#", qos=1)
+    refused = [
+        ("r/" + "x" * 1098, "1100 bytes"),
+        ("robots/r2/telemetry/telemetry", "'telemetry' subtree"),
+        ("robots/r1/connection", "'connection' subtree"),
+        ("robots/r1/info", "'info' subtree"),
+        ("robots/r3/errors", "'errors' subtree"),
+        ("robots/r1/link", "'link' subtree"),
+        ("robots/r2/events", "'events' subtree"),
+        ("robots/r1/cmd/stop", "command or request topic"),
+        ("$SYS/x", "may publish to"),
+    ]
+    async with running(b, robot, report_interval=0.01):
+        await ready(obs)
+        for n, (topic, why) in enumerate(refused, 1):
+            await obs.client.publish("robots/r1/request/diagnose", b"", properties=props(topic))
+            await obs.wait(lambda n=n: len(obs.on("robots/r1/errors")) >= n)  # type: ignore[misc]
+            assert why in obs.on("robots/r1/errors")[-1]["error"], topic
+        long = props("replies/ok")
+        long.CorrelationData = b"c" * 2000
+        await obs.client.publish("robots/r1/request/diagnose", b"", properties=long)
+        await obs.wait(lambda: len(obs.on("robots/r1/errors")) > len(refused))
+        assert "correlation data is 2000 bytes" in obs.on("robots/r1/errors")[-1]["error"]
+        # Outside every robot's subtrees, and 1024 bytes at most: answered.
+        for topic in ("robots/r1/replies/a", "replies/" + "y" * 1016):
+            await obs.client.publish("robots/r1/request/diagnose", b"", properties=props(topic))
+            await obs.wait(lambda topic=topic: bool(obs.on(topic)))  # type: ignore[misc]
+        assert obs.on("replies/ok") == []
+        assert not any(t.startswith(("robots/r2", "robots/r3")) for t, _, _ in obs.seen)
+
+
+# --- review: refusals past the eight reasons are counted on errors -----------------------
+
+
+async def test_the_refusals_past_eight_reasons_are_published_as_unlisted(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    b, _sim, robot, obs = stand
+    async with running(b, robot):
+        await ready(obs)
+        for name in "abcdefghijkl":  # twelve reasons of their own
+            await obs.publish(f"robots/r1/cmd/{name}", b"{}")
+        await obs.wait(lambda: sum(e["count"] for e in obs.on("robots/r1/errors")) == 12)
+    errors = obs.on("robots/r1/errors")
+    for report in errors:
+        assert report["count"] == sum(report.get("reasons", {"x": 1}).values()) + report["unlisted"]
+    assert sum(e["unlisted"] for e in errors) == 12 - 1 - 8  # the first alone, then 8 listed
+
+
+# --- review: the bridge command retries whatever ends the bridge, but a taken robot id ---
+
+
+async def test_the_bridge_command_retries_when_the_broker_never_echoes_its_claim(
+    tmp_path: Path,
+) -> None:
+    acl = tmp_path / "acl"  # the bridge may write its connection topic, never read it
+    acl.write_text(
+        "topic write robots/r1/connection\n"
+        + "".join(
+            f"topic readwrite robots/r1/{t}\n"
+            for t in ("cmd/#", "request/#", "info", "link", "telemetry/#", "events", "errors")
+        )
+    )
+    async with (
+        broker(f"allow_anonymous true\nacl_file {acl}\n") as b,
+        ChassisSimulator() as sim,
+        Watcher(b) as obs,
+        cli_bridge(b, sim, obs, "r1", wait=False) as proc,
+    ):
+        assert proc.stdout is not None
+        lines: list[str] = []
+        async with asyncio.timeout(25):
+            while not any("retrying" in line for line in lines):
+                line = (await proc.stdout.readline()).decode()
+                assert line, f"the bridge command ended: {lines}"
+                lines.append(line)
+        assert proc.returncode is None  # it goes on
+    assert proc.stderr is not None
+    err = (await proc.stderr.read()).decode()
+    retry = next(line for line in lines if "retrying" in line)
+    assert "did not send this bridge's ONLINE back" in retry
+    assert "Traceback" not in err

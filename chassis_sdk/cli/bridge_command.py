@@ -47,7 +47,7 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     try:
         import aiomqtt
 
-        from ..bridge import CommandInbox, MqttBridge, connection_will, new_owner
+        from ..bridge import CommandInbox, MqttBridge, RobotIdTaken, connection_will, new_owner
     except ImportError:
         raise ChassisError("bridge needs aiomqtt: pip install 'chassis-sdk[mqtt]'") from None
     host, broker_port, tls = _broker(args.broker)
@@ -94,13 +94,24 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
             )
             started = asyncio.get_running_loop().time()
             try:
-                await bridge.run()  # RobotIdTaken ends the command with its one line
-            except aiomqtt.MqttError as exc:
+                await bridge.run()
+            except RobotIdTaken:
+                raise  # another bridge owns the robot id: the command ends with its one line
+            except Exception as exc:
+                # Anything else (the broker lost, its echo late on a slow broker, a bug
+                # in one of the bridge's tasks) is retried: a service must not end on
+                # it. One line each time, never a traceback.
                 take_over = take_over and not bridge.online
                 if asyncio.get_running_loop().time() - started > 5.0:
                     backoff.reset()  # it had been up: start the backoff over
                 delay = backoff.next()
-                out(f"broker {args.broker}: {exc}; the robot is stopped; retrying in {delay:.1f} s")
+                what = (
+                    f"broker {args.broker}: {exc}"
+                    if isinstance(exc, aiomqtt.MqttError)
+                    else f"bridge {where}: {type(exc).__name__}: {exc}"
+                )
+                stopped = "" if args.read_only else "; the robot is stopped"
+                out(f"{' '.join(what.split())[:500]}{stopped}; retrying in {delay:.1f} s")
                 await asyncio.sleep(delay)
                 continue
             take_over = take_over and not bridge.online
