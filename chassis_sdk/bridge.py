@@ -26,13 +26,14 @@ Why it is shaped this way
 -------------------------
 A command must never move the robot late. Commands are QoS 0 on a clean session (a
 broker keeps nothing for a bridge that is away), a retained, stale or expired command
-is refused, and each velocity command is one fresh command under the SDK's deadman
-(``command_timeout``): a dashboard that dies, or a Wi-Fi drop, stops the robot within
-half a second. Losing the broker writes zero at once, and nothing moves the robot
-again but a new command after the bridge is back. The connection topic follows VDA
-5050: ``ONLINE`` while bridged, ``OFFLINE`` after a clean stop, and the broker
-publishes the last will ``CONNECTIONBROKEN`` when the bridge vanishes, or ends on an
-error of its own (it then disconnects with reason 0x04, "with Will Message").
+is refused, and each velocity command is one command under the SDK's deadman
+(``command_timeout``, counted from its ``timestamp`` when it has one): a dashboard
+that dies, or a Wi-Fi drop, stops the robot within half a second. Losing the broker
+writes zero at once, and nothing moves the robot again but a new command after the
+bridge is back. The connection topic follows VDA 5050: ``ONLINE`` while bridged,
+``OFFLINE`` after a clean stop, and the broker publishes the last will
+``CONNECTIONBROKEN`` when the bridge vanishes, or ends on an error of its own (it then
+disconnects with reason 0x04, "with Will Message").
 
 Messages come from a network the robot does not control, so nothing about one may
 end the bridge, and no rate of them may delay a stop. Both are settled where a
@@ -517,7 +518,8 @@ class MqttBridge:
     async def run(self) -> None:
         """Bridge until cancelled (then publish ``OFFLINE``) or the broker is lost.
 
-        The device is stopped (zero velocity) whenever this returns or raises. If it
+        The device is stopped (zero velocity) whenever this returns or raises, unless
+        the bridge is ``read_only`` (a viewer never writes to the device). If it
         ends on an error of its own, it disconnects so that the broker publishes the
         last will (``CONNECTIONBROKEN``).
 
