@@ -175,18 +175,8 @@ class RobotIdTaken(ChassisError):
 
 def _deadman(device: Device[Any, Any]) -> float:
     """The device's ``command_timeout`` (its deadman), or 0.5 s if it has none."""
-    timeout = getattr(device, "command_timeout", None)  # a public one, where it exists
-    if timeout is None:
-        # Device has no public accessor yet: its velocity watchdog holds the setting.
-        timeout = getattr(getattr(device, "_watchdog", None), "command_timeout", None)
-    if (
-        isinstance(timeout, int | float)
-        and not isinstance(timeout, bool)
-        and math.isfinite(timeout)
-        and timeout > 0
-    ):
-        return float(timeout)
-    return 0.5
+    timeout = device.command_timeout
+    return 0.5 if timeout is None else float(timeout)
 
 
 def _number(payload: dict[str, Any], key: str) -> float:

@@ -266,6 +266,12 @@ class Device(Motion, Observation, Generic[M, K]):
         self._requests.timeout = check_real(value, "request_timeout", **_POSITIVE)
 
     @property
+    def command_timeout(self) -> float | None:
+        """The deadman (s): a velocity command without ``duration`` expires this long
+        after the last call; ``None``: it holds until :meth:`stop`."""
+        return self._watchdog.command_timeout
+
+    @property
     def retries(self) -> int:
         """Extra attempts of a read-only request after a timeout (may be changed)."""
         return self._requests.retries
