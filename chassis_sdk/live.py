@@ -33,8 +33,18 @@ the token (HTTP 401 without it). Then it relays the frames both ways unchanged,
 except that a client channel advertised again under the same id is first unadvertised
 (foxglove-sdk would silently keep the first schema, so a channel re-advertised as
 ``std_msgs/String`` would go on driving). Each relayed connection proves itself to the
-server with a secret, so a client that reaches the private port directly cannot drive
-or release an e-stop (it can still watch, and call ``stop``/``emergency_stop``).
+server with a secret (new each time the server starts), so a client that reaches the
+private port directly cannot drive, release an e-stop or clear faults: every service
+but ``stop`` and ``emergency_stop`` requires the proof. What the private port does
+expose, to any local user or program (loopback is open to every account, and
+``ss -lt`` lists it), without the token or the Origin check: every stream, and the
+calls ``stop`` and ``emergency_stop``.
+
+The front relays only text frames that are JSON objects (others are refused and
+reported), and at most :data:`MAX_CLIENT_CHANNELS` client channels per connection.
+Leaving the server (``async with``, :meth:`FoxgloveServer.aclose`) first stops a robot
+a Teleop client was driving, then shuts down the front and foxglove-sdk's server in
+worker threads, so a client that does not read cannot block the event loop.
 
 The WebSocket subprotocol is ``foxglove.sdk.v1`` (foxglove-sdk's name for the
 protocol formerly called ``foxglove.websocket.v1``; the messages are the same).
@@ -43,6 +53,7 @@ protocol formerly called ``foxglove.websocket.v1``; the messages are the same).
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import hmac
 import http
@@ -64,10 +75,12 @@ from urllib.parse import parse_qs, urlsplit
 
 from .core.device import Device
 from .core.recording import FoxgloveSink, session_metadata
+from .errors import ChassisError
 from .inbound import CommandError, RefusalReport, Refusals, command_object
 
 __all__ = [
     "APP_ORIGINS",
+    "MAX_CLIENT_CHANNELS",
     "SAFE_SERVICES",
     "SERVICES",
     "TWIST_SCHEMAS",
@@ -126,6 +139,20 @@ _CLIENT_MESSAGE = 0x01  # binary opcode, client -> server: channel id, payload
 #: The largest frame a client may send the front (a Twist is about 60 bytes; the
 #: largest protocol message a client sends is an advertise with its schemas).
 _MAX_CLIENT_FRAME = 1 << 20
+#: The most client channels one connection may have advertised at a time (the front
+#: keeps a record of each; a Teleop panel needs one).
+MAX_CLIENT_CHANNELS = 256
+#: The front's ``websockets`` close and open timeouts (seconds): how long a closing
+#: connection whose peer does not read, or a handshake that never completes, can hold
+#: the front's shutdown.
+_FRONT_TIMEOUT = 1.0
+#: The longest the front's thread is waited for on leaving (beyond it, it is left to
+#: end on its own: a daemon thread).
+_FRONT_JOIN = 3.0
+#: The ids of the warning statuses, one per kind of report: a new summary replaces the
+#: one the app shows instead of piling up.
+STATUS_REFUSALS = "chassis-sdk-refusals"
+STATUS_HANDSHAKE = "chassis-sdk-handshake"
 
 
 def is_loopback(host: str) -> bool:
@@ -298,6 +325,9 @@ class FoxgloveServer:
         # whether a hand-over is queued or running (then no other is queued).
         self._pending: tuple[float, float] | None = None
         self._driving = False
+        # Set on leaving: no Twist is taken any more (the robot has been stopped).
+        self._closing = False
+        self._handing: asyncio.Future[None] | None = None  # the hand-over running
 
     def _report_clock(self) -> float:
         return math.inf if self._stopping else time.monotonic()
@@ -323,7 +353,7 @@ class FoxgloveServer:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.stop()
+        await self.aclose()
 
     def start(self) -> None:
         """Start serving (from the event loop's thread).
@@ -334,6 +364,16 @@ class FoxgloveServer:
         from foxglove.websocket import Capability
 
         self._loop = asyncio.get_running_loop()
+        # Fresh per-run state: the new server numbers its clients from 1 again, so a
+        # client id proven (or driving) in the last run means nothing in this one.
+        with self._lock:
+            self._teleop = {}
+            self._fronted = set()
+            self._pending = None
+            self._driving = False
+            self._closing = False
+        self._handing = None
+        self._secret = secrets.token_hex(16)
         # Fresh reporters: the last stop() took every interval as passed.
         self._reports = Refusals(REPORT_INTERVAL, clock=self._report_clock)
         self._handshake_reports = Refusals(REPORT_INTERVAL, clock=self._report_clock)
@@ -387,17 +427,74 @@ class FoxgloveServer:
             "required" if self._token is not None else "none",
         )
 
+    async def aclose(self) -> None:
+        """Stop serving without blocking the event loop (what ``async with`` does).
+
+        If a Teleop client was driving, the robot is stopped first (zero velocity now,
+        not at the deadman); the device goes on. Then the front and foxglove-sdk's
+        server are shut down in worker threads, each waited for a bounded time.
+        """
+        if self._end_teleop() and not self.read_only:
+            await self._stop_robot()
+            handing = self._handing
+            if handing is not None and not handing.done():
+                # A velocity handed over just before may land after that zero: wait
+                # for it (bounded), then zero again.
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(asyncio.shield(handing), _FRONT_TIMEOUT)
+                await self._stop_robot()
+        front, self._front = self._front, None
+        if front is not None:
+            front.signal_stop()
+            await asyncio.to_thread(front.join, _FRONT_JOIN)
+            self._flush_final()
+        server, self._server = self._server, None
+        if server is not None:
+            await asyncio.to_thread(server.stop)
+        self._release()
+
+    async def _stop_robot(self) -> None:
+        if not self.device.is_connected:
+            return
+        # A link that just dropped (or a stop that cannot be written at once) is no
+        # reason to stay: the device's own deadman goes on meanwhile.
+        with contextlib.suppress(ChassisError, TimeoutError):
+            await asyncio.wait_for(self.device.stop(), _FRONT_TIMEOUT)
+
     def stop(self) -> None:
-        """Stop serving (the device goes on; close it to stop the robot)."""
-        if self._front is not None:
-            self._front.stop()
-            self._front = None
-            self._stopping = True  # what is pending is reported now, not lost
+        """Stop serving, blocking until the front's thread ends (up to a few seconds
+        with a client that does not read): from async code, ``await aclose()``.
+
+        If a Teleop client was driving, a stop of the robot is queued in the loop."""
+        if self._end_teleop() and not self.read_only:
+            self._in_loop(self._stop_now)
+        front, self._front = self._front, None
+        if front is not None:
+            front.signal_stop()
+            front.join(_FRONT_JOIN)
+            self._flush_final()
+        server, self._server = self._server, None
+        if server is not None:
+            server.stop()
+        self._release()
+
+    def _end_teleop(self) -> bool:
+        """Take no more Twists; whether a Teleop client was driving (or about to)."""
+        with self._lock:
+            self._closing = True
+            driving = bool(self._teleop) or self._pending is not None or self._driving
+            self._teleop.clear()
+            self._pending = None
+        return driving
+
+    def _flush_final(self) -> None:
+        self._stopping = True  # what is pending is reported now, not lost
+        try:
             self._flush_reports()
+        finally:
             self._stopping = False
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+
+    def _release(self) -> None:
         if self._sink is not None:
             self._sink.detach()
             self._sink = None
@@ -440,7 +537,7 @@ class FoxgloveServer:
                 f"the latest from {report.where}: {report.why}"
             )
         _log.warning("%s", line)
-        self._status(line)
+        self._status(line, STATUS_HANDSHAKE)
 
     def _flush_reports(self) -> None:
         """Send what is pending (called every so often by the front)."""
@@ -491,10 +588,16 @@ class FoxgloveServer:
         loop = self._loop
         if loop is None or loop.is_closed():
             return False, "the server is stopping"
+        future = asyncio.run_coroutine_threadsafe(call(), loop)
         try:
-            asyncio.run_coroutine_threadsafe(call(), loop).result(_SERVICE_TIMEOUT)
+            future.result(_SERVICE_TIMEOUT)
         except TimeoutError:
+            # Reported as not done: it must not be done later (a release of an
+            # e-stop the operator was told did not happen).
+            future.cancel()
             return False, f"no answer within {_SERVICE_TIMEOUT:g} s"
+        except concurrent.futures.CancelledError:
+            return False, "cancelled (the server is stopping)"
         except Exception as exc:  # the device's own error, for the app to show
             return False, str(exc) or type(exc).__name__
         return True, "done"
@@ -554,6 +657,8 @@ class FoxgloveServer:
             )
         elif is_twist:
             with self._lock:
+                if self._closing:
+                    return  # leaving: the robot has been stopped
                 self._teleop[key] = _shown(channel.topic)
             _log.info("client %d drives on %s", client.id, _shown(channel.topic))
             return
@@ -591,6 +696,8 @@ class FoxgloveServer:
             self._refuse(f"velocity on {topic}", str(exc))
             return
         with self._lock:
+            if self._closing or (client.id, client_channel_id) not in self._teleop:
+                return  # leaving, or the channel went away meanwhile: it never drives
             if self._pending is not None:
                 self.superseded += 1
             self._pending = (linear, angular)
@@ -624,6 +731,7 @@ class FoxgloveServer:
                 return
         linear, angular = target
         task = asyncio.ensure_future(self.device.set_velocity(linear, angular))
+        self._handing = task
 
         def done(task: asyncio.Future[None]) -> None:
             if not task.cancelled():
@@ -663,17 +771,15 @@ class FoxgloveServer:
         if report.count > 1:
             line += f" ({report.total} in all)"
         _log.warning("%s", line)
-        self._status(line)
+        self._status(line, STATUS_REFUSALS)
 
-    def _status(self, message: str) -> None:
+    def _status(self, message: str, kind: str) -> None:
         server = self._server
         if server is not None:
             from foxglove.websocket import StatusLevel
 
             with contextlib.suppress(Exception):  # the server is stopping
-                server.publish_status(
-                    message[:1000], StatusLevel.Warning, id=f"refused-{time.monotonic_ns()}"
-                )
+                server.publish_status(message[:1000], StatusLevel.Warning, id=kind)
 
 
 def _shown(text: object, limit: int = 80) -> str:
@@ -762,13 +868,21 @@ class _Front:
             self._thread.join()
             raise RuntimeError(str(self._error)) from None
 
-    def stop(self) -> None:
-        loop, stopping, thread = self._loop, self._stopping, self._thread
+    def signal_stop(self) -> None:
+        """Tell the front's loop to close (returns at once)."""
+        loop, stopping = self._loop, self._stopping
         if loop is not None and stopping is not None and not loop.is_closed():
             with contextlib.suppress(RuntimeError):
                 loop.call_soon_threadsafe(stopping.set)
+
+    def join(self, timeout: float) -> None:
+        """Wait up to ``timeout`` for the front's thread to end (it closes within about
+        :data:`_FRONT_TIMEOUT` of :meth:`signal_stop`, whatever the clients do)."""
+        thread = self._thread
         if thread is not None:
-            thread.join(10.0)
+            thread.join(timeout)
+            if thread.is_alive():
+                _log.warning("the Foxglove front did not close within %g s", timeout)
 
     def _run(self, host: str, port: int) -> None:
         try:
@@ -796,6 +910,10 @@ class _Front:
                 max_size=_MAX_CLIENT_FRAME,
                 ping_interval=20,
                 ping_timeout=20,
+                # A handshake that never completes, or a closing client that does not
+                # read, holds the front's shutdown this long at most.
+                open_timeout=_FRONT_TIMEOUT,
+                close_timeout=_FRONT_TIMEOUT,
                 logger=_front_log,
             )
         except OSError as exc:
@@ -838,6 +956,7 @@ class _Front:
                 max_size=None,  # what the server sends is ours
                 ping_interval=None,  # loopback: no keepalive needed
                 open_timeout=5,
+                close_timeout=_FRONT_TIMEOUT,
             )
         except Exception as exc:
             self._server._failed("connecting the front to the server", exc)
@@ -865,7 +984,7 @@ class _Front:
         advertised: dict[int, tuple[Any, Any, Any]] = {}
         async for frame in client:
             if isinstance(frame, str):
-                for out in _rewrite(frame, advertised):
+                for out in _rewrite(frame, advertised, self._server._refuse):
                     await backend.send(out)
             elif (
                 len(frame) >= 5
@@ -891,53 +1010,69 @@ def _select_subprotocol(connection: Any, offered: Any) -> Any:
     raise NegotiationError(f"the subprotocol {SUBPROTOCOL} is required")
 
 
-def _rewrite(frame: str, advertised: dict[int, tuple[Any, Any, Any]]) -> list[str]:
-    """A client's text frame as the server should see it.
+def _rewrite(
+    frame: str,
+    advertised: dict[int, tuple[Any, Any, Any]],
+    refuse: Callable[[str, str], None],
+) -> list[str]:
+    """A client's text frame as the server should see it (nothing, if refused).
 
+    A frame that is not a JSON object is refused (dropped and reported): every message
+    of the protocol is one, and foxglove-sdk should not be the one to judge the rest.
     foxglove-sdk ignores an ``advertise`` of a channel id the client has already
     advertised, keeping the first schema: a channel re-advertised as ``std_msgs/String``
     would still be taken as a Twist. So an advertise that changes a channel's topic,
     encoding or schema goes as an ``unadvertise`` of the id, then the ``advertise``:
     the server's view follows the client's (and a Twist channel that changes stops the
     robot at once). One that changes nothing is dropped, as the server would ignore it.
-    The front's reserved id is taken out. Anything else goes unchanged: the server
-    answers what it cannot read as it always did.
+    A new channel past :data:`MAX_CLIENT_CHANNELS` of the connection is refused. The
+    front's reserved id is taken out. Any other JSON object goes unchanged.
 
     Args:
         frame: The text frame from the client.
         advertised: The connection's channels, by id, as (topic, encoding, schema
             name); updated.
+        refuse: Called with where and why for what is refused.
     """
     try:
         msg = json.loads(frame)
-        op = msg.get("op") if isinstance(msg, dict) else None
-        channels = msg.get("channels") if op == "advertise" else None
-        if isinstance(channels, list) and all(isinstance(c, dict) for c in channels):
-            out = []
-            for channel in channels:
-                cid = channel.get("id")
-                if cid == _HELLO_ID:
+    except RecursionError:
+        refuse("a client's text frame", "not JSON: nested too deeply")
+        return []
+    except ValueError as exc:
+        refuse("a client's text frame", f"not JSON: {_shown(exc, 60)}")
+        return []
+    if not isinstance(msg, dict):
+        refuse("a client's text frame", f"not a JSON object but {type(msg).__name__}")
+        return []
+    op = msg.get("op")
+    channels = msg.get("channels") if op == "advertise" else None
+    if isinstance(channels, list) and all(isinstance(c, dict) for c in channels):
+        out = []
+        for channel in channels:
+            cid = channel.get("id")
+            if cid == _HELLO_ID:
+                continue
+            if isinstance(cid, int) and not isinstance(cid, bool):
+                shape = (channel.get("topic"), channel.get("encoding"), channel.get("schemaName"))
+                before = advertised.get(cid)
+                if before == shape:
                     continue
-                if isinstance(cid, int) and not isinstance(cid, bool):
-                    shape = (
-                        channel.get("topic"),
-                        channel.get("encoding"),
-                        channel.get("schemaName"),
+                if before is None and len(advertised) >= MAX_CLIENT_CHANNELS:
+                    refuse(
+                        f"channel {_shown(channel.get('topic'))}",
+                        f"more than {MAX_CLIENT_CHANNELS} channels on one connection",
                     )
-                    before = advertised.get(cid)
-                    if before == shape:
-                        continue
-                    if before is not None:
-                        out.append(json.dumps({"op": "unadvertise", "channelIds": [cid]}))
-                    advertised[cid] = shape
-                out.append(json.dumps({"op": "advertise", "channels": [channel]}))
-            return out
-        if op == "unadvertise" and isinstance(msg.get("channelIds"), list):
-            ids = [i for i in msg["channelIds"] if i != _HELLO_ID]
-            for cid in ids:
-                if isinstance(cid, int):
-                    advertised.pop(cid, None)
-            return [json.dumps({"op": "unadvertise", "channelIds": ids})]
-    except (ValueError, RecursionError, AttributeError, TypeError):
-        pass  # not ours to judge: the server refuses it as it would have
+                    continue
+                if before is not None:
+                    out.append(json.dumps({"op": "unadvertise", "channelIds": [cid]}))
+                advertised[cid] = shape
+            out.append(json.dumps({"op": "advertise", "channels": [channel]}))
+        return out
+    if op == "unadvertise" and isinstance(msg.get("channelIds"), list):
+        ids = [i for i in msg["channelIds"] if i != _HELLO_ID]
+        for cid in ids:
+            if isinstance(cid, int) and not isinstance(cid, bool):
+                advertised.pop(cid, None)
+        return [json.dumps({"op": "unadvertise", "channelIds": ids})]
     return [frame]

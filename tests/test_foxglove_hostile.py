@@ -230,6 +230,38 @@ async def test_a_client_that_reaches_the_private_port_cannot_drive_or_release() 
         assert server.commands == 0
 
 
+async def test_the_private_port_lets_a_local_client_watch_and_stop_and_nothing_more() -> None:
+    """What docs/foxglove.md says the private port exposes to a local user who finds it
+    (no token, no Origin check there): every stream, ``stop`` and ``emergency_stop``."""
+    async with served(token=TOKEN) as (sim, robot, server):
+        front = server._front
+        assert front is not None
+        async with FoxgloveClient(front._backend_url, origin=EVIL) as local:
+            await local.wait_for(lambda: "/chassis/telemetry" in local.channels)
+            await local.subscribe("/chassis/telemetry")
+            await local.wait_for(lambda: len(local.received["/chassis/telemetry"]) >= 3)
+            assert set(local.services) == {
+                "stop",
+                "emergency_stop",
+                "release_emergency_stop",
+                "clear_faults",
+            }
+            assert (await local.call("stop"))["success"] is True
+            assert (await local.call("emergency_stop"))["success"] is True
+            for service in ("release_emergency_stop", "clear_faults"):
+                answer = await local.call(service)
+                assert answer == {
+                    "success": False,
+                    "message": "refused: the connection was not checked",
+                }, service
+            await teleop(local)
+            await local.publish(1, twist(0.3))
+            await until(lambda: server.rejected >= 4, 2.0)
+        assert robot.commanded_velocity is None
+        assert server.commands == 0
+        assert not any(sim.firmware.target)
+
+
 async def test_a_teleop_client_that_vanishes_stops_the_robot_at_once_through_the_front() -> None:
     async with served(command_timeout=2.0) as (sim, _, server):
         client = FoxgloveClient(server.url)
@@ -525,3 +557,253 @@ async def test_the_front_adds_little_latency_to_what_the_server_sends() -> None:
     median, p99 = delays[len(delays) // 2], delays[len(delays) * 99 // 100]
     print(f"\nthe front's extra delay: median {median * 1e3:.3f} ms, p99 {p99 * 1e3:.3f} ms")
     assert median < 0.005
+
+
+# --- leaving the server, and what one run leaves to the next ----------------------------------
+
+
+class Heartbeat:
+    """The longest the event loop went without running a task that wakes every 5 ms."""
+
+    def __init__(self) -> None:
+        self.longest = 0.0
+        self._last = 0.0
+        self._task: asyncio.Task[None] | None = None
+
+    async def _beat(self) -> None:
+        while True:
+            await asyncio.sleep(0.005)
+            self._beaten()
+
+    def _beaten(self) -> None:
+        now = time.monotonic()
+        self.longest = max(self.longest, now - self._last)
+        self._last = now
+
+    def __enter__(self) -> Heartbeat:
+        self._last = time.monotonic()
+        self._task = asyncio.create_task(self._beat())
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        assert self._task is not None
+        self._task.cancel()
+        self._beaten()  # a loop blocked until now counts too
+
+
+async def test_leaving_the_server_stops_a_teleop_robot_at_once_and_never_blocks_the_loop() -> None:
+    """A half-open connection (TCP, never a handshake) and a client that stops reading
+    must not hold the server's exit: the robot a Teleop client drives gets its zero at
+    once (not at the deadman, nor ~10 s later), and the loop runs throughout."""
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=5.0) as robot,
+    ):
+        server = FoxgloveServer(robot, port=0)
+        await server.__aenter__()
+        _, half_open = await asyncio.open_connection("127.0.0.1", server.port)
+        driver = FoxgloveClient(server.url)
+        await driver.__aenter__()
+        await teleop(driver)
+        await driver.publish(1, twist(0.3))
+        await moving(sim, True, 2.0)
+        # The driver stops reading, and the server has plenty to send it.
+        assert driver._reader is not None
+        driver._reader.cancel()
+        driver._ws.transport.pause_reading()
+        await driver.subscribe(*driver.channels)
+        await asyncio.sleep(0.3)
+        stopped: list[float] = []
+
+        async def watch() -> None:
+            await moving(sim, False, 30.0)
+            stopped.append(time.monotonic())
+
+        watcher = asyncio.create_task(watch())
+        with Heartbeat() as heartbeat:
+            start = time.monotonic()
+            await server.__aexit__(None, None, None)
+            left = time.monotonic() - start
+        await asyncio.wait_for(watcher, 1.0)
+        print(
+            f"\nleft in {left:.2f} s; zero after {(stopped[0] - start) * 1000:.0f} ms; "
+            f"the loop's longest gap {heartbeat.longest * 1000:.1f} ms"
+        )
+        assert stopped[0] - start < 0.3
+        assert heartbeat.longest < 0.1
+        assert left < 3.0
+        assert drives(sim)[-1] == DriveVelocity(0, 0.0)
+        half_open.close()
+        driver.abort()
+        with contextlib.suppress(Exception):
+            await driver.__aexit__(None, None, None)
+
+
+async def test_the_cli_stops_a_teleop_robot_at_once_on_sigterm_with_a_half_open_client() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        running(
+            "serve", sim.port, "--foxglove-port", "0", "--command-timeout", "5"
+        ) as serve,
+    ):  # fmt: skip
+        line = await serve.wait_for_line(lambda line: "serving" in line)
+        url = _url(line)
+        port = int(url.rsplit(":", 1)[1])
+        _, half_open = await asyncio.open_connection("127.0.0.1", port)
+        async with FoxgloveClient(url) as client:
+            await teleop(client)
+            await client.publish(1, twist(0.2))
+            await moving(sim, True, 5.0)
+            start = time.monotonic()
+            serve.proc.send_signal(signal.SIGTERM)
+            took = await moving(sim, False, 5.0)
+            code, _, err = await serve.finish()
+            ended = time.monotonic() - start
+        half_open.close()
+    print(f"\nzero {took * 1000:.0f} ms after SIGTERM; the CLI ended after {ended:.2f} s")
+    assert took < 0.3, took
+    assert ended < 4.0, ended
+    assert code == 128 + signal.SIGTERM, err
+
+
+async def test_a_service_call_that_timed_out_is_cancelled_not_done_later(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import chassis_sdk.live as live
+
+    monkeypatch.setattr(live, "_SERVICE_TIMEOUT", 0.2)
+    done: list[str] = []
+    cancelled: list[str] = []
+
+    async def slow_release() -> None:
+        try:
+            await asyncio.sleep(0.6)
+        except asyncio.CancelledError:
+            cancelled.append("release")
+            raise
+        done.append("release")
+
+    async with served() as (_, robot, server), FoxgloveClient(server.url) as client:
+        monkeypatch.setattr(robot, "release_emergency_stop", slow_release)
+        await client.wait_for(lambda: "release_emergency_stop" in client.services)
+        answer = await client.call("release_emergency_stop")
+        assert answer == {"success": False, "message": "no answer within 0.2 s"}
+        await asyncio.sleep(0.8)
+        assert not done  # the operator was told it did not happen: it never does
+        assert cancelled == ["release"]
+
+
+async def test_a_new_run_forgets_the_last_ones_clients_and_secret() -> None:
+    """foxglove-sdk's new server numbers its clients from 1 again: a client that reaches
+    the new private port directly must not inherit "came through the front" (nor a
+    Teleop channel) from the last run's client of the same id."""
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=1.0) as robot,
+    ):
+        server = FoxgloveServer(robot, port=0)
+        server.start()
+        secret = server._secret
+        operator = FoxgloveClient(server.url)
+        await operator.__aenter__()
+        await teleop(operator)
+        await operator.publish(1, twist(0.2))
+        await moving(sim, True, 2.0)
+        await server.aclose()  # the operator still connected: its state is not unadvertised
+        with contextlib.suppress(Exception):
+            await operator.__aexit__(None, None, None)
+        commands = server.commands
+        server.start()
+        try:
+            assert server._secret != secret
+            assert not server._fronted
+            assert not server._teleop
+            assert server._pending is None
+            assert not server._driving
+            front = server._front
+            assert front is not None
+            async with FoxgloveClient(front._backend_url) as sneak:
+                await sneak.wait_for(lambda: bool(sneak.server_info))
+                await teleop(sneak)
+                await sneak.publish(1, twist(0.3))
+                assert (await sneak.call("clear_faults"))["success"] is False
+                await until(lambda: server.rejected >= 3, 2.0)
+            assert server.commands == commands
+            assert not any(sim.firmware.target)
+        finally:
+            await server.aclose()
+
+
+@pytest.mark.parametrize(
+    ("frame", "why"),
+    [
+        pytest.param("not json at all", "not JSON", id="not-json"),
+        pytest.param("[" * 5000 + "]" * 5000, "not JSON: nested too deeply", id="deep"),
+        pytest.param('["advertise"]', "not a JSON object but list", id="list"),
+        pytest.param("42", "not a JSON object but int", id="number"),
+    ],
+)
+async def test_the_front_refuses_text_frames_that_are_not_json_objects(
+    frame: str, why: str
+) -> None:
+    async with served() as (sim, _, server), FoxgloveClient(server.url) as client:
+        await client.wait_for(lambda: bool(client.server_info))
+        await client.send_raw(frame)
+        await client.wait_for(lambda: bool(client.statuses))
+        status = client.statuses[0]
+        assert "a client's text frame" in status["message"], status
+        assert why in status["message"], status
+        assert server.rejected == 1
+        assert server.errors == 0
+        # The connection goes on.
+        await teleop(client)
+        await client.publish(1, twist(0.2))
+        await moving(sim, True, 2.0)
+
+
+async def test_the_front_keeps_a_bounded_record_of_a_connections_channels() -> None:
+    import chassis_sdk.live as live
+
+    MAX_CLIENT_CHANNELS = getattr(live, "MAX_CLIENT_CHANNELS", 256)
+    n = MAX_CLIENT_CHANNELS + 44
+    async with served() as (sim, _, server), FoxgloveClient(server.url) as client:
+        await client.wait_for(lambda: bool(client.server_info))
+        channels = [
+            {
+                "id": i,
+                "topic": f"/cmd_vel{i}",
+                "encoding": "json",
+                "schemaName": "geometry_msgs/Twist",
+            }
+            for i in range(1, n + 1)
+        ]
+        await client.send_raw(json.dumps({"op": "advertise", "channels": channels}))
+        await until(lambda: server.rejected == n - MAX_CLIENT_CHANNELS, 5.0)
+        await client.wait_for(
+            lambda: any(f"more than {MAX_CLIENT_CHANNELS}" in s["message"] for s in client.statuses)
+        )
+        await asyncio.sleep(0.2)
+        assert len(server._teleop) == MAX_CLIENT_CHANNELS
+        # One given back makes room for one more.
+        await client.unadvertise(1)
+        await client.advertise(n + 1, "/cmd_vel", "geometry_msgs/Twist")
+        await client.publish(n + 1, twist(0.2))
+        await moving(sim, True, 2.0)
+        assert server.rejected == n - MAX_CLIENT_CHANNELS
+
+
+async def test_each_kind_of_warning_status_keeps_one_id_so_a_new_summary_replaces_the_old() -> None:
+    async with served() as (_, _, server), FoxgloveClient(server.url) as client:
+        await client.wait_for(lambda: bool(client.server_info))
+        await client.advertise(2, "/chatter", "std_msgs/String")  # not taken
+        await client.wait_for(lambda: len(client.statuses) >= 1)
+        await asyncio.sleep(1.1)
+        await client.advertise(3, "/chatter", "std_msgs/String")
+        await client.wait_for(lambda: len(client.statuses) >= 2)
+        assert await refused(server.url, origin=EVIL) == 403
+        await client.wait_for(lambda: len(client.statuses) >= 3, 3.0)
+        await asyncio.sleep(1.1)
+        assert await refused(server.url, origin=EVIL) == 403
+        await client.wait_for(lambda: len(client.statuses) >= 4, 3.0)
+    ids = [s.get("id") for s in client.statuses]
+    assert ids == ["chassis-sdk-refusals"] * 2 + ["chassis-sdk-handshake"] * 2, ids

@@ -1,7 +1,9 @@
 """``chassis-sdk serve``: one device, live in the Foxglove app, for as long as it runs.
 
-The device is opened once, with ``reconnect=True``; Ctrl-C or SIGTERM stops the server,
-then the device (zero velocity first, as always).
+The device is opened once, with ``reconnect=True``; Ctrl-C or SIGTERM stops the robot
+at once if a Teleop client was driving, then the server (without blocking the event
+loop: a client that does not read cannot hold the stop), then the device (zero
+velocity first, as always).
 
 Who may connect is checked before the device opens: ``--host`` beyond loopback needs
 ``--token``/``--token-file`` (or an explicit ``--no-token``), and ``--allow-origin``
@@ -125,4 +127,6 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.Event().wait(), args.seconds)
         finally:
-            server.stop()
+            # Never blocks the loop (the device's deadman goes on meanwhile); a robot
+            # a Teleop client was driving gets its zero first.
+            await server.aclose()
