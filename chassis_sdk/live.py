@@ -444,14 +444,26 @@ class FoxgloveServer:
                     await asyncio.wait_for(asyncio.shield(handing), _FRONT_TIMEOUT)
                 await self._stop_robot()
         front, self._front = self._front, None
-        if front is not None:
-            front.signal_stop()
-            await asyncio.to_thread(front.join, _FRONT_JOIN)
-            self._flush_final()
-        server, self._server = self._server, None
-        if server is not None:
-            await asyncio.to_thread(server.stop)
-        self._release()
+        server = self._server
+        server_stopping = False
+        try:
+            if front is not None:
+                front.signal_stop()
+                await asyncio.to_thread(front.join, _FRONT_JOIN)
+                self._flush_final()  # to the app, through the server still up
+            self._server = None
+            if server is not None:
+                server_stopping = True
+                await asyncio.to_thread(server.stop)
+        finally:
+            self._server = None
+            if not server_stopping and server is not None:
+                # Interrupted (cancelled): foxglove-sdk's server is still stopped, in a
+                # thread of its own, not waited for.
+                threading.Thread(
+                    target=server.stop, name="chassis-sdk-foxglove-stop", daemon=True
+                ).start()
+            self._release()
 
     async def _stop_robot(self) -> None:
         if not self.device.is_connected:

@@ -11,10 +11,12 @@ import json
 import logging
 import os
 import signal
+import socket
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import pytest
 from websockets.exceptions import InvalidStatus
@@ -637,6 +639,46 @@ async def test_leaving_the_server_stops_a_teleop_robot_at_once_and_never_blocks_
         driver.abort()
         with contextlib.suppress(Exception):
             await driver.__aexit__(None, None, None)
+
+
+async def test_leaving_the_server_interrupted_still_stops_everything() -> None:
+    """A second Ctrl-C (a cancel) while the front is closing: the robot has its zero,
+    foxglove-sdk's server still stops (in a thread of its own) and the streams are
+    detached."""
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=5.0) as robot,
+    ):
+        server = FoxgloveServer(robot, port=0)
+        await server.__aenter__()
+        assert server._front is not None
+        backend = urlsplit(server._front._backend_url)
+        _, half_open = await asyncio.open_connection("127.0.0.1", server.port)
+        async with FoxgloveClient(server.url) as driver:
+            await teleop(driver)
+            await driver.publish(1, twist(0.3))
+            await moving(sim, True, 2.0)
+            leaving = asyncio.create_task(server.aclose())
+            await moving(sim, False, 0.3)
+            await asyncio.sleep(0.1)  # the front is closing: the half-open holds it
+            leaving.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await leaving
+        assert server._server is None
+        assert server._front is None
+        assert server._sink is None
+        assert backend.hostname is not None
+        assert backend.port is not None
+        await until(lambda: not _accepts(str(backend.hostname), int(backend.port)), 3.0)
+        half_open.close()
+
+
+def _accepts(host: str, port: int) -> bool:
+    try:
+        socket.create_connection((host, port), timeout=0.5).close()
+    except OSError:
+        return False
+    return True
 
 
 async def test_the_cli_stops_a_teleop_robot_at_once_on_sigterm_with_a_half_open_client() -> None:
