@@ -488,7 +488,7 @@ async def test_cli_serve_beyond_loopback_needs_a_token_before_the_device_opens(
         assert "--no-token" in err, err
         code, _, err = await cli("serve", sim.port, "--token-file", str(loose))
         assert code == 1
-        assert "may be read by others" in err, err
+        assert "open to group or others" in err, err
         assert "chmod 600" in err, err
         code, _, err = await cli("serve", sim.port, "--token", "short")
         assert code == 1
@@ -521,12 +521,12 @@ async def test_cli_serve_takes_the_token_from_the_environment(
 
 
 async def test_a_token_file_keeps_every_character_but_the_final_newline(tmp_path: Path) -> None:
-    from chassis_sdk.cli.serve_command import read_token_file
+    from chassis_sdk.cli.common import read_secret_file
 
     path = tmp_path / "t"
     path.write_text(" " + TOKEN + " \n")
     os.chmod(path, 0o600)
-    assert read_token_file(str(path)) == " " + TOKEN + " "
+    assert read_secret_file(str(path), "--token-file") == " " + TOKEN + " "
 
 
 # --- the front's cost -----------------------------------------------------------------------

@@ -11,17 +11,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import socket
 import ssl
-import stat
 import urllib.parse
-from pathlib import Path
 
 from ..core.backoff import Backoff
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import first_frame, out
+from .common import first_frame, out, read_secret_file
 
 __all__ = ["bridge"]
 
@@ -51,7 +48,9 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     except ImportError:
         raise ChassisError("bridge needs aiomqtt: pip install 'chassis-sdk[mqtt]'") from None
     host, broker_port, tls = _broker(args.broker)
-    password = _password(args.password_file) if args.password_file else None
+    password = None
+    if args.password_file:
+        password = read_secret_file(args.password_file, "--password-file")
     context = None
     if tls or args.tls:
         context = ssl.create_default_context(cafile=args.cafile)
@@ -116,22 +115,3 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 continue
             take_over = take_over and not bridge.online
             await asyncio.sleep(backoff.next())
-
-
-def _password(path: str) -> str:
-    """The broker password: the file's content without its final newline (a password
-    may end in a space). Like ssh with a private key, a file that group or others may
-    read is refused: the password is as good as published."""
-    try:
-        mode = os.stat(path).st_mode
-        if mode & 0o077:
-            raise ChassisError(
-                f"--password-file {path} is open to group or others (mode "
-                f"{stat.S_IMODE(mode):04o}); chmod 600 it"
-            )
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ChassisError(f"cannot read --password-file: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise ChassisError(f"--password-file {path} is not UTF-8 text") from None
-    return text.removesuffix("\n").removesuffix("\r")

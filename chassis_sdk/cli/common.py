@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import stat
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 from ..core.device import Device
@@ -26,6 +28,7 @@ __all__ = [
     "jsonable",
     "out",
     "progress_line",
+    "read_secret_file",
     "simulated",
 ]
 
@@ -175,3 +178,32 @@ def explain_silence(device: Device[Any, Any], exc: RequestTimeoutError) -> None:
         except WrongProtocolError as wrong:
             raise wrong from exc
     raise exc
+
+
+def read_secret_file(path: str, option: str) -> str:
+    """A secret (a password, a token) from the file ``option`` names: its text without
+    the final newline (nothing else is stripped: a secret may end in a space). Like ssh
+    with a private key, a file that group or others may read is refused: the secret is
+    as good as published.
+
+    Raises:
+        ChassisError: The file cannot be read, is open to group or others, is not UTF-8
+            text, or is empty; one line naming ``option`` and the file.
+    """
+    file = Path(path)
+    try:
+        mode = file.stat().st_mode
+        if mode & (stat.S_IRWXG | stat.S_IRWXO):
+            raise ChassisError(
+                f"{option} {path} is open to group or others (mode "
+                f"{stat.S_IMODE(mode):04o}); chmod 600 it"
+            )
+        text = file.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ChassisError(f"cannot read {option} {path}: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ChassisError(f"{option} {path} is not UTF-8 text") from None
+    secret = text.removesuffix("\n").removesuffix("\r")
+    if not secret:
+        raise ChassisError(f"{option} {path} is empty")
+    return secret

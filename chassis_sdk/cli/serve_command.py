@@ -17,40 +17,14 @@ import asyncio
 import contextlib
 import logging
 import os
-import stat
 import sys
-from pathlib import Path
 
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import first_frame, out
+from .common import first_frame, out, read_secret_file
 
-__all__ = ["read_token_file", "serve"]
-
-
-def read_token_file(path: str) -> str:
-    """The token in ``path``: the file's text without its final newline (nothing else
-    is stripped). Refused, as ssh refuses a private key, if others may read the file.
-
-    Raises:
-        ChassisError: The file cannot be read, may be read by others, or is empty.
-    """
-    file = Path(path)
-    try:
-        mode = file.stat().st_mode
-        text = file.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ChassisError(f"cannot read the token file {path}: {exc}") from None
-    if mode & (stat.S_IRWXG | stat.S_IRWXO):
-        raise ChassisError(
-            f"the token file {path} may be read by others (mode {stat.S_IMODE(mode):o}): "
-            f"chmod 600 {path}"
-        )
-    token = text.removesuffix("\n").removesuffix("\r")
-    if not token:
-        raise ChassisError(f"the token file {path} is empty")
-    return token
+__all__ = ["serve"]
 
 
 def _show_refusals() -> None:
@@ -75,7 +49,9 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
         ) from None
     if args.token is not None and args.token_file is not None:
         raise ChassisError("give --token or --token-file, not both")
-    token = read_token_file(args.token_file) if args.token_file is not None else args.token
+    token = args.token
+    if args.token_file is not None:
+        token = read_secret_file(args.token_file, "--token-file")
     if token is None and os.environ.get("CHASSIS_SDK_FOXGLOVE_TOKEN"):
         token = os.environ["CHASSIS_SDK_FOXGLOVE_TOKEN"]
     origins = args.allow_origin or []
