@@ -25,8 +25,9 @@ topic                           dir   retained  payload
 Why it is shaped this way
 -------------------------
 A command must never move the robot late. Commands are QoS 0 on a clean session (a
-broker keeps nothing for a bridge that is away), a retained, stale or expired command
-is refused, and each velocity command is one command under the SDK's deadman
+broker keeps nothing for a bridge that is away), a retained or stale command is
+refused (one whose MQTT 5 message expiry has passed the broker never delivers), and
+each velocity command is one command under the SDK's deadman
 (``command_timeout``, counted from its ``timestamp`` when it has one): a dashboard
 that dies, or a Wi-Fi drop, stops the robot within half a second. Losing the broker
 writes zero at once, and nothing moves the robot again but a new command after the
