@@ -498,6 +498,15 @@ class Link(asyncio.Protocol, Generic[M]):
                     await asyncio.sleep(_LINGER_POLL)  # (the kernel's queue has no event)
         return self._is_out()
 
+    def _flush_output(self) -> bool:
+        """Discard a serial port's kernel output queue; False for a socket (whose
+        kernel buffer cannot be flushed)."""
+        if self._wfd is None:
+            return False
+        with contextlib.suppress(OSError, termios.error):
+            termios.tcflush(self._wfd, termios.TCOFLUSH)
+        return True
+
     def _discard_stale(self) -> None:
         """The device is not reading and the link is closing: discard every frame still
         held (and, for a serial port, the kernel's output queue), but keep the final
@@ -506,12 +515,9 @@ class Link(asyncio.Protocol, Generic[M]):
         held_zero = self._velocity is not None and self._velocity_closed
         self._drop_held()
         wfd = self._wfd
-        if wfd is not None:
-            with contextlib.suppress(OSError, termios.error):
-                termios.tcflush(wfd, termios.TCOFLUSH)
-            if self._blocked:  # the flush made room: write again now
-                self._loop.remove_writer(wfd)
-                self._blocked = False
+        if self._flush_output() and self._blocked and wfd is not None:
+            self._loop.remove_writer(wfd)  # the flush made room: write again now
+            self._blocked = False
         if self._zero is not None and (held_zero or wfd is not None):
             # Held, or (a serial port) flushed from the kernel with the rest, even part
             # sent: written again whole, the last frame the device will get. A device
@@ -558,11 +564,7 @@ class Link(asyncio.Protocol, Generic[M]):
         self._finished = True
         if not self._is_out():
             self._drop_held()
-            wfd = self._wfd
-            if wfd is not None:
-                with contextlib.suppress(OSError, termios.error):
-                    termios.tcflush(wfd, termios.TCOFLUSH)
-            else:
+            if not self._flush_output():
                 if transport.get_write_buffer_size():
                     self.discarded += 1  # what asyncio's transport still held
                 sock = transport.get_extra_info("socket")
