@@ -310,6 +310,9 @@ async def test_requests_and_responses_over_mqtt5(
         assert (await request(obs, "r1", "get_chassis_info"))["result"][
             "wheelbase"
         ] == pytest.approx(0.5)
+        # The status word comes with telemetry: diagnose once the first has arrived (the
+        # open flushes what the port held, so it may not have yet).
+        await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
         report = (await request(obs, "r1", "diagnose"))["result"]
         assert report["device"] == "chassis"
         assert "status REMOTE_OFFLINE" in report["notes"]
