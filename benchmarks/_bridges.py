@@ -15,7 +15,7 @@ import sys
 import aiomqtt
 
 from chassis_sdk import Chassis
-from chassis_sdk.bridge import MqttBridge, connection_will
+from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
 
 
 async def one(broker_port: int, rate: float, port: str, robot_id: str, up: asyncio.Event) -> None:

@@ -93,7 +93,7 @@ def columns(cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]]) -> di
     """A whole capture into arrays (numpy, ``capture_columns``) against the decoder
     one object per frame, on the same bytes, printed first."""
     try:
-        from chassis_sdk.core.columns import decode_joined
+        from chassis_sdk.recording.columns import decode_joined
     except ImportError:
         print("numpy is not installed (pip install '.[columns]'): no column figures")
         return {}

@@ -21,10 +21,10 @@ import random
 import struct
 from collections.abc import Iterable
 
-from chassis_sdk.core.simulator import FaultCounts, damage
+from chassis_sdk.devices.board.protocol import DEVICE_HEAD, encode_frame
 from chassis_sdk.protocol import BoardDecoder
-from chassis_sdk.protocol.board import DEVICE_HEAD, encode_frame
 from chassis_sdk.sim import LineFaults
+from chassis_sdk.sim.server import FaultCounts, damage
 
 
 class _FramingOnly(BoardDecoder):

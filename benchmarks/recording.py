@@ -113,7 +113,7 @@ def write_hour(path: Path | None, session: list[tuple[float, bool, bytes]]) -> d
     """The session through a ``Chassis`` that is never connected, as fast as it goes,
     recorded to ``path`` (or not: the cost of decoding and handling alone)."""
     from chassis_sdk import Chassis
-    from chassis_sdk.core.recording import open_recording
+    from chassis_sdk.recording.writers import open_recording
 
     device: Any = Chassis("/dev/bench")
     recording = open_recording(path, device) if path is not None else None
@@ -197,7 +197,8 @@ def read_floor(path: Path) -> float:
 
 
 def decode_all(path: Path) -> tuple[float, int]:
-    from chassis_sdk import Telemetry, capture
+    from chassis_sdk import Telemetry
+    from chassis_sdk.recording import capture
 
     start = time.monotonic()
     n = sum(isinstance(m, Telemetry) for _, m in capture.decode_capture(path, "chassis"))
@@ -206,7 +207,7 @@ def decode_all(path: Path) -> tuple[float, int]:
 
 def columns_all(path: Path) -> tuple[float, int]:
     """``capture_columns``: the same frames into arrays (numpy), or (nan, 0) without it."""
-    from chassis_sdk import capture
+    from chassis_sdk.recording import capture
 
     try:
         import numpy  # noqa: F401

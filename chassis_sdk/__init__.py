@@ -21,22 +21,23 @@ Example::
     chassis_sdk.run(main())  # asyncio.run, with SIGTERM/SIGHUP stopping the robot too
 
 The sans-IO codecs live in :mod:`chassis_sdk.protocol`; the simulators in
-:mod:`chassis_sdk.sim`. Underneath, :mod:`chassis_sdk.core` knows no protocol and each
-device is a package in :mod:`chassis_sdk.devices`, found through a registry
-(:func:`chassis_sdk.devices.profiles`) that installed packages can extend.
+:mod:`chassis_sdk.sim`; recording in :mod:`chassis_sdk.recording`; the MQTT bridge and
+the Foxglove server in :mod:`chassis_sdk.integrations`. Underneath,
+:mod:`chassis_sdk.core` knows no protocol and each device is a package in
+:mod:`chassis_sdk.devices`, found through a registry (:func:`chassis_sdk.devices.profiles`)
+that installed packages can extend.
+
+Every name here is imported on first use (PEP 562): ``import chassis_sdk`` loads
+nothing of the runtime, so ``chassis_sdk.protocol`` decodes captures without asyncio.
 """
 
-import logging as _logging
+from __future__ import annotations
 
-from .core.device import ConnectionState, LinkStats
-from .core.diagnosis import Diagnosis
-from .core.dispatch import Subscription
-from .core.events import EventKind, RobotEvent
-from .core.odometry import Odometry
-from .core.run import run
-from .core.watchdog import MotionLimits
-from .devices.board import Board
-from .devices.chassis import Chassis
+import logging as _logging
+from importlib import import_module as _import_module
+from typing import TYPE_CHECKING, Any
+
+from ._version import __version__
 from .errors import (
     ChassisError,
     ConnectionLostError,
@@ -45,28 +46,73 @@ from .errors import (
     ProtocolError,
     RequestTimeoutError,
 )
-from .protocol import (
-    BatteryReading,
-    ChassisInfo,
-    ChassisStatus,
-    DockingState,
-    DriverError,
-    DriverStatus,
-    ImuSample,
-    ImuScale,
-    Motor,
-    MotorStatus,
-    PowerTelemetry,
-    Servo,
-    Telemetry,
-    Vector3,
-    VelocityFeedback,
-    WheelCurrents,
-    WheelDriver,
-    WheelSpeeds,
-)
 
-__version__ = "0.1.0"
+if TYPE_CHECKING:
+    from .core.diagnosis import Diagnosis
+    from .core.dispatch import Subscription
+    from .core.events import EventKind, RobotEvent
+    from .core.odometry import Odometry
+    from .core.run import run
+    from .core.stats import LinkStats
+    from .core.supervisor import ConnectionState
+    from .core.watchdog import MotionLimits
+    from .devices.board.device import Board
+    from .devices.board.messages import (
+        BatteryReading,
+        ImuSample,
+        ImuScale,
+        Motor,
+        Servo,
+        Vector3,
+        VelocityFeedback,
+    )
+    from .devices.chassis.device import Chassis
+    from .devices.chassis.messages import (
+        ChassisInfo,
+        ChassisStatus,
+        DockingState,
+        DriverError,
+        DriverStatus,
+        MotorStatus,
+        PowerTelemetry,
+        Telemetry,
+        WheelCurrents,
+        WheelDriver,
+        WheelSpeeds,
+    )
+
+#: Where each lazily imported name lives.
+_LAZY = {
+    "ConnectionState": ".core.supervisor",
+    "LinkStats": ".core.stats",
+    "Diagnosis": ".core.diagnosis",
+    "Subscription": ".core.dispatch",
+    "EventKind": ".core.events",
+    "RobotEvent": ".core.events",
+    "Odometry": ".core.odometry",
+    "run": ".core.run",
+    "MotionLimits": ".core.watchdog",
+    "Board": ".devices.board.device",
+    "Chassis": ".devices.chassis.device",
+    "BatteryReading": ".devices.board.messages",
+    "ImuSample": ".devices.board.messages",
+    "ImuScale": ".devices.board.messages",
+    "Motor": ".devices.board.messages",
+    "Servo": ".devices.board.messages",
+    "Vector3": ".devices.board.messages",
+    "VelocityFeedback": ".devices.board.messages",
+    "ChassisInfo": ".devices.chassis.messages",
+    "ChassisStatus": ".devices.chassis.messages",
+    "DockingState": ".devices.chassis.messages",
+    "DriverError": ".devices.chassis.messages",
+    "DriverStatus": ".devices.chassis.messages",
+    "MotorStatus": ".devices.chassis.messages",
+    "PowerTelemetry": ".devices.chassis.messages",
+    "Telemetry": ".devices.chassis.messages",
+    "WheelCurrents": ".devices.chassis.messages",
+    "WheelDriver": ".devices.chassis.messages",
+    "WheelSpeeds": ".devices.chassis.messages",
+}
 
 # A library leaves logging to the application: without its own configuration, nothing
 # from chassis_sdk reaches stderr (configure "chassis_sdk" to see link events).
@@ -110,3 +156,18 @@ __all__ = [
     "__version__",
     "run",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    if name in ("Chassis", "Board"):
+        _import_module(".recording", __name__)  # their record= option: the recorders
+    value = getattr(_import_module(module, __name__), name)
+    globals()[name] = value  # the next lookup is a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

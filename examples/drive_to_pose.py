@@ -16,7 +16,7 @@ import sys
 
 import chassis_sdk
 from chassis_sdk import Chassis, Odometry
-from chassis_sdk.odometry import wrap_angle
+from chassis_sdk.core.odometry import wrap_angle
 from chassis_sdk.sim import ChassisSimulator
 
 SPEED = 0.8  # m/s, cruising

@@ -19,7 +19,8 @@ import time
 from pathlib import Path
 
 import chassis_sdk
-from chassis_sdk import Chassis, capture
+from chassis_sdk import Chassis
+from chassis_sdk.recording import capture
 from chassis_sdk.sim import ChassisSimulator
 
 

@@ -27,8 +27,8 @@ def targets() -> dict[str, tuple[Callable[[], Any], int]]:
     ``NAME-commands`` what the host sends."""
     found: dict[str, tuple[Callable[[], Any], int]] = {}
     for name, device in profiles().items():
-        found[name] = (device.decoder, device.max_buffered)
-        found[f"{name}-commands"] = (device.command_decoder, device.max_buffered)
+        found[name] = (device.codec.decoder, device.codec.max_buffered)
+        found[f"{name}-commands"] = (device.codec.command_decoder, device.codec.max_buffered)
     return found
 
 
@@ -69,6 +69,6 @@ def seeds(target: str) -> list[bytes]:
     past the checksums."""
     name, _, direction = target.partition("-")
     device = profiles()[name]
-    examples = device.command_examples if direction else device.examples
+    examples = device.codec.command_examples if direction else device.codec.examples
     frames = [frame for frame, _ in examples]
     return [bytes((i,)) + f for i, f in enumerate(frames)] + [b"\x00" + b"".join(frames)]

@@ -24,7 +24,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from chassis_sdk import Board, Chassis
-from chassis_sdk.bridge import MqttBridge, connection_will
+from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from chassis_sdk.capture import read_capture
+from chassis_sdk.recording.capture import read_capture
 
 HEADER = '{"capture": 1, "port": "/dev/x", "baudrate": 115200}\n'
 

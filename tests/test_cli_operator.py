@@ -388,7 +388,8 @@ async def test_sim_removes_its_port_link_on_sigterm() -> None:
 
 @pytest.mark.parametrize("suffix", [".jsonl", ".mcap"])
 async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path, suffix: str) -> None:
-    from chassis_sdk import Chassis, ConnectionLostError, Telemetry, capture
+    from chassis_sdk import Chassis, ConnectionLostError, Telemetry
+    from chassis_sdk.recording import capture
 
     path = tmp_path / f"cap{suffix}"
     async with ChassisSimulator() as sim:

@@ -11,6 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from chassis_sdk.devices.board.protocol import (
+    DEVICE_HEAD,
+    encode_frame,
+    motor_pwm_command,
+    servo_command,
+    velocity_command,
+)
 from chassis_sdk.protocol import (
     BatteryReading,
     BoardCommandDecoder,
@@ -30,13 +37,6 @@ from chassis_sdk.protocol import (
     Vector3,
     VelocityCommand,
     VelocityFeedback,
-)
-from chassis_sdk.protocol.board import (
-    DEVICE_HEAD,
-    encode_frame,
-    motor_pwm_command,
-    servo_command,
-    velocity_command,
 )
 
 

@@ -11,6 +11,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from chassis_sdk.devices.chassis.protocol import (
+    encode_frame,
+    velocity_command,
+    wheel_speeds_command,
+)
 from chassis_sdk.protocol import (
     ChassisCommandDecoder,
     ChassisDecoder,
@@ -35,7 +40,6 @@ from chassis_sdk.protocol import (
     WheelDriver,
     WheelSpeeds,
 )
-from chassis_sdk.protocol.chassis import encode_frame, velocity_command, wheel_speeds_command
 
 
 def h(text: str) -> bytes:

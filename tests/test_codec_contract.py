@@ -36,8 +36,10 @@ class Codec:
 def _codecs(devices: list[DeviceProfile]) -> list[Codec]:
     found = []
     for d in devices:
-        found.append(Codec(d.name, d.decoder, tuple(d.examples)))
-        found.append(Codec(f"{d.name}-commands", d.command_decoder, tuple(d.command_examples)))
+        found.append(Codec(d.name, d.codec.decoder, tuple(d.codec.examples)))
+        found.append(
+            Codec(f"{d.name}-commands", d.codec.command_decoder, tuple(d.codec.command_examples))
+        )
     return found
 
 

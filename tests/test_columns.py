@@ -16,12 +16,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chassis_sdk.capture import capture_columns
+from chassis_sdk.cli.devices import checked, commands
 from chassis_sdk.core.framing import Column, FrameDecoder
 from chassis_sdk.devices import DeviceProfile, profile
+from chassis_sdk.recording.capture import capture_columns
 
 np = pytest.importorskip("numpy")
-from chassis_sdk.core.columns import Columns, decode_columns, decode_joined  # noqa: E402
+from chassis_sdk.recording.columns import Columns, decode_columns, decode_joined  # noqa: E402
 
 PROTOCOLS = ["chassis", "board"]
 
@@ -41,8 +42,8 @@ def assert_same(chunks: list[tuple[float, bytes]], protocol: str) -> Columns:
     """Columns and the streaming decoder agree: which frames, in which order, their
     values, their times (never later: the streaming decoder may emit a frame a chunk
     late, while it waits to decide a candidate before it), and the byte counts."""
-    decoder = profile(protocol).decoder()
-    cols = decode_columns(chunks, profile(protocol).decoder())
+    decoder = profile(protocol).codec.decoder()
+    cols = decode_columns(chunks, profile(protocol).codec.decoder())
     objects = streamed(chunks, decoder)
     spec = type(decoder).columns
     names = dict(spec.values())
@@ -78,7 +79,7 @@ def assert_same(chunks: list[tuple[float, bytes]], protocol: str) -> Columns:
 
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 def test_every_vendor_example_alone_and_all_together(protocol: str) -> None:
-    examples = profile(protocol).examples
+    examples = profile(protocol).codec.examples
     for frame, _ in examples:
         assert assert_same([(1.0, frame)], protocol).frames == 1
     together = [(i * 0.01, frame) for i, (frame, _) in enumerate(examples)]
@@ -99,7 +100,7 @@ def test_the_telemetry_columns_are_in_si_units() -> None:
     encoder = ChassisEncoder()
     encoder.encode(t)
     frame = encoder.encode(t)  # the second: sequence number 1
-    cols = decode_columns([(2.5, frame)], profile("chassis").decoder())
+    cols = decode_columns([(2.5, frame)], profile("chassis").codec.decoder())
     row = {k: v.tolist() for k, v in cols["Telemetry"].items()}
     assert row == {
         "t": [2.5], "voltage": [24.6], "status": [1], "docking": [int(DockingState.SEARCHING)],
@@ -110,11 +111,11 @@ def test_the_telemetry_columns_are_in_si_units() -> None:
 
 
 def _chassis(i: int) -> bytes:
-    return profile("chassis").examples[i][0]
+    return profile("chassis").codec.examples[i][0]
 
 
 def _board(i: int) -> bytes:
-    return profile("board").examples[i][0]
+    return profile("board").codec.examples[i][0]
 
 
 def _imu(data: bytes) -> bytes:
@@ -169,7 +170,7 @@ def test_hostile_bytes_decode_the_same_both_ways(protocol: str, data: bytes) -> 
 def streams(protocol: str) -> st.SearchStrategy[list[tuple[float, bytes]]]:
     """Example frames, cut or corrupted ones, and noise rich in head bytes, in random
     chunks."""
-    frames = [frame for frame, _ in profile(protocol).examples]
+    frames = [frame for frame, _ in profile(protocol).codec.examples]
     head = frames[0][:2]
     noise = st.binary(max_size=8) | st.lists(
         st.sampled_from([head[:1], head[1:], head, b"\x00", b"\x13", b"\x81", b"\xff"]),
@@ -203,7 +204,7 @@ def test_random_noisy_streams_decode_the_same_both_ways(protocol: str, data: st.
 @given(payload=st.binary(min_size=64, max_size=64))
 def test_a_column_type_accepts_every_frame_that_checks_out(protocol: str, payload: bytes) -> None:
     """Columns never ask a parser, so a column type's parser must refuse nothing."""
-    decoder = profile(protocol).decoder()
+    decoder = profile(protocol).codec.decoder()
     layout = type(decoder).layout
     assert layout is not None
     for kind in type(decoder).columns:
@@ -247,7 +248,7 @@ def test_capture_columns_reads_a_jsonl_capture_both_ways(tmp_path: Path) -> None
     cols = capture_columns(path, "chassis")
     assert len(cols["Telemetry"]["t"]) == 150  # 50 Hz for 3 s
     assert cols["Telemetry"]["linear"][-1] == pytest.approx(0.3, abs=0.01)
-    assert cols.frames == len(streamed(rx, profile("chassis").decoder()))
+    assert cols.frames == len(streamed(rx, profile("chassis").codec.decoder()))
     sent = capture_columns(path, "chassis", commands=True)
     assert [type(m).__name__ for _, m in sent.messages] == ["DriveVelocity"] * len(tx)
     assert [t for t, _ in sent.messages] == [t for t, _ in tx]
@@ -257,14 +258,14 @@ def test_capture_columns_reads_an_mcap_recording(tmp_path: Path) -> None:
     pytest.importorskip("foxglove")
     pytest.importorskip("mcap")
     from chassis_sdk import Chassis
-    from chassis_sdk.core.recording import open_recording
+    from chassis_sdk.recording.writers import open_recording
 
     rx, _ = session(2.0)
     device: Any = Chassis("/dev/columns-test")
     path = tmp_path / "drive.mcap"
     recording = open_recording(path, device)
     for t, data in rx:
-        device._ingest(data, 100.0 + t)
+        device.feed(data, 100.0 + t)
     recording.close()
     cols = capture_columns(path, "chassis")
     assert len(cols["Telemetry"]["t"]) == 100
@@ -278,13 +279,21 @@ def test_what_cannot_be_decoded_into_columns_is_a_clear_error(tmp_path: Path) ->
     with pytest.raises(ValueError, match="Unlaid has no layout"):
         decode_columns([(0.0, b"\xaa\x55")], Unlaid())
     with pytest.raises(ValueError, match="add up to 3, not 2 bytes"):
-        decode_joined(b"\x00\x01", [0.0], [3], profile("chassis").decoder())
-    assert decode_columns([], profile("board").decoder()).frames == 0
+        decode_joined(b"\x00\x01", [0.0], [3], profile("chassis").codec.decoder())
+    assert decode_columns([], profile("board").codec.decoder()).frames == 0
     not_a_capture = tmp_path / "x.jsonl"
     not_a_capture.write_text("hello\n")
     with pytest.raises(ValueError, match="not a chassis-sdk capture"):
         capture_columns(not_a_capture, "chassis")
     chassis = profile("chassis")
+    unlaid = DeviceProfile(
+        name="unlaid",
+        summary="a chassis whose decoder has no layout",
+        recognised_by=chassis.recognised_by,
+        device=chassis.device,
+        firmware=chassis.firmware,
+        codec=dataclasses.replace(chassis.codec, decoder=Unlaid),
+    )
     with pytest.raises(ValueError, match="a plot needs both decoders' layout"):
-        dataclasses.replace(chassis, name="unlaid", decoder=Unlaid)
+        checked(unlaid, commands("chassis"))
     assert isinstance(chassis, DeviceProfile)

@@ -95,7 +95,7 @@ async def test_a_failing_read_is_a_lost_link_once_not_a_traceback_per_wakeup(
     from chassis_sdk import ConnectionState
 
     reader: Any = transport
-    if transport.BACKEND == "serialx":
+    if transport.backend_name() == "serialx":
         if isinstance(error, ValueError):
             pytest.skip("serialx reads itself; os.read raises no ValueError")
         reader = importlib.import_module("serialx.descriptor_transport")
@@ -134,7 +134,7 @@ async def test_no_read_asks_for_more_than_read_size(monkeypatch: pytest.MonkeyPa
     import types
 
     reader: Any = transport
-    if transport.BACKEND == "serialx":
+    if transport.backend_name() == "serialx":
         reader = importlib.import_module("serialx.descriptor_transport")
     sizes: list[int] = []
 

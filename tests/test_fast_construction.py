@@ -97,7 +97,11 @@ def _messages() -> list[object]:
         WheelDriver,
     )
 
-    found = [msg for p in profiles().values() for _, msg in (*p.examples, *p.command_examples)]
+    found = [
+        msg
+        for p in profiles().values()
+        for _, msg in (*p.codec.examples, *p.codec.command_examples)
+    ]
     both = ChassisStatus.HARDWARE_ESTOP | ChassisStatus.FRONT_BUMPER
     unknown_bit = ChassisStatus(1 << 14)
     driver = WheelDriver(DriverError(0), MotorStatus(3), -1.5, 2.0)

@@ -17,10 +17,11 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from chassis_sdk import Board, Chassis, EventKind, Telemetry, capture
-from chassis_sdk.core.recording import json_schema
-from chassis_sdk.live import FoxgloveServer
+from chassis_sdk import Board, Chassis, EventKind, Telemetry
+from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
+from chassis_sdk.recording import capture
+from chassis_sdk.recording.writers import json_schema
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .foxglove_client import FoxgloveClient
@@ -251,7 +252,7 @@ async def test_cli_records_mcap_and_replays_and_exports_it(tmp_path: Path) -> No
 
 
 async def test_export_writes_commands_of_an_application_recording(tmp_path: Path) -> None:
-    from chassis_sdk.export import export_csv
+    from chassis_sdk.recording.export import export_csv
 
     path = tmp_path / "app.jsonl"
     async with ChassisSimulator() as sim, Chassis(sim.port, record=path) as robot:

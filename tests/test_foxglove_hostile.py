@@ -22,7 +22,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 
 from chassis_sdk import Chassis
-from chassis_sdk.live import FoxgloveServer
+from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
@@ -94,7 +94,7 @@ async def teleop(client: FoxgloveClient) -> None:
 async def test_a_page_of_another_origin_is_refused_at_the_handshake_and_never_drives(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    caplog.set_level(logging.WARNING, "chassis_sdk.live")
+    caplog.set_level(logging.WARNING, "chassis_sdk.integrations.foxglove")
     async with served() as (sim, robot, server), FoxgloveClient(server.url) as operator:
         await operator.wait_for(lambda: bool(operator.server_info))
         assert await refused(server.url, origin=EVIL) == 403
@@ -395,7 +395,7 @@ async def test_what_a_client_names_is_shown_bounded_in_reports() -> None:
 async def test_an_error_in_a_callback_is_caught_counted_and_reported(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import chassis_sdk.live as live
+    import chassis_sdk.integrations.foxglove as live
 
     def broken(data: bytes) -> tuple[float, float]:
         raise RuntimeError("a bug")
@@ -711,7 +711,7 @@ async def test_the_cli_stops_a_teleop_robot_at_once_on_sigterm_with_a_half_open_
 async def test_a_service_call_that_timed_out_is_cancelled_not_done_later(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import chassis_sdk.live as live
+    import chassis_sdk.integrations.foxglove as live
 
     monkeypatch.setattr(live, "_SERVICE_TIMEOUT", 0.2)
     done: list[str] = []
@@ -804,7 +804,7 @@ async def test_the_front_refuses_text_frames_that_are_not_json_objects(
 
 
 async def test_the_front_keeps_a_bounded_record_of_a_connections_channels() -> None:
-    import chassis_sdk.live as live
+    import chassis_sdk.integrations.foxglove as live
 
     MAX_CLIENT_CHANNELS = getattr(live, "MAX_CLIENT_CHANNELS", 256)
     n = MAX_CLIENT_CHANNELS + 44

@@ -1,5 +1,5 @@
 """The strict reading of a command from the network, its timestamp, and refusal reports
-(chassis_sdk.inbound), shared by every surface that takes commands: a readable table of
+(chassis_sdk.integrations.inbound), shared by every surface that takes commands: a readable table of
 what is refused and why, properties over arbitrary bytes, and the report schedule."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from chassis_sdk.inbound import (
+from chassis_sdk.integrations.inbound import (
     MAX_COMMAND_BYTES,
     CommandError,
     Refusals,

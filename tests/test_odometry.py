@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from chassis_sdk import Board, Chassis
-from chassis_sdk.odometry import OdometryIntegrator, wrap_angle
+from chassis_sdk.core.odometry import OdometryIntegrator, wrap_angle
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -180,8 +180,8 @@ def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
     keep = listened._odometry.listen(poses.append)
     assert alone.latest_odometry is None
     for i, (now, data) in enumerate(frames):
-        listened._ingest(data, now)
-        alone._ingest(data, now)
+        listened.feed(data, now)
+        alone.feed(data, now)
         if i == 100:
             assert alone.latest_odometry is not None
             assert alone.latest_odometry == listened.latest_odometry  # read mid-way

@@ -10,13 +10,14 @@ from typing import Any
 
 import pytest
 
-from chassis_sdk import capture
 from chassis_sdk.cli import main as cli_main
-from chassis_sdk.core.columns import decode_columns
+from chassis_sdk.cli.devices import commands as device_commands
 from chassis_sdk.devices import profile
+from chassis_sdk.devices.board.protocol import velocity_command as board_velocity
+from chassis_sdk.devices.chassis.protocol import velocity_command
 from chassis_sdk.protocol import BoardEncoder, ChassisEncoder
-from chassis_sdk.protocol.board import velocity_command as board_velocity
-from chassis_sdk.protocol.chassis import velocity_command
+from chassis_sdk.recording import capture
+from chassis_sdk.recording.columns import decode_columns
 from chassis_sdk.sim import BoardFirmware, ChassisFirmware
 
 matplotlib = pytest.importorskip("matplotlib")
@@ -59,7 +60,7 @@ def test_the_chassis_plot_separates_units_wheels_and_commands(tmp_path: Path) ->
     commands = capture.capture_columns(path, "chassis", commands=True)
     assert len(commands.messages) == 40
     fig = Figure()
-    plot = profile("chassis").plot
+    plot = device_commands("chassis").plot
     assert plot is not None
     plot(rows, commands, fig)
     linear, angular, wheels, volts, path_ax = fig.axes
@@ -91,10 +92,10 @@ def test_the_board_plot_says_why_the_battery_panel_is_empty() -> None:
             fw.receive(frame, t)
             sent.append((t, frame))
         received.append((t, fw.poll(t)))
-    rows = decode_columns(received, profile("board").decoder())
-    commands = decode_columns(sent, profile("board").command_decoder())
+    rows = decode_columns(received, profile("board").codec.decoder())
+    commands = decode_columns(sent, profile("board").codec.command_decoder())
     assert len(commands.messages) == 10
-    plot = profile("board").plot
+    plot = device_commands("board").plot
     assert plot is not None
     with_battery = Figure()
     plot(rows, commands, with_battery)

@@ -18,9 +18,10 @@ from pathlib import Path
 import pytest
 
 import chassis_sdk.devices as registry
-from chassis_sdk import ConnectionState, EventKind, NotConnectedError, RequestTimeoutError, capture
+from chassis_sdk import ConnectionState, EventKind, NotConnectedError, RequestTimeoutError
 from chassis_sdk.cli import main as cli_main
 from chassis_sdk.devices import DeviceProfile, profile, profiles, register, unregister
+from chassis_sdk.recording import capture
 
 from .toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
 

@@ -31,16 +31,16 @@ from chassis_sdk.core import (
     INVALID,
     NEED_DATA,
     Device,
+    FirmwareModel,
     FrameBuilder,
     FrameDecoder,
-    LineFaults,
-    SimulatorServer,
+    FrameTable,
     Subscription,
+    next_slot,
 )
-from chassis_sdk.core.framing import FrameTable
-from chassis_sdk.core.simulator import FirmwareModel, next_slot
 from chassis_sdk.core.validation import INT16, check_int, scale_to_int
-from chassis_sdk.devices import DeviceProfile
+from chassis_sdk.devices import Codec, DeviceProfile
+from chassis_sdk.sim import LineFaults, SimulatorServer
 
 __all__ = ["PROFILE", "Toy", "ToyDecoder", "ToyFirmware", "ToySimulator", "ToyTelemetry"]
 
@@ -298,21 +298,22 @@ class ToySimulator(SimulatorServer):
 PROFILE = DeviceProfile(
     name="toy",
     summary="a toy differential base (A5 5A frames)",
-    device=Toy,
-    decoder=ToyDecoder,
-    command_decoder=ToyCommandDecoder,
-    firmware=ToyFirmware,
-    simulator=ToySimulator,
-    examples=(
-        (bytes.fromhex("A55A 01 04 2C01 3031 29"), ToyTelemetry(0.3, 12.592)),
-        (bytes.fromhex("A55A 82 03 07 0A00 8C"), Pong(7, 10)),
-    ),
-    command_examples=(
-        (bytes.fromhex("A55A 02 01 07 04"), Ping(7)),
-        (bytes.fromhex("A55A 03 04 C800 F4FF C4"), Drive(200, -12)),
-    ),
-    max_buffered=8,
     recognised_by="toy telemetry (0x01)",
+    device=Toy,
+    firmware=ToyFirmware,
+    codec=Codec(
+        decoder=ToyDecoder,
+        command_decoder=ToyCommandDecoder,
+        examples=(
+            (bytes.fromhex("A55A 01 04 2C01 3031 29"), ToyTelemetry(0.3, 12.592)),
+            (bytes.fromhex("A55A 82 03 07 0A00 8C"), Pong(7, 10)),
+        ),
+        command_examples=(
+            (bytes.fromhex("A55A 02 01 07 04"), Ping(7)),
+            (bytes.fromhex("A55A 03 04 C800 F4FF C4"), Drive(200, -12)),
+        ),
+        max_buffered=8,
+    ),
 )
 
 # --8<-- [end:profile]

@@ -25,16 +25,18 @@ import time
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
-from .. import capture
+from ..core.ports import list_serial_ports
 from ..core.run import run
-from ..core.simulator import LineFaults
 from ..core.supervisor import ConnectionState
 from ..core.validation import check_int, check_real
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile, profile, profiles
 from ..errors import ChassisError, RequestTimeoutError
-from ..ports import list_serial_ports
+from ..recording import capture
+from ..sim import simulator
+from ..sim.server import LineFaults
 from .common import first_frame, jsonable, out, progress_line
+from .devices import commands
 
 __all__ = ["ENV_BROKER", "ENV_PORT", "ENV_PROTOCOL", "main"]
 
@@ -96,15 +98,16 @@ async def _detect(port: str | None, seconds: float, baudrate: int) -> None:
 
 
 async def _sim(device: DeviceProfile, tcp: int | None, faults: LineFaults) -> None:
-    async with device.simulator(tcp_port=tcp, faults=faults) as server:
+    async with simulator(device.name, tcp_port=tcp, faults=faults) as server:
         out(server.port)
         out(f"{device.name} simulator running; connect to the line above. Ctrl-C stops it.")
         await asyncio.Event().wait()
 
 
 async def _info(device: DeviceProfile, port: str, baudrate: int, timeout: float) -> None:
-    if device.info is not None:
-        await device.info(port, baudrate, timeout)
+    own = commands(device.name).info
+    if own is not None:
+        await own(port, baudrate, timeout)
         return
     async with device.device(port, baudrate=baudrate, request_timeout=timeout) as dev:
         out(f"port         {port}")
@@ -152,8 +155,9 @@ async def _drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
 async def _monitor(
     device: DeviceProfile, port: str, baudrate: int, seconds: float | None, as_json: bool
 ) -> None:
-    if device.monitor is not None:
-        await device.monitor(port, baudrate, seconds, as_json)
+    own = commands(device.name).monitor
+    if own is not None:
+        await own(port, baudrate, seconds, as_json)
         return
     # Any other device: its streams (from its profile), link and events, as lines.
     async with device.device(port, baudrate=baudrate, reconnect=True) as dev:
@@ -161,7 +165,7 @@ async def _monitor(
         if not as_json:
             print("Ctrl-C to quit", file=sys.stderr)
         async with asyncio.TaskGroup() as tg:
-            tasks = [tg.create_task(_follow(dev, name, as_json)) for name in device.streams]
+            tasks = [tg.create_task(_follow(dev, name, as_json)) for name in device.remote.streams]
             tasks.append(tg.create_task(_follow_link(dev, as_json)))
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.Event().wait(), seconds)
@@ -240,7 +244,7 @@ def _replay(path: str, protocol: str | None, as_json: bool) -> None:
 
 
 async def _replay_as_device(args: argparse.Namespace) -> None:
-    from ..core.simulator import SimulatorServer
+    from ..sim.server import SimulatorServer
 
     proto = args.protocol or _detect_file(args.file)
     start_after = 0.0 if args.tcp is not None else args.start_after
@@ -303,15 +307,16 @@ def _plot(path: str, output: str, protocol: str | None) -> None:
     except ImportError:
         raise ChassisError("plot needs matplotlib: pip install 'chassis-sdk[plot]'") from None
     proto = protocol or _detect_file(path)
-    device = profile(proto)
+    profile(proto)  # an unknown name fails here, naming the known ones
     fig = plt.figure(figsize=(13, 9))
-    if device.plot is not None:  # from arrays: an hour's frames, no object apiece
+    draw = commands(proto).plot
+    if draw is not None:  # from arrays: an hour's frames, no object apiece
         data = capture.capture_columns(path, proto)
-        commands = capture.capture_columns(path, proto, commands=True)
-        messages, sent = data.frames, commands.frames
+        sent_columns = capture.capture_columns(path, proto, commands=True)
+        messages, sent = data.frames, sent_columns.frames
         if not messages:
             _no_messages(path, proto)
-        device.plot(data, commands, fig)
+        draw(data, sent_columns, fig)
     else:  # a generic device: every numeric field of every message, by type
         rows = list(capture.decode_capture(path, proto))
         if not rows:
@@ -346,7 +351,7 @@ def _plot_fields(rows: list[tuple[float, object]], fig: Any) -> None:
 
 
 def _export(path: str, directory: str, protocol: str | None) -> None:
-    from ..export import export_csv
+    from ..recording.export import export_csv
 
     proto = protocol or _detect_file(path)
     written = export_csv(path, directory, proto)
@@ -369,9 +374,10 @@ async def _bridge(device: DeviceProfile, port: str, args: argparse.Namespace) ->
 
 
 async def _demo(device: DeviceProfile) -> None:
-    if device.demo is None:
+    demo = commands(device.name).demo
+    if demo is None:
         raise ChassisError(f"there is no demo of a {device.name}; try `sim {device.name}`")
-    await device.demo()
+    await demo()
 
 
 # --- arguments ----------------------------------------------------------------------------
@@ -420,7 +426,7 @@ def _protocol_arg(p: argparse.ArgumentParser, names: list[str], *, detected: boo
 
 
 def _parser() -> argparse.ArgumentParser:
-    from .. import __version__
+    from .._version import __version__
 
     known = profiles()
     names = list(known)

@@ -44,7 +44,13 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     try:
         import aiomqtt
 
-        from ..bridge import CommandInbox, MqttBridge, RobotIdTaken, connection_will, new_owner
+        from ..integrations.mqtt import (
+            CommandInbox,
+            MqttBridge,
+            RobotIdTaken,
+            connection_will,
+            new_owner,
+        )
     except ImportError:
         raise ChassisError("bridge needs aiomqtt: pip install 'chassis-sdk[mqtt]'") from None
     host, broker_port, tls = _broker(args.broker)

@@ -82,10 +82,10 @@ async def drive_for(
 async def simulated(name: str, device: type[D]) -> AsyncIterator[D]:
     """A demo's stage: device ``name``'s simulator on a pty and ``device`` connected to
     it through the real serial stack, narrated."""
-    from ..devices import profile
+    from ..sim import simulator
 
     out(f"Starting the {name} simulator on a pseudo-terminal ...")
-    async with profile(name).simulator() as sim:
+    async with simulator(name) as sim:
         out(f"simulator    {sim.port}")
         async with device(sim.port) as connected:
             out(f"connected    via {connected.transport_backend}")

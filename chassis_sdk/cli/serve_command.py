@@ -28,9 +28,10 @@ __all__ = ["serve"]
 
 
 def _show_refusals() -> None:
-    """Refused connections and messages are warnings of ``chassis_sdk.live`` (already
-    rate-limited); the CLI shows only errors unless ``-v``, so show these on stderr."""
-    log = logging.getLogger("chassis_sdk.live")
+    """Refused connections and messages are warnings of
+    ``chassis_sdk.integrations.foxglove`` (already rate-limited); the CLI shows only
+    errors unless ``-v``, so show these on stderr."""
+    log = logging.getLogger("chassis_sdk.integrations.foxglove")
     if log.getEffectiveLevel() > logging.WARNING:
         handler = logging.StreamHandler(sys.stderr)
         handler.setFormatter(logging.Formatter("chassis-sdk serve: %(message)s"))
@@ -42,7 +43,7 @@ def _show_refusals() -> None:
 async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
     """Serve until Ctrl-C, SIGTERM or ``--seconds``."""
     try:
-        from ..live import FoxgloveServer, check_access
+        from ..integrations.foxglove import FoxgloveServer, check_access
     except ImportError:
         raise ChassisError(
             "serve needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"

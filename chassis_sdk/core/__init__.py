@@ -1,32 +1,72 @@
-"""The core: everything a device needs that knows no protocol.
+"""The core: everything a device needs that knows no protocol and no file format.
 
-Nothing here imports a device package. Modules, bottom up:
+Nothing here imports a device, a recorder, an integration or the command line.
+Modules, bottom up. The pure parts (no asyncio, no clock of their own):
 
 * :mod:`.validation`: the one check of numbers from a caller, and SI-to-wire scaling;
 * :mod:`.framing`: the incremental frame scanner every codec builds on;
 * :mod:`.construct`: fast construction of frozen message types (decoders' hot path);
-* :mod:`.transport`: the link (one per port) and opening ports of every kind;
+* :mod:`.enums`: enums and flags that print their names; :mod:`.plain`: messages as
+  plain data (JSON, CSV);
+* :mod:`.firmware`: the base of the sans-IO firmware models the simulators serve;
+* :mod:`.alarm`, :mod:`.backoff`: a wakeable sleep, and reconnect delays.
+
+The runtime:
+
+* :mod:`.transport`: the link (one per port) and opening ports of every kind (the
+  serial backend is chosen at the first open); :mod:`.ports`: listing serial ports;
 * :mod:`.dispatch`: streams with their latest value, and the table of requests;
 * :mod:`.requests`: writing requests, retries, matching replies;
 * :mod:`.supervisor`: lifetime, the close fence, reconnect, link health;
-* :mod:`.watchdog`: the velocity watchdog, deadman and limits;
+* :mod:`.watchdog`: the velocity watchdog, deadman and limits; :mod:`.motion`: a
+  device's motion commands over it;
 * :mod:`.odometry`, :mod:`.events`, :mod:`.diagnosis`, :mod:`.stats`: what a device
-  reports, generically;
-* :mod:`.device`: the :class:`Device` base (with the :mod:`.motion` and
-  :mod:`.observation` facets) that a device subclasses;
-* :mod:`.simulator`: serving a firmware model on a pty or TCP, with line faults;
+  reports, generically; :mod:`.observation`: a device's streams and reports;
+* :mod:`.device`: the :class:`Device` base that a device subclasses;
 * :mod:`.run`: ``chassis_sdk.run``, SIGTERM-safe ``asyncio.run``.
+
+The names below are what a device package is written with (see "Adding a device");
+each is imported on first use, so ``chassis_sdk.core.framing`` loads alone.
 """
 
-from .device import Device
-from .diagnosis import Diagnosis, Findings
-from .dispatch import Broadcast, Subscription
-from .events import EdgeDetector, EventKind, RobotEvent
-from .framing import INVALID, NEED_DATA, DecoderStats, FrameDecoder
-from .simulator import Firmware, LineFaults, SimulatorServer
-from .stats import LinkStats
-from .supervisor import ConnectionState
-from .watchdog import FrameBuilder, MotionLimits
+from __future__ import annotations
+
+from importlib import import_module as _import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .device import Device
+    from .diagnosis import Diagnosis, Findings
+    from .dispatch import Broadcast, Subscription
+    from .events import EdgeDetector, EventKind, RobotEvent
+    from .firmware import Firmware, FirmwareModel, next_slot
+    from .framing import INVALID, NEED_DATA, DecoderStats, FrameDecoder, FrameTable
+    from .stats import LinkStats
+    from .supervisor import ConnectionState
+    from .watchdog import FrameBuilder, MotionLimits
+
+_LAZY = {
+    "DecoderStats": ".framing",
+    "FrameDecoder": ".framing",
+    "FrameTable": ".framing",
+    "INVALID": ".framing",
+    "NEED_DATA": ".framing",
+    "Device": ".device",
+    "Diagnosis": ".diagnosis",
+    "Findings": ".diagnosis",
+    "Broadcast": ".dispatch",
+    "Subscription": ".dispatch",
+    "EdgeDetector": ".events",
+    "EventKind": ".events",
+    "RobotEvent": ".events",
+    "Firmware": ".firmware",
+    "FirmwareModel": ".firmware",
+    "next_slot": ".firmware",
+    "LinkStats": ".stats",
+    "ConnectionState": ".supervisor",
+    "FrameBuilder": ".watchdog",
+    "MotionLimits": ".watchdog",
+}
 
 __all__ = [
     "INVALID",
@@ -40,12 +80,26 @@ __all__ = [
     "EventKind",
     "Findings",
     "Firmware",
+    "FirmwareModel",
     "FrameBuilder",
     "FrameDecoder",
-    "LineFaults",
+    "FrameTable",
     "LinkStats",
     "MotionLimits",
     "RobotEvent",
-    "SimulatorServer",
     "Subscription",
+    "next_slot",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(_import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

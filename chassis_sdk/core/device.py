@@ -25,13 +25,13 @@ import time
 from collections.abc import Callable, Hashable
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, Self, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVar
 
 import anyio
 import anyio.lowlevel
 
 from ..errors import NotConnectedError, RequestTimeoutError
-from .dispatch import Broadcast, Streams, Subscription
+from .dispatch import Broadcast, Listener, Streams, Subscription
 from .events import BatteryMonitor, EventKind, RobotEvent
 from .framing import FrameDecoder
 from .motion import Motion
@@ -40,14 +40,14 @@ from .odometry import Odometry, OdometryIntegrator
 from .requests import Requester
 from .stats import LinkStats
 from .supervisor import ConnectionState, LinkSupervisor
-from .transport import BACKEND, Decoder
+from .transport import Decoder, backend_name
 from .validation import check_int, check_optional, check_real
 from .watchdog import MotionLimits, VelocityWatchdog
 
 if TYPE_CHECKING:
-    from .recording import Recording
+    from .transport import Tap
 
-__all__ = ["ConnectionState", "Device", "LinkStats"]
+__all__ = ["ConnectionState", "Device", "LinkStats", "Recorder", "set_recorder"]
 
 M = TypeVar("M")
 K = TypeVar("K", bound=Hashable)
@@ -63,11 +63,37 @@ _LINK_EVENTS = {
 }
 
 
+class Recorder(Protocol):
+    """A session recording as a device holds it (the ``record`` option): it taps the
+    device's traffic from before the port opens, and :meth:`close` ends it after the
+    final zero."""
+
+    def close(self) -> None:
+        """End the recording (flush and close its file)."""
+
+
+#: Opens the recording of the ``record`` option: ``opener(path, device)``. Set by
+#: :mod:`chassis_sdk.recording` when it is imported (the core knows no file format).
+_open_recorder: Callable[[Path, Device[Any, Any]], Recorder] | None = None
+
+
+def set_recorder(opener: Callable[[Path, Device[Any, Any]], Recorder]) -> None:
+    """Install what opens the ``record`` option's recordings (the recording package
+    does, on import; ``chassis_sdk.Chassis`` and ``chassis_sdk.Board`` import it)."""
+    global _open_recorder
+    _open_recorder = opener
+
+
 def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
     """The ``record`` option checked: ``None``, or a file path (``.mcap``: MCAP, which
     needs foxglove-sdk; any other name: a JSON-lines capture)."""
     if record is None:
         return None
+    if _open_recorder is None:
+        raise ValueError(
+            "record= needs the recorders: import chassis_sdk.recording first "
+            "(chassis_sdk.Chassis and chassis_sdk.Board do)"
+        )
     if not isinstance(record, str | os.PathLike) or not str(record):
         raise ValueError(f"record must be a file path, got {record!r}")
     path = Path(record)
@@ -132,11 +158,12 @@ class Device(Motion, Observation, Generic[M, K]):
         connect_timeout = check_real(connect_timeout, "connect_timeout", **_POSITIVE)
         close_linger = check_real(close_linger, "close_linger", low=0, unit="s")
         self._record_path = _recording_path(record)
-        self._recording: Recording | None = None
+        self._recording: Recorder | None = None
         self.port = port
         self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
         self._decoder = self._make_decoder()
         self._streams = Streams(queue_size)
+        self._listeners: set[Listener[Any]] = set()
         self._watchdog = VelocityWatchdog(
             self._write_velocity,
             interval=resend_interval,
@@ -244,7 +271,7 @@ class Device(Motion, Observation, Generic[M, K]):
     @property
     def transport_backend(self) -> str:
         """Which pyserial asyncio package carries the link."""
-        return BACKEND
+        return backend_name()
 
     @property
     def baudrate(self) -> int:
@@ -313,9 +340,8 @@ class Device(Motion, Observation, Generic[M, K]):
             self._streams.reopen()
 
         if self._record_path is not None and self._recording is None:
-            from .recording import open_recording
-
-            self._recording = open_recording(self._record_path, self)
+            assert _open_recorder is not None  # checked with the option
+            self._recording = _open_recorder(self._record_path, self)
         try:
             await self._link.connect(connecting)
         except BaseException:
@@ -352,10 +378,69 @@ class Device(Motion, Observation, Generic[M, K]):
         if recording is not None:
             recording.close()
 
-    def _ingest(self, data: bytes, now: float) -> None:
+    # --- observing the device (recorders, bridges, live views) -----------------------------
+
+    def add_tap(self, tap: Tap) -> Callable[[], None]:
+        """Let ``tap`` see every byte of this device's link, both ways, across
+        reconnects: ``tap.rx(data, now)`` for each chunk received, ``tap.tx(frame,
+        now)`` for each frame as it begins to leave (``now`` is ``time.monotonic()``).
+        Called synchronously on the event loop: it must be quick and must not raise.
+
+        Returns:
+            The function that removes it.
+        """
+        self._link.add_tap(tap)
+        return lambda: self._link.remove_tap(tap)
+
+    @property
+    def stream_names(self) -> tuple[str, ...]:
+        """The names of this device's streams: the methods that subscribe to them
+        (``"telemetry"``, ``"odometry"``, ``"events"``, ...)."""
+        return tuple(self._streams.named)
+
+    def listen(self, stream: str, callback: Callable[[Any], None]) -> Callable[[], None]:
+        """Call ``callback(message)`` synchronously for every message of the stream
+        named ``stream`` (see :attr:`stream_names`), in wire order, from now on: for
+        recorders and bridges that must see every message and cost nothing when
+        absent. It must be quick and must not raise.
+
+        Returns:
+            The function that stops it.
+
+        Raises:
+            ValueError: No stream of that name.
+        """
+        found = self._streams.named.get(stream)
+        if found is None:
+            raise ValueError(
+                f"{self.kind} has no stream {stream!r}; it has: {', '.join(self._streams.named)}"
+            )
+        return self._held(found.listen(callback))
+
+    def listen_states(self, callback: Callable[[ConnectionState], None]) -> Callable[[], None]:
+        """Call ``callback(state)`` synchronously on every :class:`ConnectionState`
+        change, from now on. Returns the function that stops it."""
+        return self._held(self._link.states.listen(callback))
+
+    def _held(self, listener: Listener[Any]) -> Callable[[], None]:
+        """Keep ``listener`` (streams hold theirs weakly) until the returned call."""
+        self._listeners.add(listener)
+
+        def stop() -> None:
+            self._listeners.discard(listener)
+            listener.close()
+
+        return stop
+
+    def command_decoder(self) -> FrameDecoder[Any] | None:
+        """A new decoder of what the *host* writes to this device, so recordings show
+        the commands decoded (``None``: the device has none; they keep the raw bytes)."""
+        return self._make_command_decoder()
+
+    def feed(self, data: bytes, now: float) -> None:
         """Take bytes that reached this device other than through its own link (a
-        passive recorder, a conversion): recorded, decoded and handled as if they had
-        come through it (streams, odometry, events)."""
+        capture being replayed, a passive recorder, a conversion): tapped, decoded and
+        handled as if they had come through it (streams, odometry, events)."""
         tap = self._link.tap
         if tap is not None:
             tap.rx(data, now)

@@ -100,7 +100,7 @@ class DecoderStats:
 @dataclass(frozen=True, slots=True)
 class FrameLayout:
     """A protocol's framing rules as data, for decoding a whole capture with arrays
-    (:mod:`chassis_sdk.core.columns`). It must say exactly what the codec's
+    (:mod:`chassis_sdk.recording.columns`). It must say exactly what the codec's
     ``_try_frame`` does; a test holds the two to the same frames.
 
     A frame starts with the decoder's head; its type is the byte at ``type_at`` and its length
@@ -134,7 +134,7 @@ class FrameLayout:
 @dataclass(frozen=True, slots=True)
 class Column:
     """One field of a fixed-size frame, read into an array by
-    :mod:`chassis_sdk.core.columns`: ``name`` (the flattened name a CSV export uses,
+    :mod:`chassis_sdk.recording.columns`: ``name`` (the flattened name a CSV export uses,
     e.g. ``wheels.front_left``), the struct code of the little-endian field (``"h"``,
     ``"H"``, ``"B"``, ...) at ``at`` bytes from the frame's data (negative: in the
     header), and ``divisor``: the value in SI units is the raw number divided by it

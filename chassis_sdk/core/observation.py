@@ -19,7 +19,7 @@ from .odometry import Odometry, OdometryIntegrator
 from .requests import Requester
 from .stats import LinkStats
 from .supervisor import ConnectionState, LinkSupervisor
-from .transport import BACKEND
+from .transport import backend_name
 from .validation import check_real
 from .watchdog import VelocityWatchdog
 
@@ -156,7 +156,7 @@ class Observation:
         if age is None:
             found.fault("no valid frame received yet")
         else:
-            found.note(f"last frame {age:.2f} s ago, via {BACKEND}")
+            found.note(f"last frame {age:.2f} s ago, via {backend_name()}")
         if self._battery_monitor.low:
             found.fault(f"battery below {self._battery_monitor.threshold:g} V")
         return found

@@ -43,7 +43,7 @@ import anyio
 from ..errors import ChassisError, ConnectionLostError, NotConnectedError, PortOpenError
 from .backoff import Backoff
 from .dispatch import Broadcast, Listener, Subscription
-from .transport import BACKEND, QUEUE_LIMIT, Decoder, Link, Tap, open_link
+from .transport import QUEUE_LIMIT, Decoder, Link, Tap, backend_name, open_link
 
 __all__ = ["ConnectionState", "ConnectionStates", "LinkSupervisor", "Supervised", "Writer"]
 
@@ -241,6 +241,24 @@ class Writer(Generic[M]):
                 self._count_sent(len(zero))
 
 
+class _Taps:
+    """Several taps as one (the link calls one object; most devices have one tap or
+    none, which the link then calls directly)."""
+
+    __slots__ = ("_taps",)
+
+    def __init__(self, taps: tuple[Tap, ...]) -> None:
+        self._taps = taps
+
+    def rx(self, data: bytes, now: float) -> None:
+        for tap in self._taps:
+            tap.rx(data, now)
+
+    def tx(self, data: bytes, now: float) -> None:
+        for tap in self._taps:
+            tap.tx(data, now)
+
+
 class LinkSupervisor(Generic[M]):
     """Opens, watches, reopens and closes one device's link; owns its state and writes.
 
@@ -288,18 +306,27 @@ class LinkSupervisor(Generic[M]):
         self._connecting: asyncio.Future[None] | None = None
         self.reconnects = 0
         self._discarded = 0  # by links already closed
-        self._tap: Tap | None = None
+        self._taps: tuple[Tap, ...] = ()
+        self._tap: Tap | None = None  # what the link calls: the one tap, or all of them
+
+    def add_tap(self, tap: Tap) -> None:
+        """Let ``tap`` see every byte of every link of this device, both ways."""
+        self._set_taps((*self._taps, tap))
+
+    def remove_tap(self, tap: Tap) -> None:
+        """Stop ``tap`` seeing the traffic (nothing happens if it does not)."""
+        self._set_taps(tuple(t for t in self._taps if t is not tap))
 
     @property
     def tap(self) -> Tap | None:
-        """What sees every byte of every link of this device, both ways (a recorder)."""
+        """What the link calls for every byte (``None``, the one tap, or all of them)."""
         return self._tap
 
-    @tap.setter
-    def tap(self, tap: Tap | None) -> None:
-        self._tap = tap
+    def _set_taps(self, taps: tuple[Tap, ...]) -> None:
+        self._taps = taps
+        self._tap = None if not taps else taps[0] if len(taps) == 1 else _Taps(taps)
         if self.writer.link is not None:
-            self.writer.link.tap = tap
+            self.writer.link.tap = self._tap
 
     # --- state --------------------------------------------------------------------------
 
@@ -373,7 +400,7 @@ class LinkSupervisor(Generic[M]):
             return
         self.writer.link = link
         self._opened_at = time.monotonic()
-        self._log.info("%s: opened at %d baud via %s", self.port, self.baudrate, BACKEND)
+        self._log.info("%s: opened at %d baud via %s", self.port, self.baudrate, backend_name())
 
     def _on_lost(self, link: Link[M], exc: Exception | None) -> None:
         if link.accounted:

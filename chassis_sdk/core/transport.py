@@ -89,35 +89,69 @@ _BACKENDS = {
 }
 
 
-def _load_backend() -> tuple[Any, str]:
+class _Backend:
+    """The serial backend, loaded at the first open of a device path (never at import,
+    so the codecs, ``--help`` and ``socket://`` links work without it)."""
+
+    module: Any = None
+    name: str | None = None
+    #: What opening a device path may raise (serialx's exceptions are not OSErrors).
+    open_errors: tuple[type[BaseException], ...] = (OSError, ValueError, termios.error)
+
+
+def _load_backend() -> type[_Backend]:
     """The first of serialx, pyserial-asyncio-fast and pyserial-asyncio installed.
 
     The environment variable ``CHASSIS_SDK_BACKEND`` (``serialx``,
     ``pyserial-asyncio-fast`` or ``pyserial-asyncio``) forces one, to compare them or
     to rule one out.
+
+    Raises:
+        PortOpenError: The forced one is unknown or not installed, or none is.
     """
+    if _Backend.name is not None:
+        return _Backend
     forced = os.environ.get("CHASSIS_SDK_BACKEND")
     if forced:
         if forced not in _BACKENDS:
-            raise ImportError(
+            raise PortOpenError(
                 f"CHASSIS_SDK_BACKEND={forced!r}: use one of {', '.join(sorted(_BACKENDS))}"
             )
-        return importlib.import_module(_BACKENDS[forced]), forced
-    for name, module in _BACKENDS.items():
         try:
-            return importlib.import_module(module), name
-        except ImportError:  # pragma: no cover - depends on the installed extra
-            continue
-    raise ImportError("chassis_sdk needs pyserial-asyncio: pip install pyserial-asyncio")
+            module, name = importlib.import_module(_BACKENDS[forced]), forced
+        except ImportError:
+            raise PortOpenError(
+                f"CHASSIS_SDK_BACKEND={forced!r} is not installed: pip install {forced}"
+            ) from None
+    else:
+        for candidate, module_name in _BACKENDS.items():
+            try:
+                module, name = importlib.import_module(module_name), candidate
+                break
+            except ImportError:  # pragma: no cover - depends on the installed extra
+                continue
+        else:
+            raise PortOpenError(
+                "no serial backend is installed: pip install pyserial-asyncio "
+                "(or the extras chassis-sdk[fast] or chassis-sdk[serialx])"
+            )
+    _Backend.module, _Backend.name = module, name
+    if name == "serialx":
+        _Backend.open_errors += (module.SerialException,)
+    return _Backend
 
 
-_serial_asyncio, BACKEND = _load_backend()
-#: What opening a device path may raise (serialx's exceptions are not OSErrors).
-_OPEN_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, termios.error)
-if BACKEND == "serialx":
-    _OPEN_ERRORS += (_serial_asyncio.SerialException,)
+def backend_name() -> str:
+    """The serial backend in use (``serialx``, ``pyserial-asyncio-fast`` or
+    ``pyserial-asyncio``), loading it if no port has been opened yet; ``"none"`` if
+    it cannot be loaded."""
+    try:
+        return _load_backend().name or "none"
+    except PortOpenError:
+        return "none"
 
-__all__ = ["BACKEND", "Link", "Tap", "open_link", "wait_lingering"]
+
+__all__ = ["Link", "Tap", "backend_name", "open_link", "wait_lingering"]
 
 M = TypeVar("M")
 
@@ -901,16 +935,16 @@ async def open_link(
                     f"unsupported URL scheme {parsed.scheme!r}: use a device path or "
                     "socket://host:port"
                 )
-            elif BACKEND == "serialx":
+            elif (backend := _load_backend()).name == "serialx":
                 # Opened off the loop, locked (flock), read with os.read from the loop.
-                transport, protocol = await _serial_asyncio.create_serial_connection(
+                transport, protocol = await backend.module.create_serial_connection(
                     loop, link_factory, url, baudrate, exclusive=True
                 )
                 if isinstance(getattr(transport, "max_size", None), int):
                     setattr(transport, "max_size", READ_SIZE)  # noqa: B010 (not typed)
             else:
                 ser = await _open_serial_in_thread(url, baudrate)
-                transport, protocol = await _serial_asyncio.connection_for_serial(
+                transport, protocol = await backend.module.connection_for_serial(
                     loop, link_factory, ser
                 )
     except TimeoutError:
@@ -922,7 +956,9 @@ async def open_link(
         raise PortOpenError(
             f"could not open {url}: no answer within {timeout:g} s (connect_timeout)"
         ) from None
-    except _OPEN_ERRORS as exc:
+    except PortOpenError:
+        raise
+    except _Backend.open_errors as exc:
         # serial.SerialException is an OSError subclass; bad URLs raise ValueError.
         raise PortOpenError(_describe_open_error(url, exc)) from exc
     link: Link[Any] = protocol

@@ -2,9 +2,9 @@
 
 A device is one package (``devices/chassis/``, ``devices/board/``, or an installed
 third-party package) that provides a :class:`DeviceProfile`: its device class, its
-codec, its firmware model and simulator, examples of its frames, and optionally its
-part of the command line. ``chassis-sdk``, :mod:`chassis_sdk.capture` and the fuzz
-harness loop over :func:`profiles`; nothing outside a device's own package names it.
+codec (:class:`Codec`), its firmware model, and what a bridge may publish and answer of
+it (:class:`Remote`). ``chassis-sdk``, the recorders and the fuzz harness loop over
+:func:`profiles`; nothing outside a device's own package names it.
 
 Third parties add a device by installing a package that declares an entry point in the
 group ``chassis_sdk.devices`` whose object is a :class:`DeviceProfile` (or a function
@@ -14,6 +14,9 @@ returning one)::
     [project.entry-points."chassis_sdk.devices"]
     mower = "acme_mower:PROFILE"
 
+Loading is lazy: :func:`names` reads no profile, :func:`profile` loads one, and a
+profile's ``device`` and ``firmware`` may be ``"module:attribute"`` strings, imported
+on first use (so listing devices or decoding a capture never loads the runtime).
 Tests and scripts may also :func:`register` a profile at run time. See "Adding a
 device" in the docs for a whole device in one file.
 """
@@ -21,19 +24,30 @@ device" in the docs for a whole device in one file.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Coroutine, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib import import_module, metadata
+from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-from ..core.device import Device
-from ..core.framing import FrameDecoder
-from ..core.simulator import Firmware, SimulatorServer
-
 if TYPE_CHECKING:
-    from ..core.columns import Columns
+    from importlib import metadata
 
-__all__ = ["ENTRY_POINT_GROUP", "DeviceProfile", "profile", "profiles", "register", "unregister"]
+    from ..core.device import Device
+    from ..core.firmware import Firmware
+    from ..core.framing import FrameDecoder
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "Codec",
+    "DeviceProfile",
+    "Remote",
+    "names",
+    "profile",
+    "profiles",
+    "register",
+    "resolve",
+    "unregister",
+]
 
 #: Where installed packages declare their devices.
 ENTRY_POINT_GROUP = "chassis_sdk.devices"
@@ -51,83 +65,125 @@ _log = logging.getLogger("chassis_sdk.devices")
 Example = tuple[bytes, object]
 
 
+def resolve(target: str | Any) -> Any:
+    """``"module:attribute"`` imported (anything else returned as it is)."""
+    if not isinstance(target, str):
+        return target
+    module, sep, attribute = target.partition(":")
+    if not sep or not module or not attribute:
+        raise ValueError(f"expected 'module:attribute', got {target!r}")
+    return getattr(import_module(module), attribute)
+
+
 @dataclass(frozen=True, slots=True)
-class DeviceProfile:
-    """Everything the SDK's tools need to know of one device.
+class Codec:
+    """What decoding a device's bytes needs (captures, the fuzzer, the contract tests).
 
     Attributes:
-        name: Short lowercase name: ``--protocol NAME`` on the command line,
-            ``Diagnosis.device``, ``detect``'s answer.
-        summary: One line for help texts.
-        device: The :class:`~chassis_sdk.core.device.Device` subclass.
         decoder: Makes a decoder of what the device sends.
         command_decoder: Makes a decoder of what the host sends (simulator, captures,
             fuzzing).
-        firmware: Makes a sans-IO firmware model (the simulator's).
-        simulator: Makes a simulator server: ``simulator(tcp_port=None, faults=None)``.
         examples: Frames the device sends, each with the message it decodes to; the
             codec contract tests and the fuzzer's seeds use them (at least one).
         command_examples: The same for frames the host sends.
         max_buffered: The most bytes a decoder may hold after ``feed`` returns (its
             largest frame, plus any look-ahead); the fuzzer checks it.
-        recognised_by: What ``detect`` hears from this device unprompted, for messages.
-        streams: The device's stream methods the MQTT bridge publishes
-            (``telemetry/{stream}``).
-        requests: The read-only request methods the bridge answers (``request/{name}``).
-        identity: The requests whose results make the bridge's retained ``info``.
-        features: What the device has, for ``info`` (``{"servos": 2, ...}``).
-        demo: ``chassis-sdk demo --device NAME``: drives the simulator, narrating.
-        info: ``chassis-sdk info PORT``: ``info(port, baudrate, timeout)``; a generic
-            report if ``None``.
-        monitor: ``chassis-sdk monitor PORT``: ``monitor(port, baudrate, seconds,
-            as_json)``.
-        plot: ``chassis-sdk plot``: ``plot(data, commands, figure)`` draws the capture
-            decoded into arrays (:class:`~chassis_sdk.core.columns.Columns`), and the
-            host's commands if the capture holds any, into a matplotlib figure; a
-            generic plot if ``None``. Both decoders must describe their ``layout``.
     """
 
-    name: str
-    summary: str
-    device: type[Device[Any, Any]]
     decoder: Callable[[], FrameDecoder[Any]]
     command_decoder: Callable[[], FrameDecoder[Any]]
-    firmware: Callable[[], Firmware]
-    simulator: Callable[..., SimulatorServer]
     examples: Sequence[Example]
     command_examples: Sequence[Example]
     max_buffered: int
-    recognised_by: str
+
+    def __post_init__(self) -> None:
+        if not self.examples or not self.command_examples:
+            raise ValueError("a codec needs examples of both directions")
+
+
+@dataclass(frozen=True, slots=True)
+class Remote:
+    """What a bridge (MQTT, ROS 2) publishes and answers of a device.
+
+    Attributes:
+        streams: The device's stream methods published (``telemetry/{stream}``).
+        requests: The read-only request methods answered (``request/{name}``).
+        identity: The requests whose results make the retained ``info``.
+        features: What the device has, for ``info`` (``{"servos": 2, ...}``).
+    """
+
     streams: tuple[str, ...] = ()
     requests: tuple[str, ...] = ()
     identity: tuple[str, ...] = ()
     features: Mapping[str, object] = field(default_factory=dict)
-    demo: Callable[[], Coroutine[Any, Any, None]] | None = None
-    info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
-    monitor: Callable[[str, int, float | None, bool], Coroutine[Any, Any, None]] | None = None
-    plot: Callable[[Columns, Columns, Any], None] | None = None
 
-    def __post_init__(self) -> None:
-        if not self.name or not self.name.isidentifier() or self.name != self.name.lower():
-            raise ValueError(f"a device name is a lowercase identifier, got {self.name!r}")
-        if not self.examples or not self.command_examples:
-            raise ValueError(f"device {self.name!r}: examples of both directions are needed")
-        if self.plot is not None and any(
-            type(make()).layout is None for make in (self.decoder, self.command_decoder)
-        ):
-            raise ValueError(f"device {self.name!r}: a plot needs both decoders' layout")
+
+class DeviceProfile:
+    """One device, as the SDK's tools know it.
+
+    Args:
+        name: Short lowercase name: ``--device NAME`` on the command line,
+            ``Diagnosis.device``, ``detect``'s answer.
+        summary: One line for help texts.
+        recognised_by: What ``detect`` hears from this device unprompted, for messages.
+        device: The :class:`~chassis_sdk.core.device.Device` subclass, or its
+            ``"module:attribute"`` (imported on first use).
+        firmware: Makes a sans-IO firmware model (the simulator's), or its
+            ``"module:attribute"``.
+        codec: Its decoders and examples.
+        remote: What bridges publish and answer.
+    """
+
+    __slots__ = ("_device", "_firmware", "codec", "name", "recognised_by", "remote", "summary")
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        summary: str,
+        recognised_by: str,
+        device: type[Device[Any, Any]] | str,
+        firmware: Callable[[], Firmware] | str,
+        codec: Codec,
+        remote: Remote | None = None,
+    ) -> None:
+        if not name or not name.isidentifier() or name != name.lower():
+            raise ValueError(f"a device name is a lowercase identifier, got {name!r}")
+        if not isinstance(codec, Codec):
+            raise TypeError(f"device {name!r}: codec must be a Codec, got {codec!r}")
+        self.name = name
+        self.summary = summary
+        self.recognised_by = recognised_by
+        self.codec = codec
+        self.remote = Remote() if remote is None else remote
+        self._device = device
+        self._firmware = firmware
+
+    @property
+    def device(self) -> type[Device[Any, Any]]:
+        """The device class (imported now if it was given as a string)."""
+        if isinstance(self._device, str):
+            self._device = resolve(self._device)
+        return self._device  # type: ignore[return-value]
+
+    @property
+    def firmware(self) -> Callable[[], Firmware]:
+        """Makes the firmware model (imported now if it was given as a string)."""
+        if isinstance(self._firmware, str):
+            self._firmware = resolve(self._firmware)
+        return self._firmware  # type: ignore[return-value]
+
+    def __repr__(self) -> str:
+        return f"<DeviceProfile {self.name!r}: {self.summary}>"
 
 
 _registered: dict[str, DeviceProfile] = {}
-_installed: dict[str, DeviceProfile] | None = None
+_loaded: dict[str, DeviceProfile] = {}
+_installed: dict[str, metadata.EntryPoint] | None = None
 
 
 def _load(target: str | metadata.EntryPoint) -> DeviceProfile:
-    if isinstance(target, str):
-        module, _, attribute = target.partition(":")
-        obj: Any = getattr(import_module(module), attribute)
-    else:
-        obj = target.load()
+    obj: Any = resolve(target) if isinstance(target, str) else target.load()
     if callable(obj) and not isinstance(obj, DeviceProfile):
         obj = obj()
     if not isinstance(obj, DeviceProfile):
@@ -135,46 +191,62 @@ def _load(target: str | metadata.EntryPoint) -> DeviceProfile:
     return obj
 
 
-def _discover() -> dict[str, DeviceProfile]:
-    """The built-in devices and every installed entry point, loaded once."""
+def _entry_points() -> dict[str, metadata.EntryPoint]:
+    """The entry points of installed devices (the SDK's own excluded), read once."""
     global _installed
     if _installed is None:
-        found = {name: _load(target) for name, target in BUILTIN.items()}
-        for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-            if BUILTIN.get(ep.name) == ep.value:
-                continue  # the SDK's own devices, declared for discovery by others
+        from importlib import metadata  # 30 ms: only when a device is looked up
+
+        for name in [n for n in _loaded if n not in BUILTIN]:
+            del _loaded[name]  # read anew with the entry points
+
+        _installed = {
+            ep.name: ep
+            for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)
+            if BUILTIN.get(ep.name) != ep.value and ep.name not in BUILTIN
+        }
+    return _installed
+
+
+def names() -> list[str]:
+    """The names of every known device, without loading any of them."""
+    return list(dict.fromkeys([*BUILTIN, *_entry_points(), *_registered]))
+
+
+def _get(name: str) -> DeviceProfile | None:
+    if name in _registered:
+        return _registered[name]
+    if name not in _loaded:
+        if name in BUILTIN:
+            _loaded[name] = _load(BUILTIN[name])
+        elif (ep := _entry_points().get(name)) is not None:
             try:
                 loaded = _load(ep)
             except Exception as exc:  # one broken plugin must not break every tool
-                _log.warning(
-                    "device entry point %s = %s failed to load: %r", ep.name, ep.value, exc
-                )
-                continue
-            if loaded.name in found:
-                _log.warning("device %r from %s ignored: the name is taken", loaded.name, ep.value)
-                continue
-            found[loaded.name] = loaded
-        _installed = found
-    return _installed
+                _log.warning("device entry point %s = %s failed to load: %r", name, ep.value, exc)
+                return None
+            _loaded[name] = loaded
+        else:
+            return None
+    return _loaded[name]
 
 
 def profiles() -> dict[str, DeviceProfile]:
     """Every known device by name: built in, installed (entry points in the group
     ``chassis_sdk.devices``), and registered at run time, in that order."""
-    return {**_discover(), **_registered}
+    return {name: p for name in names() if (p := _get(name)) is not None}
 
 
 def profile(name: str) -> DeviceProfile:
-    """The device called ``name``.
+    """The device called ``name`` (only its profile is loaded).
 
     Raises:
         ValueError: No such device (the message lists the known ones).
     """
-    known = profiles()
-    try:
-        return known[name]
-    except KeyError:
-        raise ValueError(f"unknown device {name!r}; known: {', '.join(known)}") from None
+    found = _get(name)
+    if found is None:
+        raise ValueError(f"unknown device {name!r}; known: {', '.join(names())}")
+    return found
 
 
 def register(device: DeviceProfile) -> None:
@@ -183,7 +255,7 @@ def register(device: DeviceProfile) -> None:
     Raises:
         ValueError: A device of that name is already known.
     """
-    if device.name in profiles():
+    if device.name in names():
         raise ValueError(f"a device named {device.name!r} is already registered")
     _registered[device.name] = device
 

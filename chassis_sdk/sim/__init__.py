@@ -1,4 +1,4 @@
-"""Simulators: sans-IO firmware models of both devices, served on a pty or TCP.
+"""Simulators: the devices' sans-IO firmware models, served on a pty or TCP.
 
 They are the embedded default that the examples, the CLI demo and the tests run
 against when no hardware is attached::
@@ -14,14 +14,22 @@ against when no hardware is attached::
 (bumper, driver faults, e-stop, ``reset``); ``sim.faults`` (:class:`LineFaults`) damages
 the line; ``sim.unplug()`` / ``await sim.replug()`` pull and restore the cable.
 
-The server lives in :mod:`chassis_sdk.core.simulator`, each firmware model with its
-device (:mod:`chassis_sdk.devices`); every device's simulator is
-``chassis_sdk.devices.profile(name).simulator``.
+* :mod:`.server`: :class:`SimulatorServer`, which serves any firmware model, and the
+  line faults;
+* :mod:`.chassis`, :mod:`.board`: the two built-in devices' simulators;
+* :func:`simulator`: the simulator of any registered device, by name.
+
+Each firmware model lives with its device (``chassis_sdk.devices.NAME.firmware``).
 """
 
-from ..core.simulator import FaultCounts, LineFaults, SimulatorServer
-from ..devices.board.firmware import BoardFirmware, BoardSimulator, BoardSpec
-from ..devices.chassis.firmware import ChassisFirmware, ChassisSimulator, ChassisSpec
+from __future__ import annotations
+
+from ..devices import profile
+from ..devices.board.firmware import BoardFirmware, BoardSpec
+from ..devices.chassis.firmware import ChassisFirmware, ChassisSpec
+from .board import BoardSimulator
+from .chassis import ChassisSimulator
+from .server import FaultCounts, LineFaults, SimulatorServer
 
 __all__ = [
     "BoardFirmware",
@@ -33,4 +41,17 @@ __all__ = [
     "FaultCounts",
     "LineFaults",
     "SimulatorServer",
+    "simulator",
 ]
+
+
+def simulator(
+    device: str, *, tcp_port: int | None = None, faults: LineFaults | None = None
+) -> SimulatorServer:
+    """A simulator of the registered device called ``device`` (its firmware model,
+    fresh, on a pty or on ``127.0.0.1:tcp_port``), not yet started.
+
+    Raises:
+        ValueError: No such device.
+    """
+    return SimulatorServer(profile(device).firmware(), tcp_port=tcp_port, faults=faults)

@@ -1,8 +1,30 @@
-"""The board firmware model and its simulator.
+"""The controller board (protocol B) simulator: its firmware model served on a pty or TCP."""
 
-Kept at this path for code written against it; the code lives in
-:mod:`chassis_sdk.devices.board.firmware`.
-"""
+from __future__ import annotations
 
-from ..devices.board.firmware import *  # noqa: F403
-from ..devices.board.firmware import __all__ as __all__
+from ..devices.board.firmware import BoardFirmware, BoardSpec
+from .server import LineFaults, SimulatorServer
+
+__all__ = ["BoardSimulator"]
+
+
+class BoardSimulator(SimulatorServer):
+    """The board firmware model served on a pseudo-terminal (default) or TCP.
+
+    Args:
+        spec: Rates and dynamics.
+        tcp_port: Serve on ``socket://127.0.0.1:PORT`` instead of a pty (0: any port).
+        faults: Line faults to start with (noise, bit flips, lost bytes, late or lost
+            replies); ``sim.faults`` can be changed while it runs.
+    """
+
+    firmware: BoardFirmware
+
+    def __init__(
+        self,
+        spec: BoardSpec | None = None,
+        *,
+        tcp_port: int | None = None,
+        faults: LineFaults | None = None,
+    ) -> None:
+        super().__init__(BoardFirmware(spec), tcp_port=tcp_port, faults=faults)

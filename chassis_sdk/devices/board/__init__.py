@@ -3,10 +3,25 @@
 * :mod:`.messages`: the typed messages and their enums;
 * :mod:`.protocol`: the sans-IO codec (frames, encoder, decoders);
 * :mod:`.device`: :class:`Board`, the public API;
-* :mod:`.firmware`: the firmware model and its simulator;
-* :mod:`.cli`: its part of ``chassis-sdk``; :mod:`.profile`: its registry entry.
+* :mod:`.firmware`: the sans-IO firmware model (served by :mod:`chassis_sdk.sim`);
+* :mod:`.profile`: its registry entry.
+
+``Board`` is imported on first use, so the codec loads without the runtime.
 """
 
-from .device import Board
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .device import Board
 
 __all__ = ["Board"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Board":
+        from .device import Board
+
+        return Board
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,6 @@
-"""A sans-IO model of the protocol B controller-board firmware, and its simulator.
+"""A sans-IO model of the protocol B controller-board firmware.
+
+The simulator that serves it is :class:`chassis_sdk.sim.BoardSimulator`.
 
 IMU at 100 Hz following the motion (gravity on z, gyro z the angular rate, small
 noise), velocity feedback at 20 Hz following the commands through a ramp, battery at
@@ -13,7 +15,7 @@ import math
 import random
 from dataclasses import dataclass
 
-from ...core.simulator import FirmwareModel, LineFaults, SimulatorServer, next_slot
+from ...core.firmware import FirmwareModel, next_slot
 from .protocol import (
     BatteryReading,
     BoardCommand,
@@ -33,7 +35,7 @@ from .protocol import (
     VelocityFeedback,
 )
 
-__all__ = ["BoardFirmware", "BoardSimulator", "BoardSpec"]
+__all__ = ["BoardFirmware", "BoardSpec"]
 
 _G = 9.80665
 
@@ -214,25 +216,3 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
 
 def _clamp(x: float, limit: float) -> float:
     return max(-limit, min(limit, x))
-
-
-class BoardSimulator(SimulatorServer):
-    """The board firmware model served on a pseudo-terminal (default) or TCP.
-
-    Args:
-        spec: Rates and dynamics.
-        tcp_port: Serve on ``socket://127.0.0.1:PORT`` instead of a pty (0: any port).
-        faults: Line faults to start with (noise, bit flips, lost bytes, late or lost
-            replies); ``sim.faults`` can be changed while it runs.
-    """
-
-    firmware: BoardFirmware
-
-    def __init__(
-        self,
-        spec: BoardSpec | None = None,
-        *,
-        tcp_port: int | None = None,
-        faults: LineFaults | None = None,
-    ) -> None:
-        super().__init__(BoardFirmware(spec), tcp_port=tcp_port, faults=faults)

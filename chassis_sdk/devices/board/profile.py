@@ -1,11 +1,9 @@
-"""The controller board's entry in the device registry."""
+"""The controller board's entry in the device registry: its codec and examples are
+imported; the device class and the firmware model are named, and loaded on first use."""
 
 from __future__ import annotations
 
-from .. import DeviceProfile
-from . import cli
-from .device import Board
-from .firmware import BoardFirmware, BoardSimulator
+from .. import Codec, DeviceProfile, Remote
 from .messages import (
     BatteryReading,
     BuzzerCommand,
@@ -60,20 +58,20 @@ COMMAND_EXAMPLES = (
 PROFILE = DeviceProfile(
     name="board",
     summary="controller board with IMU, LED, buzzer, motors and servos (protocol B, FE CE)",
-    device=Board,
-    decoder=BoardDecoder,
-    command_decoder=BoardCommandDecoder,
-    firmware=BoardFirmware,
-    simulator=BoardSimulator,
-    examples=EXAMPLES,
-    command_examples=COMMAND_EXAMPLES,
-    # Protocol B holds up to three bytes past a frame whose end could start a head.
-    max_buffered=262,
     recognised_by="0x11 board IMU samples",
-    streams=("imu", "velocity", "battery", "odometry"),
-    requests=("get_led", "get_buzzer", "diagnose"),
-    features={"imu": True, "led": True, "buzzer": True, "motors": 4, "servos": 2},
-    demo=cli.demo,
-    info=cli.info,
-    plot=cli.plot,
+    device="chassis_sdk.devices.board.device:Board",
+    firmware="chassis_sdk.devices.board.firmware:BoardFirmware",
+    codec=Codec(
+        decoder=BoardDecoder,
+        command_decoder=BoardCommandDecoder,
+        examples=EXAMPLES,
+        command_examples=COMMAND_EXAMPLES,
+        # Protocol B holds up to three bytes past a frame whose end could start a head.
+        max_buffered=262,
+    ),
+    remote=Remote(
+        streams=("imu", "velocity", "battery", "odometry"),
+        requests=("get_led", "get_buzzer", "diagnose"),
+        features={"imu": True, "led": True, "buzzer": True, "motors": 4, "servos": 2},
+    ),
 )

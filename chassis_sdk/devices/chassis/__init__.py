@@ -2,12 +2,27 @@
 
 * :mod:`.messages`: the typed messages and their enums;
 * :mod:`.protocol`: the sans-IO codec (frames, encoder, decoders);
-* :mod:`.device`: :class:`Chassis`, the public API;
+* :mod:`.device`: :class:`Chassis`, the public API (:mod:`.commands`: its commands);
 * :mod:`.health`: what its status words mean (events, diagnosis findings);
-* :mod:`.firmware`: the firmware model and its simulator;
-* :mod:`.cli`: its part of ``chassis-sdk``; :mod:`.profile`: its registry entry.
+* :mod:`.firmware`: the sans-IO firmware model (served by :mod:`chassis_sdk.sim`);
+* :mod:`.profile`: its registry entry.
+
+``Chassis`` is imported on first use, so the codec loads without the runtime.
 """
 
-from .device import Chassis
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .device import Chassis
 
 __all__ = ["Chassis"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Chassis":
+        from .device import Chassis
+
+        return Chassis
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

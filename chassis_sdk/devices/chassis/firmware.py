@@ -1,4 +1,6 @@
-"""A sans-IO model of the protocol A chassis firmware, and its simulator.
+"""A sans-IO model of the protocol A chassis firmware.
+
+The simulator that serves it is :class:`chassis_sdk.sim.ChassisSimulator`.
 
 The model behaves like the device as far as a host can tell: 0x81 telemetry at 50 Hz
 (switchable), 0xB1 at 20 Hz when enabled, replies to every read request, skid-steer
@@ -14,7 +16,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from ...core.simulator import FirmwareModel, LineFaults, SimulatorServer, next_slot
+from ...core.firmware import FirmwareModel, next_slot
 from .protocol import (
     ChassisCommandDecoder,
     ChassisEncoder,
@@ -40,7 +42,7 @@ from .protocol import (
     WheelSpeeds,
 )
 
-__all__ = ["ChassisFirmware", "ChassisSimulator", "ChassisSpec"]
+__all__ = ["ChassisFirmware", "ChassisSpec"]
 
 _WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
 _DRIVER_ERROR_BITS = (
@@ -385,30 +387,3 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         v = self.battery_voltage
         fl, fr, rl, rr = drivers
         return DriverStatus(fl, fr, rl, rr, 35.5, 34.0, v, v)
-
-
-class ChassisSimulator(SimulatorServer):
-    """The chassis firmware model served on a pseudo-terminal (default) or TCP.
-
-    Example:
-        >>> async def main() -> None:  # doctest: +SKIP
-        ...     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
-        ...         print(await robot.get_firmware_version())
-
-    Args:
-        spec: Device parameters (versions, geometry, rates).
-        tcp_port: Serve on ``socket://127.0.0.1:PORT`` instead of a pty (0: any port).
-        faults: Line faults to start with (noise, bit flips, lost bytes, late or lost
-            replies); ``sim.faults`` can be changed while it runs.
-    """
-
-    firmware: ChassisFirmware
-
-    def __init__(
-        self,
-        spec: ChassisSpec | None = None,
-        *,
-        tcp_port: int | None = None,
-        faults: LineFaults | None = None,
-    ) -> None:
-        super().__init__(ChassisFirmware(spec), tcp_port=tcp_port, faults=faults)

@@ -1,11 +1,9 @@
-"""The chassis's entry in the device registry."""
+"""The chassis's entry in the device registry: its codec and examples are imported;
+the device class and the firmware model are named, and loaded on first use."""
 
 from __future__ import annotations
 
-from .. import DeviceProfile
-from . import cli
-from .device import Chassis
-from .firmware import ChassisFirmware, ChassisSimulator
+from .. import Codec, DeviceProfile, Remote
 from .messages import (
     ChassisInfo,
     ChassisStatus,
@@ -76,28 +74,32 @@ COMMAND_EXAMPLES = (
 PROFILE = DeviceProfile(
     name="chassis",
     summary="four-wheel skid-steer chassis (protocol A, ED DE frames)",
-    device=Chassis,
-    decoder=ChassisDecoder,
-    command_decoder=ChassisCommandDecoder,
-    firmware=ChassisFirmware,
-    simulator=ChassisSimulator,
-    examples=EXAMPLES,
-    command_examples=COMMAND_EXAMPLES,
-    max_buffered=256,
     recognised_by="0x81 chassis telemetry",
-    streams=("telemetry", "power", "odometry"),
-    requests=(
-        "get_firmware_version",
-        "get_hardware_version",
-        "get_chassis_info",
-        "get_ship_date",
-        "get_driver_status",
-        "diagnose",
+    device="chassis_sdk.devices.chassis.device:Chassis",
+    firmware="chassis_sdk.devices.chassis.firmware:ChassisFirmware",
+    codec=Codec(
+        decoder=ChassisDecoder,
+        command_decoder=ChassisCommandDecoder,
+        examples=EXAMPLES,
+        command_examples=COMMAND_EXAMPLES,
+        max_buffered=256,
     ),
-    identity=("get_firmware_version", "get_hardware_version", "get_chassis_info", "get_ship_date"),
-    features={"drive": "skid-steer", "wheels": 4, "estop": True, "docking": True},
-    demo=cli.demo,
-    info=cli.info,
-    monitor=cli.monitor,
-    plot=cli.plot,
+    remote=Remote(
+        streams=("telemetry", "power", "odometry"),
+        requests=(
+            "get_firmware_version",
+            "get_hardware_version",
+            "get_chassis_info",
+            "get_ship_date",
+            "get_driver_status",
+            "diagnose",
+        ),
+        identity=(
+            "get_firmware_version",
+            "get_hardware_version",
+            "get_chassis_info",
+            "get_ship_date",
+        ),
+        features={"drive": "skid-steer", "wheels": 4, "estop": True, "docking": True},
+    ),
 )

@@ -11,7 +11,10 @@ from typing import TYPE_CHECKING, Any
 
 import anyio
 
-from ...cli.common import (
+from ..devices.chassis.device import Chassis
+from ..devices.chassis.messages import DriveVelocity, Telemetry
+from ..errors import ChassisError, RequestTimeoutError
+from .common import (
     DEMO_PATTERN,
     drive_for,
     explain_silence,
@@ -21,15 +24,13 @@ from ...cli.common import (
     out,
     simulated,
 )
-from ...cli.plotting import layout, path_panel, series, velocity_panels
-from ...errors import ChassisError, RequestTimeoutError
-from .device import Chassis
-from .messages import DriveVelocity, Telemetry
+from .devices import DeviceCommands
+from .plotting import layout, path_panel, series, velocity_panels
 
 if TYPE_CHECKING:
-    from ...core.columns import Columns
+    from ..recording.columns import Columns
 
-__all__ = ["demo", "format_telemetry", "info", "monitor", "plot"]
+__all__ = ["COMMANDS", "demo", "format_telemetry", "info", "monitor", "plot"]
 
 
 def _status_names(t: Telemetry) -> str:
@@ -263,3 +264,7 @@ def plot(data: Columns, commands: Columns, fig: Any) -> None:
     volts.plot(*series(data, "Telemetry", "voltage"), color="tab:green")
     volts.set_ylabel("battery (V)")
     path_panel(path, t, v, w)
+
+
+#: The chassis's part of ``chassis-sdk`` (found by :func:`chassis_sdk.cli.devices.commands`).
+COMMANDS = DeviceCommands(demo=demo, info=info, monitor=monitor, plot=plot)

@@ -5,16 +5,17 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from ...cli.common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
-from ...cli.plotting import empty, layout, path_panel, series, velocity_panels
-from ...errors import RequestTimeoutError
-from .device import Board
-from .messages import VelocityCommand
+from ..devices.board.device import Board
+from ..devices.board.messages import VelocityCommand
+from ..errors import RequestTimeoutError
+from .common import DEMO_PATTERN, drive_for, explain_silence, first, out, simulated
+from .devices import DeviceCommands
+from .plotting import empty, layout, path_panel, series, velocity_panels
 
 if TYPE_CHECKING:
-    from ...core.columns import Columns
+    from ..recording.columns import Columns
 
-__all__ = ["demo", "info", "plot"]
+__all__ = ["COMMANDS", "demo", "info", "plot"]
 
 
 async def demo() -> None:
@@ -79,3 +80,7 @@ def plot(data: Columns, commands: Columns, fig: Any) -> None:
     else:
         empty(volts, "no battery reading (0x13 comes once a second)")
     path_panel(path, t, v, w)
+
+
+#: The board's part of ``chassis-sdk`` (found by :func:`chassis_sdk.cli.devices.commands`).
+COMMANDS = DeviceCommands(demo=demo, info=info, plot=plot)

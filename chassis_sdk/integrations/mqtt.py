@@ -90,12 +90,12 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from .core.device import Device
-from .core.plain import jsonable, plain
-from .core.simulator import next_slot
-from .core.validation import check_real
-from .devices import DeviceProfile, profile
-from .errors import ChassisError
+from ..core.device import Device
+from ..core.firmware import next_slot
+from ..core.plain import jsonable, plain
+from ..core.validation import check_real
+from ..devices import DeviceProfile, profile
+from ..errors import ChassisError
 from .inbound import (
     TIMESTAMP_SKEW,
     RefusalReport,
@@ -115,7 +115,7 @@ __all__ = [
     "new_owner",
 ]
 
-_log = logging.getLogger("chassis_sdk.bridge")
+_log = logging.getLogger("chassis_sdk.integrations.mqtt")
 
 #: Stops and e-stops pending before a run of them is collapsed to what it means.
 _URGENT_MAX = 16
@@ -410,7 +410,7 @@ class MqttBridge:
         require_timestamp: Refuse velocity commands and e-stop releases without a
             ``timestamp``.
         max_age: The oldest a command may be, by its ``timestamp`` (seconds; plus
-            :data:`chassis_sdk.inbound.TIMESTAMP_SKEW`); default the device's
+            :data:`chassis_sdk.integrations.inbound.TIMESTAMP_SKEW`); default the device's
             ``command_timeout`` (0.5 if it has none). A stamped velocity command holds
             only until its stamp plus ``command_timeout`` (plus the skew), by this
             computer's clock: its age is never given back to it.
@@ -618,7 +618,7 @@ class MqttBridge:
             ("events", self._events()),
         ]
         loops += [(f"requests {n}", self._requests()) for n in range(_REQUEST_WORKERS)]
-        return loops + [(stream, self._telemetry(stream)) for stream in self.profile.streams]
+        return loops + [(stream, self._telemetry(stream)) for stream in self.profile.remote.streams]
 
     @staticmethod
     async def _until_failure(workers: list[asyncio.Task[None]]) -> None:
@@ -686,10 +686,10 @@ class MqttBridge:
             "device": self.profile.name,
             "summary": self.profile.summary,
             "port": self.device.port,
-            "features": dict(self.profile.features),
+            "features": dict(self.profile.remote.features),
             "owner": self.owner,
         }
-        for name in self.profile.identity:
+        for name in self.profile.remote.identity:
             try:
                 value = await getattr(self.device, name)()
             except ChassisError as exc:
@@ -1002,9 +1002,10 @@ class MqttBridge:
         reply = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
         if correlation is not None:
             reply.CorrelationData = correlation
-        if name not in self.profile.requests:
+        known = self.profile.remote.requests
+        if name not in known:
             body: dict[str, Any] = {
-                "error": f"unknown request {name[:40]!r}; known: {', '.join(self.profile.requests)}"
+                "error": f"unknown request {name[:40]!r}; known: {', '.join(known)}"
             }
         else:
             try:

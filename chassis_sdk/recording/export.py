@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from ..core.plain import plain
+from ..devices import profile
 from .capture import read_capture
-from .core.plain import plain
-from .devices import profile
 
 __all__ = ["Exported", "export_csv", "flatten"]
 
@@ -82,23 +82,23 @@ def export_csv(path: str | Path, directory: str | Path, protocol: str) -> dict[s
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     spec = profile(protocol)
-    device: Any = spec.device(str(path))  # never connected: it only decodes
+    device = spec.device(str(path))  # never connected: it only decodes
     tables = _Tables(out)
     now = 0.0
 
     def listener(name: str) -> Any:
         return lambda message: tables.write(name, now, message)
 
-    listeners = [s.listen(listener(name)) for name, s in device._streams.named.items()]
+    stops = [device.listen(name, listener(name)) for name in device.stream_names]
     try:
         for now, data in read_capture(path):
-            device._ingest(data, now)
-        decoder = spec.command_decoder()
+            device.feed(data, now)
+        decoder = spec.codec.command_decoder()
         for t, data in read_capture(path, sent=True):
             for command in decoder.feed(data, t):
                 tables.write(f"commands_{type(command).__name__}", t, command)
     finally:
-        for each in listeners:
-            each.close()
+        for stop in stops:
+            stop()
         written = tables.close()
     return written

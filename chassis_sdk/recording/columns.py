@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .framing import Column, FrameDecoder, FrameLayout
+from ..core.framing import Column, FrameDecoder, FrameLayout
 
 __all__ = ["Columns", "decode_columns", "decode_joined"]
 

@@ -1,6 +1,6 @@
 """Serve one device live to the Foxglove app over its WebSocket protocol.
 
-Every topic of :mod:`chassis_sdk.core.recording` goes out as it happens (decoded
+Every topic of :mod:`chassis_sdk.recording.writers` goes out as it happens (decoded
 streams, odometry pose and ``/tf``, events, link state, raw bytes), and the app can:
 
 * call the services ``stop``, ``emergency_stop``, ``release_emergency_stop`` and
@@ -14,9 +14,9 @@ streams, odometry pose and ``/tf``, events, link state, raw bytes), and the app 
   than a Twist, it stops at once.
 
 A message that is not a well-formed Twist of finite numbers (read strictly by
-:func:`chassis_sdk.inbound.command_object`: UTF-8 only, no duplicate keys, bounded
+:func:`chassis_sdk.integrations.inbound.command_object`: UTF-8 only, no duplicate keys, bounded
 size, depth and numbers) is refused, counted, logged and reported to the app as a
-warning status (rate-limited and summarised by :class:`chassis_sdk.inbound.Refusals`);
+warning status (rate-limited and summarised by :class:`chassis_sdk.integrations.inbound.Refusals`);
 it never moves the robot. No message can make a callback fail unreported: any error in
 one is caught, counted in :attr:`FoxgloveServer.errors` and reported the same way.
 
@@ -73,9 +73,9 @@ from types import TracebackType
 from typing import Any, Self
 from urllib.parse import parse_qs, urlsplit
 
-from .core.device import Device
-from .core.recording import FoxgloveSink, session_metadata
-from .errors import ChassisError
+from ..core.device import Device
+from ..errors import ChassisError
+from ..recording.writers import FoxgloveSink, session_metadata
 from .inbound import CommandError, RefusalReport, Refusals, command_object
 
 __all__ = [
@@ -89,7 +89,7 @@ __all__ = [
     "is_loopback",
 ]
 
-_log = logging.getLogger("chassis_sdk.live")
+_log = logging.getLogger("chassis_sdk.integrations.foxglove")
 
 
 class _Redact(logging.Filter):
@@ -107,7 +107,7 @@ class _Redact(logging.Filter):
 
 
 #: The front's own ``websockets`` log (connections opened, refused, closed).
-_front_log = logging.getLogger("chassis_sdk.live.front")
+_front_log = logging.getLogger("chassis_sdk.integrations.foxglove.front")
 _front_log.addFilter(_Redact())
 #: Schema names of a client channel taken as velocity commands.
 TWIST_SCHEMAS = ("geometry_msgs/Twist", "geometry_msgs/msg/Twist")

@@ -48,12 +48,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Protocol
 
-from .plain import plain
+from ..core.plain import plain
 
 if TYPE_CHECKING:
     import foxglove
 
-    from .device import Device
+    from ..core.device import Device
 
 __all__ = [
     "FoxgloveSink",
@@ -149,8 +149,8 @@ def _message_schema(msg: object) -> dict[str, Any]:
 
 def session_metadata(device: Device[Any, Any]) -> dict[str, str]:
     """What a recording says of its session: device, port, baud rate, versions, host."""
-    from .. import __version__
-    from .transport import BACKEND
+    from .._version import __version__
+    from ..core.transport import backend_name
 
     return {
         "device": device.kind,
@@ -158,7 +158,7 @@ def session_metadata(device: Device[Any, Any]) -> dict[str, str]:
         "port": device.port,
         "baudrate": str(device.baudrate),
         "sdk_version": __version__,
-        "transport": BACKEND,
+        "transport": backend_name(),
         "python": platform.python_version(),
         "host": socket.gethostname(),
         "started": datetime.datetime.now(datetime.UTC).isoformat(),
@@ -210,8 +210,8 @@ class FoxgloveSink:
         self._pose = fc.PoseInFrameChannel(f"{self._prefix}/pose", context=context)
         self._tf = fc.FrameTransformsChannel("/tf", context=context)
         self._log = fc.LogChannel(f"{self._prefix}/log", context=context)
-        self._command_decoder = device._make_command_decoder()
-        self._listeners: list[Any] = []
+        self._command_decoder = device.command_decoder()
+        self._stops: list[Callable[[], None]] = []
         self.messages = 0
         # Work is queued and done in one batch after the loop's current callbacks, so
         # the application's task woken by a frame runs before the frame is recorded.
@@ -228,20 +228,18 @@ class FoxgloveSink:
             self._loop = asyncio.get_running_loop()
         except RuntimeError:  # converting a file: no loop, nothing to wait for
             self._loop = None
-        for stream_name, stream in device._streams.named.items():
-            self._listeners.append(stream.listen(self._stream_logger(stream_name)))
-        self._listeners.append(device._link.states.listen(self._on_state))
-        device._link.tap = self
+        for stream_name in device.stream_names:
+            self._stops.append(device.listen(stream_name, self._stream_logger(stream_name)))
+        self._stops.append(device.listen_states(self._on_state))
+        self._stops.append(device.add_tap(self))
         self.link_state(device.connection_state.value, time.monotonic())
 
     def detach(self) -> None:
         """Stop (the device goes on, unrecorded); what is queued is logged first."""
         self._drain()
-        if self.device._link.tap is self:
-            self.device._link.tap = None
-        for listener in self._listeners:
-            listener.close()
-        self._listeners.clear()
+        for stop in self._stops:
+            stop()
+        self._stops.clear()
 
     # --- what is logged -----------------------------------------------------------------------
 
@@ -472,7 +470,7 @@ class McapRecording:
 
 
 class JsonlRecording:
-    """A session written as a JSON-lines capture (see :mod:`chassis_sdk.capture`):
+    """A session written as a JSON-lines capture (see :mod:`chassis_sdk.recording.capture`):
     the bytes received (``{"t", "data"}``), the frames written (``{"t", "tx"}``) and
     the link's drops (``{"t", "event"}``), ``t`` in seconds since the start.
 
@@ -502,12 +500,11 @@ class JsonlRecording:
                 "started": datetime.datetime.now(datetime.UTC).isoformat(),
             }
         )
-        self._device = device
-        self._listener: Any = None
+        self._stops: list[Callable[[], None]] = []
         self._up = True
         if device is not None:
-            device._link.tap = self
-            self._listener = device._link.states.listen(self._on_state)
+            self._stops.append(device.add_tap(self))
+            self._stops.append(device.listen_states(self._on_state))
 
     def _line(self, item: dict[str, object]) -> None:
         self._file.write(json.dumps(item) + "\n")
@@ -534,10 +531,9 @@ class JsonlRecording:
     def close(self) -> None:
         if self._file.closed:
             return
-        if self._device is not None and self._device._link.tap is self:
-            self._device._link.tap = None
-        if self._listener is not None:
-            self._listener.close()
+        for stop in self._stops:
+            stop()
+        self._stops.clear()
         self._file.close()
 
 

@@ -23,15 +23,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .core.backoff import Backoff
-from .core.recording import JsonlRecording, McapRecording, Recording
-from .core.transport import Link, open_link
-from .core.validation import check_real
-from .devices import profile, profiles
-from .errors import ChassisError, PortOpenError
+from ..core.backoff import Backoff
+from ..core.transport import Link, open_link
+from ..core.validation import check_real
+from ..devices import profile, profiles
+from ..errors import ChassisError, PortOpenError
+from .writers import JsonlRecording, McapRecording, Recording
 
 if TYPE_CHECKING:
-    from .core.columns import Columns
+    from .columns import Columns
 
 __all__ = [
     "Capture",
@@ -47,7 +47,7 @@ __all__ = [
     "record",
 ]
 
-_log = logging.getLogger("chassis_sdk.capture")
+_log = logging.getLogger("chassis_sdk.recording.capture")
 #: Reopening after a drop while recording: first delay, cap (seconds).
 _REOPEN_START = 0.1
 _REOPEN_CAP = 1.0
@@ -120,7 +120,7 @@ async def record(
     writes to the port.
 
     The format is the file's suffix: ``.mcap`` (raw bytes with receive times, every
-    stream decoded, odometry and events; see :mod:`chassis_sdk.core.recording`; needs
+    stream decoded, odometry and events; see :mod:`chassis_sdk.recording.writers`; needs
     the ``foxglove`` extra and the device's protocol, heard on the port if not given),
     or a JSON-lines capture (raw bytes with receive times) for any other name.
 
@@ -162,7 +162,7 @@ async def record(
     writer: Recording
     if device is not None:
         writer = McapRecording(path, device)
-        feed: Callable[[bytes, float], None] = device._ingest
+        feed: Callable[[bytes, float], None] = device.feed
     else:
         writer = JsonlRecording(path, port, baudrate)
         feed = writer.rx
@@ -320,7 +320,7 @@ def _need_mcap() -> None:
 
 def mcap_metadata(path: str | Path) -> dict[str, str]:
     """The ``chassis_sdk`` metadata of an MCAP recording (device, port, baud rate,
-    versions; see :func:`chassis_sdk.core.recording.session_metadata`), or ``{}``."""
+    versions; see :func:`chassis_sdk.recording.writers.session_metadata`), or ``{}``."""
     _need_mcap()
     from mcap.exceptions import McapError
     from mcap.records import Metadata
@@ -352,7 +352,7 @@ def decode_capture(
         ValueError: An unknown device, or a file that is not a capture.
     """
     device = profile(protocol)
-    decoder = device.command_decoder() if commands else device.decoder()
+    decoder = device.codec.command_decoder() if commands else device.codec.decoder()
     chunks = _chunks(path, commands)
     for t, data in chunks:
         for msg in decoder.feed(data, t):
@@ -393,11 +393,11 @@ def capture_columns(path: str | Path, protocol: str, *, commands: bool = False) 
         ValueError: An unknown device, a file that is not a capture, or numpy missing.
     """
     try:
-        from .core.columns import decode_joined
+        from .columns import decode_joined
     except ImportError:
         raise ValueError("capture_columns needs numpy: pip install 'chassis-sdk[plot]'") from None
     device = profile(protocol)
-    decoder = device.command_decoder() if commands else device.decoder()
+    decoder = device.codec.command_decoder() if commands else device.codec.decoder()
     joined = _joined(path, sent=True) if commands else None
     if joined is None or not joined[0]:
         joined = _joined(path, sent=False)
@@ -406,7 +406,7 @@ def capture_columns(path: str | Path, protocol: str, *, commands: bool = False) 
 
 def _joined(path: str | Path, *, sent: bool) -> tuple[list[float], list[int], bytes]:
     """``(times, sizes, bytes)`` of one direction of a capture, every chunk's bytes
-    joined (what :func:`chassis_sdk.core.columns.decode_joined` takes)."""
+    joined (what :func:`chassis_sdk.recording.columns.decode_joined` takes)."""
     times, parts = [], []
     for t, chunk in read_capture(path, sent=sent):
         if chunk:
@@ -420,7 +420,7 @@ def detect_in(data: bytes) -> str | None:
     frames in it (the first registered wins a tie), or ``None`` if none finds any."""
     best, most = None, 0
     for name, device in profiles().items():
-        decoder = device.decoder()
+        decoder = device.codec.decoder()
         decoder.feed(data)
         if decoder.stats.frames > most:
             best, most = name, decoder.stats.frames
@@ -455,7 +455,7 @@ async def detect_protocol(port: str, *, seconds: float = 1.0, baudrate: int = 11
 
 class CaptureDevice:
     """A capture played back as a device: the firmware model of a
-    :class:`~chassis_sdk.core.simulator.SimulatorServer` that sends the recorded bytes
+    :class:`~chassis_sdk.sim.server.SimulatorServer` that sends the recorded bytes
     at the recorded times (``speed`` times faster), so an unmodified application runs
     against what a real robot sent. What the application writes is counted and decoded
     (``commands``), never acted on.
@@ -484,7 +484,7 @@ class CaptureDevice:
         self.speed = check_real(speed, "speed", low=0, low_open=True)
         self.chunks = list(read_capture(path))
         self.start_after = float(start_after)
-        self._decoder = profile(protocol).command_decoder()
+        self._decoder = profile(protocol).codec.command_decoder()
         #: What the application wrote, decoded, in order.
         self.commands: list[object] = []
         #: Bytes the application wrote; bytes and chunks played so far.

@@ -14,7 +14,7 @@ from typing import Any
 
 from serial.tools import list_ports
 
-from .core.transport import lock_holder
+from .transport import lock_holder
 
 __all__ = ["PortInfo", "list_serial_ports"]
 
