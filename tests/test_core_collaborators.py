@@ -319,3 +319,25 @@ def test_a_listener_sees_every_item_at_once_and_outlives_a_failed_stream() -> No
     stream.publish(6)
     assert seen[-1] == 5
     assert stream.dropped == 0
+
+
+def test_a_velocity_command_is_checked_and_made_once() -> None:
+    from chassis_sdk.core.motion import frame_builder
+
+    made: list[tuple[float, float]] = []
+
+    def make(a: float, b: float) -> tuple[float, float]:
+        if a != a:  # NaN
+            raise ValueError("linear must be a number")
+        made.append((a, b))
+        return (a, b)
+
+    build = frame_builder(make, lambda m: repr(m).encode(), 0.3, 0.1)
+    assert made == [(0.3, 0.1)]  # checked (and made) when the command is given
+    assert build(0.3, 0.1) == b"(0.3, 0.1)"
+    assert build(0.3, 0.1) == b"(0.3, 0.1)"
+    assert made == [(0.3, 0.1)]  # every resend reuses it
+    assert build(0.2, 0.1) == b"(0.2, 0.1)"  # a ramped or clamped value is made anew
+    assert made == [(0.3, 0.1), (0.2, 0.1)]
+    with pytest.raises(ValueError, match="linear"):
+        frame_builder(make, lambda m: b"", float("nan"), 0.0)

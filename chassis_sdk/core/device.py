@@ -109,6 +109,40 @@ def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
     return path
 
 
+class _LinkHooks(Generic[M]):
+    """What the link supervisor needs of a device (:class:`~.supervisor.Supervised`),
+    kept off the device's public surface."""
+
+    __slots__ = ("_device",)
+
+    def __init__(self, device: Device[M, Any]) -> None:
+        self._device = device
+
+    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
+        device = self._device
+        device._decoder.reset()
+        device._on_link_up()
+        return device._decoder, device._received
+
+    def zero_frame(self) -> bytes:
+        return self._device._zero_frame()
+
+    def fenced(self) -> None:
+        self._device._watchdog.clear()
+
+    def state_changed(self, old: ConnectionState, new: ConnectionState) -> None:
+        kind = _LINK_EVENTS.get(new)
+        if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
+            self._device._emit(RobotEvent(kind, "", time.monotonic()))
+
+    def link_down(self, error: BaseException | None, final: bool) -> None:
+        device = self._device
+        device._watchdog.clear()  # never resume motion after an outage
+        device._requests.fail_all(error)
+        if final:
+            device._streams.fail(error)
+
+
 class Device(Motion, Observation, Generic[M, K]):
     """Base of every device (:class:`~chassis_sdk.Chassis`, :class:`~chassis_sdk.Board`,
     and any a device package adds). See those classes for the arguments.
@@ -171,7 +205,7 @@ class Device(Motion, Observation, Generic[M, K]):
             logger=self._log,
         )
         self._link: LinkSupervisor[M] = LinkSupervisor(
-            self,
+            _LinkHooks(self),
             port,
             baudrate=baudrate,
             connect_timeout=connect_timeout,
@@ -223,30 +257,6 @@ class Device(Motion, Observation, Generic[M, K]):
         RequestTable, which keeps it out longer on a device that has shown itself
         slower): one more ``request_timeout``."""
         return self.request_timeout
-
-    # --- what the link supervisor needs (core.supervisor.Supervised) -------------------------
-
-    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
-        self._decoder.reset()
-        self._on_link_up()
-        return self._decoder, self._received
-
-    def zero_frame(self) -> bytes:
-        return self._zero_frame()
-
-    def fenced(self) -> None:
-        self._watchdog.clear()
-
-    def state_changed(self, old: ConnectionState, new: ConnectionState) -> None:
-        kind = _LINK_EVENTS.get(new)
-        if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
-            self._emit(RobotEvent(kind, "", time.monotonic()))
-
-    def link_down(self, error: BaseException | None, final: bool) -> None:
-        self._watchdog.clear()  # never resume motion after an outage
-        self._requests.fail_all(error)
-        if final:
-            self._streams.fail(error)
 
     def _received(self, messages: list[M], now: float) -> None:
         handlers = self._handlers

@@ -5,7 +5,8 @@ expires the active command."""
 from __future__ import annotations
 
 import abc
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import anyio.lowlevel
 
@@ -13,7 +14,24 @@ from .supervisor import LinkSupervisor
 from .validation import check_duration
 from .watchdog import Axes, FrameBuilder, MotionLimits, VelocityWatchdog
 
-__all__ = ["Motion"]
+__all__ = ["Motion", "frame_builder"]
+
+T = TypeVar("T")
+
+
+def frame_builder(
+    make: Callable[[float, float], T], encode: Callable[[T], bytes], a: float, b: float
+) -> FrameBuilder:
+    """Check the command ``(a, b)`` by making its message now (``make`` raises
+    ``ValueError`` before anything is written), and return the builder of the frames the
+    watchdog writes for it: the message made here for the command itself (every resend
+    of it), a new one only for a value that limits or a ramp changed."""
+    command = make(a, b)
+
+    def build(x: float, y: float) -> bytes:
+        return encode(command if x == a and y == b else make(x, y))
+
+    return build
 
 
 class Motion(abc.ABC):

@@ -10,6 +10,7 @@ import anyio.lowlevel
 from ...core.device import Device
 from ...core.diagnosis import Diagnosis
 from ...core.dispatch import Broadcast, Subscription
+from ...core.motion import frame_builder
 from ...core.validation import check_real
 from ...core.watchdog import FrameBuilder
 from ...errors import ChassisError, RequestTimeoutError
@@ -148,9 +149,7 @@ class Board(Device[BoardMessage, _Key]):
         return self._encoder.encode(_ZERO)
 
     def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
-        velocity_command(linear, angular)  # raises ValueError before anything is written
-        encode = self._encoder.encode
-        return lambda v, w: encode(velocity_command(v, w))
+        return frame_builder(velocity_command, self._encoder.encode, linear, angular)
 
     # --- commands without a reply -------------------------------------------------------------
 

@@ -10,6 +10,7 @@ import anyio
 import anyio.lowlevel
 
 from ...core.dispatch import Broadcast, Subscription
+from ...core.motion import frame_builder
 from ...core.validation import check_duration, check_real
 from ...core.watchdog import FrameBuilder
 from ...errors import ProtocolError, RequestTimeoutError
@@ -144,9 +145,7 @@ class Chassis(ChassisCommands):
         return self._encoder.encode(_ZERO)
 
     def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
-        velocity_command(linear, angular)  # raises ValueError before anything is written
-        encode = self._encoder.encode
-        return lambda v, w: encode(velocity_command(v, w))
+        return frame_builder(velocity_command, self._encoder.encode, linear, angular)
 
     async def configure_odometry(
         self,
@@ -201,11 +200,10 @@ class Chassis(ChassisCommands):
             ValueError: NaN, infinity, out of int16 mm/s range, or a bad ``duration``.
             NotConnectedError: The port is not open.
         """
-        wheel_speeds_command(left, right)  # raises ValueError before anything is written
-        encode = self._encoder.encode
+        build = frame_builder(wheel_speeds_command, self._encoder.encode, left, right)
         self._drive(
             (left, right),
-            lambda a, b: encode(wheel_speeds_command(a, b)),
+            build,
             check_duration(duration),
             f"wheels ({left}, {right})",
             "wheels",
