@@ -1,7 +1,7 @@
 """Independent firmware stand-ins for the integration tests.
 
 They share no code with ``chassis_sdk``: frames are packed and parsed here by hand,
-straight from PROTOCOL_NOTES.md, so an error in the SDK's codec cannot cancel out
+straight from the protocol tables (docs/protocols.md), so an error in the SDK's codec cannot cancel out
 against the same error in the test double. Each stand-in serves a real pseudo-terminal
 (raw mode, set before anything else) or, with ``tcp=True``, a TCP port on 127.0.0.1,
 that the SDK opens through its real transport; it puts noise on the line between

@@ -1,28 +1,17 @@
 """Cheap construction and printing of decoded messages, for the frames that arrive at
 50-100 Hz.
 
-Profiling the protocol A decoder (``benchmarks/decoder_throughput.py`` under cProfile,
-and timeit of the parts) showed that decoding the bytes was the small part of a frame's
-cost; building the Python objects was the large one:
-
-* a frozen dataclass's generated ``__init__`` calls ``object.__setattr__`` once per field
-  (about 870 ns for ``Telemetry``'s eight);
-* ``IntFlag(value)`` and ``IntEnum(value)`` go through ``EnumType.__call__`` (about
-  320 ns each), although a device repeats the same few status values;
-* a ``NamedTuple``'s generated ``__new__`` adds a Python call over ``tuple.__new__``.
+Profiling showed that decoding a frame's bytes is the small part of its cost and
+building the Python objects the large one (a frozen dataclass's ``__init__`` calls
+``object.__setattr__`` per field; ``IntFlag(value)`` goes through ``EnumType.__call__``;
+a dataclass ``repr`` passes a recursion guard): the figures are in docs/figures.md.
 
 So: :func:`frozen_builder` makes a constructor that fills a frozen, slotted dataclass
 through its slot descriptors (the same result as ``__init__``, with the same
-immutability afterwards, in half the time), and :class:`MemberCache` maps wire integers
-to enum members with one dict lookup. Both are plain Python.
-
-Printing was the same story: ``chassis-sdk replay`` prints each message's ``repr``, and
-of a replayed hour's time 29 % went to the dataclass ``repr``: the generated method
-passes through a recursion guard (a set keyed by thread per call) and formats each field
-with ``repr``, nested ``NamedTuple`` and enum members included (about 6 µs for one
-``Telemetry``). :func:`fast_repr` gives a message class a ``repr`` that prints exactly
-the same text with one f-string (messages are immutable, so they cannot contain
-themselves and need no guard).
+immutability afterwards, in half the time), :class:`MemberCache` maps wire integers to
+enum members with one dict lookup, and :func:`fast_repr` gives a message class a
+``repr`` that prints exactly the same text with one f-string (messages are immutable,
+so they cannot contain themselves and need no guard). All plain Python.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Dispatch: telemetry fan-out and the pending-request table, shared by both devices.
+"""Dispatch: stream fan-out and the pending-request table, shared by every device.
 
 Both are driven synchronously from the link's ``data_received`` (no task per chunk,
 no task per message): publishing appends to each subscriber's buffer and wakes it;
@@ -152,8 +152,8 @@ class Broadcast(Generic[T]):
 
     # Subscribers are held weakly (an abandoned iterator unsubscribes itself), as a
     # tuple of weak references rebuilt when one comes or goes: publishing, which runs
-    # for every frame, is then one loop over a tuple, with nothing allocated. (A
-    # WeakSet's iterator costs more than the whole decode at 50 Hz on an idle core.)
+    # for every frame, is then one loop over a tuple, with nothing allocated (a
+    # WeakSet's iterator costs more than a whole decode: docs/figures.md).
     __slots__ = ("__weakref__", "_closed", "_error", "_refs", "dropped", "latest", "maxlen")
 
     def __init__(self, maxlen: int) -> None:
@@ -349,8 +349,8 @@ class RequestTable(Generic[K, T]):
     The rule, which holds by construction:
 
     * **One call per key at a time.** A call *acquires* its key; another call for the
-      same key waits its turn. Protocol A replies carry no tag (the reply id is the
-      key), so this is what lets a reply be attributed at all; protocol B allocates a
+      same key waits its turn. A protocol whose replies carry no tag (the reply id is
+      the key) needs this for a reply to be attributed at all; one with request ids allocates a
       free request id per call, so it never waits.
     * **Replies are counted per key.** Each request written adds one reply in flight;
       each reply that arrives takes one away. A reply arriving while its key's call is
@@ -373,7 +373,7 @@ class RequestTable(Generic[K, T]):
     extends the quarantine of the replies still behind it at once.
 
     The cost: after a timeout, the next request for that key waits for the late reply
-    or the quarantine; concurrent calls for one protocol A reply id are served one
+    or the quarantine; concurrent calls for one untagged reply id are served one
     after another. What no table can know: the replies of a device that has never
     answered anything, slower than ``quarantine`` past the call's last attempt.
 

@@ -17,7 +17,7 @@ have arrived to reject it; frame lengths are bounded by the one-byte length fiel
 that delay is bounded too.
 
 The buffer never holds more than one incomplete candidate after ``feed`` returns (at
-most the largest frame, 259 bytes, plus the three bytes protocol B may look past it),
+most the largest frame, 259 bytes, plus the few bytes a codec with an alignment rule may look past it),
 or a possible first head byte: its size is bounded without any explicit limit,
 whatever the input.
 
@@ -80,7 +80,7 @@ class DecoderStats:
         length_mismatches: Frames accepted although their length byte was wrong (the
             vendor's 0x89 example has this defect; real firmware may too).
         misaligned_frames: Candidates that passed the check but that the bytes after
-            them showed to be shifted by a lost or inserted byte (protocol B, whose
+            them showed to be shifted by a lost or inserted byte (a protocol whose
             one-byte check lets 1 in 256 corrupted frames through).
     """
 
@@ -114,7 +114,7 @@ class FrameLayout:
     ``check_size`` of 1 or 2 (little-endian); ``tail`` closes the frame. A parser gets
     the data at ``data_at`` and ``size - overhead`` bytes of it. ``no_head_inside``:
     a frame is refused while a plausible head (head, known type, possible length)
-    starts inside it, or may start at its last byte (protocol B's alignment rule).
+    starts inside it, or may start at its last byte (a codec's alignment rule).
     """
 
     type_at: int

@@ -21,7 +21,7 @@ class LinkStats:
         malformed_frames: Frames that checked out but carried invalid content.
         length_mismatches: Frames accepted despite a wrong length byte.
         misaligned_frames: Frames that passed the check but were refused because the
-            bytes after them showed them shifted by line noise (protocol B).
+            bytes after them showed them shifted by line noise (codecs with an alignment rule).
         unmatched_replies: Replies nobody was waiting for.
         late_replies: Replies to requests that had already timed out: dropped, never
             given to a later call (see "Requests" in the README).
@@ -29,7 +29,7 @@ class LinkStats:
             frames replaced by newer ones or expired while they waited, frames over the
             bound of what may wait, and what was still waiting at close.
         queue_drops: Messages dropped because a subscriber fell behind.
-        sequence_gaps: Breaks in the device's frame numbers (protocol A), whether it
+        sequence_gaps: Breaks in the device's frame numbers (protocols that number frames), whether it
             keeps one counter for every frame or one per frame id (detected; see
             ``Chassis.sequence_scheme``). Counted within each connection: the break
             a reconnect makes is not a gap.

@@ -127,7 +127,7 @@ class ConnectionStates:
         self._log = log
         self._stream: Broadcast[ConnectionState] = Broadcast(queue_size)
         # Events bind to the loop that first waits on them, so renew() makes new ones
-        # on every connect(). _changed is also replaced on every change, so each
+        # on every connect(). ``changed`` is also replaced on every change, so each
         # waiter sees the change it waited on.
         self.changed = asyncio.Event()
 

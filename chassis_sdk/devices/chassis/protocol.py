@@ -5,7 +5,8 @@ Frame layout (all integers little-endian)::
     ED DE | seq u16 | id u8 | len u8 | data (len - 10 bytes) | check u16 | BD BC
 
 ``len`` counts the whole frame, head to tail; ``check`` is the sum of every byte before
-it, modulo 65536. See ``PROTOCOL_NOTES.md`` for the field tables and the errata.
+it, modulo 65536. The field tables and the vendor document's errata are in
+``docs/protocols.md``.
 
 This module is I/O-free: bytes in, messages out; messages in, bytes out.
 """
