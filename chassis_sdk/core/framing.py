@@ -17,8 +17,8 @@ have arrived to reject it; frame lengths are bounded by the one-byte length fiel
 that delay is bounded too.
 
 The buffer never holds more than one incomplete candidate after ``feed`` returns (at
-most the largest frame, 259 bytes, plus the few bytes a codec with an alignment rule may look past it),
-or a possible first head byte: its size is bounded without any explicit limit,
+most the largest frame, 259 bytes, plus the few bytes a codec with an alignment rule
+may look past it), or a possible first head byte: its size is bounded without any explicit limit,
 whatever the input.
 
 Nothing here does I/O or reads a clock: the caller passes a timestamp in.

@@ -79,9 +79,9 @@ class Requester(Generic[K]):
                 self._ensure_open()
                 frame, new_key = build()
                 if call is None or new_key != key:
-                    # A new key (a protocol with request ids allocates one per attempt)
-                    # gives up the old; the same key (untagged replies) keeps the call, so a reply to an
-                    # earlier attempt answers it.
+                    # A new key (a protocol with request ids allocates one per
+                    # attempt) gives up the old; the same key (untagged replies) keeps
+                    # the call, so a reply to an earlier attempt answers it.
                     if key is not None:
                         table.release(key)
                         key = None

@@ -29,8 +29,8 @@ class LinkStats:
             frames replaced by newer ones or expired while they waited, frames over the
             bound of what may wait, and what was still waiting at close.
         queue_drops: Messages dropped because a subscriber fell behind.
-        sequence_gaps: Breaks in the device's frame numbers (protocols that number frames), whether it
-            keeps one counter for every frame or one per frame id (detected; see
+        sequence_gaps: Breaks in the device's frame numbers (protocols that number
+            frames), whether it keeps one counter for every frame or one per frame id (detected; see
             ``Chassis.sequence_scheme``). Counted within each connection: the break
             a reconnect makes is not a gap.
         reconnects: Successful reconnects.
