@@ -23,7 +23,8 @@ sends minutes-old velocity commands the moment the device reads again. So:
   what they are. A **velocity frame is state, not a queue**: only the newest waits (the
   one it replaces is discarded and counted), and one whose command has expired by the
   time the port can take it is dropped, so the first velocity frame after a stall is
-  never stale. Other frames (requests, e-stops) wait in order, bounded;
+  never stale. Other frames (requests, e-stops) wait in order, bounded. These
+  decisions are :class:`~chassis_sdk.core.writequeue.WriteQueue`'s (sans-IO);
 * writes are **eager** (pyserial-asyncio would hold every frame until the loop's next
   writer callback, so a frame queued just before the application blocks the loop
   would leave a whole block later);
@@ -73,13 +74,13 @@ import termios
 import threading
 import time
 import urllib.parse
-from collections import deque
 from collections.abc import Callable
 from typing import Any, Generic, Protocol, TypeVar, cast
 
 import serial
 
 from ..errors import PortOpenError
+from .writequeue import QUEUE_LIMIT, WriteQueue
 
 #: In order of preference: the first installed is used.
 _BACKENDS = {
@@ -151,7 +152,7 @@ def backend_name() -> str:
         return "none"
 
 
-__all__ = ["Link", "Tap", "backend_name", "open_link", "wait_lingering"]
+__all__ = ["QUEUE_LIMIT", "Link", "Tap", "backend_name", "open_link", "wait_lingering"]
 
 M = TypeVar("M")
 
@@ -161,10 +162,6 @@ M = TypeVar("M")
 #: round trip at p50 in benchmarks/latency.py). 64 KiB is served from the heap and
 #: still drains more than half a second of a 1 Mbaud line in one read.
 READ_SIZE = 64 * 1024
-
-#: Bytes of non-velocity frames held while the port cannot take them (requests and
-#: commands are at most a few dozen bytes each; past this the device is not reading).
-QUEUE_LIMIT = 1024
 
 #: The kernel send buffer of a ``socket://`` link, asked for (Linux doubles it, and
 #: counts each small frame at several hundred bytes: some 14 frames in all), so what a
@@ -245,17 +242,11 @@ class Link(asyncio.Protocol, Generic[M]):
         self._wfd: int | None = None
         self._blocked = False  # the port cannot take bytes now
         self._partial = b""  # the unsent rest of a frame (serial ports)
-        self._queue: deque[bytes] = deque()
-        self._queued_bytes = 0
-        self._velocity: tuple[bytes, float] | None = None  # newest held frame, its expiry
-        self._velocity_closed = False
-        self._zero: bytes | None = None  # the final zero, once close_velocity() wrote it
+        # What waits while the port cannot take bytes, and what is discarded.
+        self._held = WriteQueue()
+        self._lost = 0  # discarded outside it: part-sent frames, asyncio's buffer
         self._write_error: Exception | None = None
         self._flushed: asyncio.Future[None] | None = None
-        #: Frames the link discarded: velocity frames replaced by newer ones or expired
-        #: while the port could not take them, frames over the queue limit, and
-        #: whatever was still held when the link was closed.
-        self.discarded = 0
         #: Set by the owner once it has counted this link's losses.
         self.accounted = False
         #: Sees every byte both ways (a recorder), or ``None``.
@@ -323,6 +314,13 @@ class Link(asyncio.Protocol, Generic[M]):
     # --- writing -----------------------------------------------------------------------
 
     @property
+    def discarded(self) -> int:
+        """Frames the link discarded: velocity frames replaced by newer ones or expired
+        while the port could not take them, frames over the queue limit, and whatever
+        was still held when the link was closed."""
+        return self._held.discarded + self._lost
+
+    @property
     def is_open(self) -> bool:
         """True while frames can be handed to the port."""
         transport = self.transport
@@ -339,16 +337,11 @@ class Link(asyncio.Protocol, Generic[M]):
         """
         if not self.is_open:
             return False
-        if self._blocked or self._queue or self._velocity is not None:
-            if self._queued_bytes + len(frame) > QUEUE_LIMIT:
-                self.discarded += 1
-                return False
-            self._queue.append(frame)
-            self._queued_bytes += len(frame)
-            return True
+        held = self._held
+        if self._blocked or held.holds:
+            return held.push(frame)
         if not self._emit(frame):
-            self._queue.append(frame)
-            self._queued_bytes += len(frame)
+            held.hold(frame)
         return True
 
     def write_velocity(self, frame: bytes, expires: float = math.inf) -> bool:
@@ -361,12 +354,11 @@ class Link(asyncio.Protocol, Generic[M]):
         Returns:
             False if the link is not open or velocity frames are closed off.
         """
-        if not self.is_open or self._velocity_closed:
+        held = self._held
+        if not self.is_open or held.velocity_closed:
             return False
-        if self._blocked or self._queue or not self._emit(frame):
-            if self._velocity is not None:
-                self.discarded += 1
-            self._velocity = (frame, expires)
+        if self._blocked or held.waiting or not self._emit(frame):
+            held.put_velocity(frame, expires)
         return True
 
     def close_velocity(self, zero: bytes) -> bool:
@@ -376,8 +368,7 @@ class Link(asyncio.Protocol, Generic[M]):
         :meth:`write_velocity` is refused, so nothing but zero can follow it.
         """
         sent = self.write_velocity(zero)
-        self._velocity_closed = True
-        self._zero = zero
+        self._held.close_velocity(zero)
         return sent
 
     def _emit(self, frame: bytes) -> bool:
@@ -432,27 +423,19 @@ class Link(asyncio.Protocol, Generic[M]):
         self._send_held()
 
     def _send_held(self) -> None:
-        queue = self._queue
-        while queue and not self._blocked and self.is_open:
-            if not self._emit(queue[0]):
+        held = self._held
+        while held.holds and not self._blocked and self.is_open:
+            # An expired velocity frame is dropped here, never sent.
+            frame = held.peek(time.monotonic())
+            if frame is None or not self._emit(frame):
                 break
-            self._queued_bytes -= len(queue.popleft())
-        held = self._velocity
-        if held is not None and not queue and not self._blocked and self.is_open:
-            frame, expires = held
-            if time.monotonic() > expires:
-                self._velocity = None
-                self.discarded += 1  # its command ran out while it waited
-            elif self._emit(frame):
-                self._velocity = None
+            held.pop()
         if self._is_flushed():
             self._wake_flushed()
 
     def _drop_held(self) -> None:
-        self.discarded += len(self._queue) + (self._velocity is not None) + bool(self._partial)
-        self._queue.clear()
-        self._queued_bytes = 0
-        self._velocity = None
+        self._held.drop_all()
+        self._lost += bool(self._partial)
         self._partial = b""
 
     def _release_wfd(self) -> None:
@@ -467,7 +450,7 @@ class Link(asyncio.Protocol, Generic[M]):
         transport = self.transport
         if transport is None:
             return True
-        if self._blocked or self._queue or self._velocity is not None:
+        if self._blocked or self._held.holds:
             return False
         return self._wfd is not None or transport.get_write_buffer_size() == 0
 
@@ -546,25 +529,24 @@ class Link(asyncio.Protocol, Generic[M]):
         held (and, for a serial port, the kernel's output queue), but keep the final
         zero, whole, and send it at once where that made room."""
         before = self.discarded
-        held_zero = self._velocity is not None and self._velocity_closed
-        self._drop_held()
+        self._lost += bool(self._partial)
+        self._partial = b""
         wfd = self._wfd
-        if self._flush_output() and self._blocked and wfd is not None:
+        flushed = self._flush_output()
+        if flushed and self._blocked and wfd is not None:
             self._loop.remove_writer(wfd)  # the flush made room: write again now
             self._blocked = False
-        if self._zero is not None and (held_zero or wfd is not None):
-            # Held, or (a serial port) flushed from the kernel with the rest, even part
-            # sent: written again whole, the last frame the device will get. A device
-            # that took the head of a frame before the flush resynchronises on it.
-            self.discarded -= held_zero
-            self._velocity = (self._zero, math.inf)
+        # The zero, held, or (a serial port) flushed from the kernel with the rest, even
+        # part sent, is held again whole, the last frame the device will get. A device
+        # that took the head of a frame before the flush resynchronises on it.
+        if self._held.discard_stale(flushed):
             self._send_held()
         stale = self.discarded - before
         self._log.log(
             logging.WARNING if stale else logging.INFO,
             "the device is not reading; discarded %d stale frame(s) on closing%s",
             stale,
-            "" if self._zero is None else ", kept the final zero",
+            "" if self._held.zero is None else ", kept the final zero",
         )
 
     async def _finish(self, wait: float) -> bool:
@@ -600,7 +582,7 @@ class Link(asyncio.Protocol, Generic[M]):
             self._drop_held()
             if not self._flush_output():
                 if transport.get_write_buffer_size():
-                    self.discarded += 1  # what asyncio's transport still held
+                    self._lost += 1  # what asyncio's transport still held
                 sock = transport.get_extra_info("socket")
                 if sock is not None:
                     with contextlib.suppress(OSError):
