@@ -10,7 +10,8 @@ asking, or a hung application would drive forever. This class does both:
 * ``command()`` writes a frame at once and makes it the active command;
 * ``run()`` (a background task) re-writes the active command every ``interval`` on an
   absolute schedule (no drift), and when the command expires (``command_timeout`` after
-  the last call, or exactly ``duration`` after it) writes one zero frame and goes idle;
+  the last call, or exactly ``duration`` after it) writes one zero frame and goes idle.
+  Its step is ``tick(now)``, due at ``due()``: decisions at a given time, no sleep;
 * ``stop()`` writes zero now; ``clear()`` forgets the command without writing (the link
   is gone: nothing can be written, and nothing must be resumed later).
 
@@ -235,33 +236,50 @@ class VelocityWatchdog:
             out.append(_ramp(self.written[i], goal, accel, decel, dt))
         return out[0], out[1]
 
+    def due(self) -> float | None:
+        """When (``clock()``) :meth:`tick` has something to do next: the next resend or
+        the expiry, whichever comes first; ``None`` when idle."""
+        active = self._active
+        if active is None:
+            return None
+        return min(self._next, active.deadline)
+
+    def tick(self, now: float) -> None:
+        """Do what is due at ``now`` (the step of :meth:`run`, with the time given):
+        write one zero and go idle if the command has expired, else re-write it if its
+        resend is due; nothing before :meth:`due`."""
+        active = self._active
+        if active is None or now < min(self._next, active.deadline):
+            return
+        if now >= active.deadline:
+            self.clear()
+            self.expiries += 1
+            self._log.debug("velocity command %s expired; writing zero", active.description)
+            self._write_quietly(active.zero, math.inf)
+            return
+        self._next += self.interval
+        if self._next <= now:  # the loop was blocked: skip the missed slots
+            self._next = now + self.interval
+        self.resends += 1
+        values = self._step(active, now)
+        if self._write_quietly(functools.partial(active.build, *values), active.deadline):
+            self.written = values
+            self._last_write = now
+
     async def run(self) -> None:
-        """Background loop; runs until cancelled."""
+        """Background loop; runs until cancelled: sleeps until :meth:`due` (or a new
+        command or a stop), then :meth:`tick`."""
         clock = self._clock
         while True:
-            active = self._active
-            if active is None:
+            due = self.due()
+            if due is None:
                 await self._alarm.sleep(None)
                 continue
             now = clock()
-            due = min(self._next, active.deadline)
             if now < due:
                 await self._alarm.sleep(due - now)
                 continue
-            if now >= active.deadline:
-                self.clear()
-                self.expiries += 1
-                self._log.debug("velocity command %s expired; writing zero", active.description)
-                self._write_quietly(active.zero, math.inf)
-                continue
-            self._next += self.interval
-            if self._next <= now:  # the loop was blocked: skip the missed slots
-                self._next = now + self.interval
-            self.resends += 1
-            values = self._step(active, now)
-            if self._write_quietly(functools.partial(active.build, *values), active.deadline):
-                self.written = values
-                self._last_write = now
+            self.tick(now)
 
     def _write_quietly(self, frame: FrameFactory, expires: float) -> bool:
         try:
