@@ -166,7 +166,9 @@ async def test_cancelling_stream_reads_and_waits_leaves_them_usable() -> None:
         with pytest.raises(asyncio.CancelledError):
             await waiter
         await robot.wait_connected(0.5)
-    assert dev
+        # The cancellations left the link alone: never dropped, nothing sent.
+        assert robot.stats.reconnects == 0
+        assert dev.frames == []
 
 
 async def test_cancelling_connect_leaves_the_device_closed_and_reusable() -> None:

@@ -12,6 +12,7 @@ import os
 import random
 import signal
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -51,6 +52,7 @@ def drives(firmware: ToyFirmware) -> list[Drive]:
 @pytest.mark.usefixtures("toy")
 @pytest.mark.parametrize("tcp_port", TRANSPORTS)
 async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | None) -> None:
+    booted_after = time.monotonic()
     async with ToySimulator(tcp_port=tcp_port) as sim:
         robot = Toy(sim.port, battery_low=13.0)
         async with robot:
@@ -60,7 +62,8 @@ async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | Non
             assert isinstance(t, ToyTelemetry)
             assert t.battery == pytest.approx(12.6)
             assert robot.latest_telemetry is not None
-            assert await robot.ping() >= 0
+            uptime = await robot.ping()  # whole seconds since the toy booted
+            assert 0 <= uptime <= time.monotonic() - booted_after
             low = await anext(events)
             assert low.kind is EventKind.BATTERY_LOW
             assert low.voltage == pytest.approx(12.6)
@@ -109,6 +112,7 @@ async def test_leaving_the_block_writes_zero_last(tcp_port: int | None) -> None:
 
 @pytest.mark.usefixtures("toy")
 async def test_requests_retry_time_out_and_drop_late_replies() -> None:
+    booted_after = time.monotonic()
     async with ToySimulator() as sim, Toy(sim.port, request_timeout=0.1, retries=1) as robot:
         sim.faults.reply_loss = 1.0
         with pytest.raises(RequestTimeoutError, match="ping"):
@@ -121,7 +125,8 @@ async def test_requests_retry_time_out_and_drop_late_replies() -> None:
             await robot.ping()
         await wait_until(lambda: robot.stats.late_replies == 1)
         sim.faults.reply_delay = 0.0
-        assert await robot.ping() >= 0
+        uptime = await robot.ping()  # whole seconds since the toy booted
+        assert 0 <= uptime <= time.monotonic() - booted_after
 
 
 @pytest.mark.usefixtures("toy")
