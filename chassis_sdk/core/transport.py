@@ -157,10 +157,10 @@ __all__ = ["QUEUE_LIMIT", "Link", "Tap", "backend_name", "open_link", "wait_ling
 M = TypeVar("M")
 
 #: The most serialx reads per wake-up. Its default, 256 KiB, is past glibc's mmap
-#: threshold (128 KiB): every read then maps, shrinks and unmaps a buffer (28 us a read
-#: against 16 us in a fresh process, benchmarks/read_size.py; 70 us more per request
-#: round trip at p50 in benchmarks/latency.py). 64 KiB is served from the heap and
-#: still drains more than half a second of a 1 Mbaud line in one read.
+#: threshold (128 KiB): every read then maps, shrinks and unmaps a buffer, which costs
+#: time on every read and every request round trip (figures: docs/figures.md,
+#: benchmarks/read_size.py). 64 KiB is served from the heap and still drains more than
+#: half a second of a 1 Mbaud line in one read.
 READ_SIZE = 64 * 1024
 
 #: The kernel send buffer of a ``socket://`` link, asked for (Linux doubles it, and
