@@ -780,7 +780,7 @@ def _open_serial(url: str, baudrate: int) -> serial.Serial:
     )
     fd = ser.fd
     os.set_blocking(fd, False)
-    # One non-blocking os.write: EAGAIN surfaces as BlockingIOError, which both
+    # One non-blocking os.write: EAGAIN surfaces as BlockingIOError, which the pyserial
     # transports handle by waiting; pyserial's own loop would spin on it.
     ser.write = lambda data: os.write(fd, bytes(data))
     ser.flush = lambda: None  # a blocking tcdrain; the link drains with a bound itself
@@ -806,9 +806,9 @@ def _fd_reader(fd: int) -> Callable[[int], bytes]:
 
     pyserial's ``Serial.read`` first calls ``select()``, which fails for every
     descriptor numbered 1024 or above (a process with some 200 ports open), and builds
-    a ``Timeout`` object per wake-up. Whatever fails here is a ``SerialException``, which
-    both transports turn into a lost link, once; anything else would escape their read
-    callback and be logged on every wake-up, forever.
+    a ``Timeout`` object per wake-up. Whatever fails here is a ``SerialException``,
+    which the pyserial transports turn into a lost link, once; anything else would
+    escape their read callback and be logged on every wake-up, forever.
     """
 
     def read(size: int = 1) -> bytes:

@@ -1,11 +1,12 @@
-"""The velocity watchdog and deadman, shared by both devices.
+"""The velocity watchdog and deadman, shared by every device.
 
 Why it exists
 -------------
-Both firmwares stop the wheels when no velocity command has arrived for a while (0.5 s):
-a host that crashes must not leave the robot driving. So while a command is active the
-host has to keep re-sending it, and it must stop re-sending when the application stops
-asking, or a hung application would drive forever. This class does both:
+A robot base's firmware typically stops the wheels when no velocity command has arrived
+for a while (its own deadman, often half a second): a host that crashes must not leave
+the robot driving. So while a command is active the host has to keep re-sending it, and
+it must stop re-sending when the application stops asking, or a hung application would
+drive forever. This class does the two:
 
 * ``command()`` writes a frame at once and makes it the active command;
 * ``run()`` (a background task) re-writes the active command every ``interval`` on an
