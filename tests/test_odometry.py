@@ -177,7 +177,7 @@ def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
     frames = [(i * 0.01, firmware.poll(i * 0.01)) for i in range(1, 200)]
     listened, alone = Chassis("/dev/a"), Chassis("/dev/b")
     poses: list[object] = []
-    keep = listened._odometry.listen(poses.append)
+    keep = listened.listen("odometry", poses.append)
     assert alone.latest_odometry is None
     for i, (now, data) in enumerate(frames):
         listened.feed(data, now)
@@ -185,10 +185,10 @@ def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
         if i == 100:
             assert alone.latest_odometry is not None
             assert alone.latest_odometry == listened.latest_odometry  # read mid-way
-    assert alone._odometry.latest is None  # nothing was built since
+    assert alone._reports.odometry.latest is None  # nothing was built since
     assert alone.latest_odometry == listened.latest_odometry == poses[-1]
     assert listened.latest_odometry is not None
     assert listened.latest_odometry.x > 0.1
     alone.reset_odometry()
     assert alone.latest_odometry == poses[-1]  # the last pose before the reset
-    keep.close()
+    keep()

@@ -2,15 +2,14 @@
 
 A device is its protocol plus these, each in its own module and testable alone:
 
-* :class:`~chassis_sdk.core.supervisor.LinkSupervisor`: lifetime, the link and its
-  writes, the close fence, reconnect with backoff, link health;
-* :class:`~chassis_sdk.core.requests.Requester`: requests in flight, retries, and
-  which reply answers which call;
-* :class:`~chassis_sdk.core.dispatch.Streams`: every stream with its latest value;
-* :class:`~chassis_sdk.core.watchdog.VelocityWatchdog`: the active velocity command,
-  its resends, deadman, limits and ramps;
-* :class:`~chassis_sdk.core.odometry.OdometryIntegrator`, and the events of
-  :mod:`~chassis_sdk.core.events`.
+* :class:`~chassis_sdk.core.session.Session` (the base): the port side, that is the
+  link (:class:`~chassis_sdk.core.supervisor.LinkSupervisor`: lifetime, writes, the
+  close fence, reconnect, link health), requests
+  (:class:`~chassis_sdk.core.requests.Requester`), streams, recording, and the public
+  observation API (taps and listeners);
+* :class:`~chassis_sdk.core.motion.Motion`: the velocity watchdog and the commands
+  over it (deadman, ``duration``, limits and ramps);
+* :class:`~chassis_sdk.core.observation.Reports`: events, odometry, the battery watch.
 
 A device package subclasses :class:`Device` and implements its abstract methods (the
 "hooks" below); everything else is here, once.
@@ -22,35 +21,28 @@ import abc
 import logging
 import os
 import time
-from collections.abc import Callable, Hashable
-from pathlib import Path
-from types import TracebackType
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVar
+from collections.abc import Hashable
+from typing import Any, TypeVar
 
-import anyio
 import anyio.lowlevel
 
-from ..errors import NotConnectedError, RequestTimeoutError
-from .dispatch import Broadcast, Listener, Streams, Subscription
-from .events import BatteryMonitor, EventKind, RobotEvent
-from .framing import FrameDecoder
+from .diagnosis import Diagnosis, Findings
+from .dispatch import Subscription
+from .events import EventKind, RobotEvent
 from .motion import Motion
-from .observation import Observation
-from .odometry import Odometry, OdometryIntegrator
-from .requests import Requester
+from .observation import Reports
+from .odometry import Odometry
+from .session import Recorder, Session, set_recorder
 from .stats import LinkStats
-from .supervisor import ConnectionState, LinkSupervisor
-from .transport import Decoder, backend_name
-from .validation import check_int, check_optional, check_real
-from .watchdog import MotionLimits, VelocityWatchdog
-
-if TYPE_CHECKING:
-    from .transport import Tap
+from .supervisor import ConnectionState
+from .validation import check_duration, check_int, check_optional, check_real
+from .watchdog import Axes, FrameBuilder, MotionLimits
 
 __all__ = ["ConnectionState", "Device", "LinkStats", "Recorder", "set_recorder"]
 
 M = TypeVar("M")
 K = TypeVar("K", bound=Hashable)
+D = TypeVar("D", bound=Diagnosis)
 
 _POSITIVE: dict[str, Any] = {"low": 0, "low_open": True}
 _CONNECTING = ConnectionState.CONNECTING
@@ -63,87 +55,7 @@ _LINK_EVENTS = {
 }
 
 
-class Recorder(Protocol):
-    """A session recording as a device holds it (the ``record`` option): it taps the
-    device's traffic from before the port opens, and :meth:`close` ends it after the
-    final zero."""
-
-    def close(self) -> None:
-        """End the recording (flush and close its file)."""
-
-
-#: Opens the recording of the ``record`` option: ``opener(path, device)``. Set by
-#: :mod:`chassis_sdk.recording` when it is imported (the core knows no file format).
-_open_recorder: Callable[[Path, Device[Any, Any]], Recorder] | None = None
-
-
-def set_recorder(opener: Callable[[Path, Device[Any, Any]], Recorder]) -> None:
-    """Install what opens the ``record`` option's recordings (the recording package
-    does, on import; ``chassis_sdk.Chassis`` and ``chassis_sdk.Board`` import it)."""
-    global _open_recorder
-    _open_recorder = opener
-
-
-def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
-    """The ``record`` option checked: ``None``, or a file path (``.mcap``: MCAP, which
-    needs foxglove-sdk; any other name: a JSON-lines capture)."""
-    if record is None:
-        return None
-    if _open_recorder is None:
-        raise ValueError(
-            "record= needs the recorders: import chassis_sdk.recording first "
-            "(chassis_sdk.Chassis and chassis_sdk.Board do)"
-        )
-    if not isinstance(record, str | os.PathLike) or not str(record):
-        raise ValueError(f"record must be a file path, got {record!r}")
-    path = Path(record)
-    if path.is_dir():
-        raise ValueError(f"record must be a file path, got the directory {str(path)!r}")
-    if path.suffix.lower() == ".mcap":
-        import importlib.util
-
-        if importlib.util.find_spec("foxglove") is None:
-            raise ValueError(
-                "record='*.mcap' needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
-            )
-    return path
-
-
-class _LinkHooks(Generic[M]):
-    """What the link supervisor needs of a device (:class:`~.supervisor.Supervised`),
-    kept off the device's public surface."""
-
-    __slots__ = ("_device",)
-
-    def __init__(self, device: Device[M, Any]) -> None:
-        self._device = device
-
-    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
-        device = self._device
-        device._decoder.reset()
-        device._on_link_up()
-        return device._decoder, device._received
-
-    def zero_frame(self) -> bytes:
-        return self._device._zero_frame()
-
-    def fenced(self) -> None:
-        self._device._watchdog.clear()
-
-    def state_changed(self, old: ConnectionState, new: ConnectionState) -> None:
-        kind = _LINK_EVENTS.get(new)
-        if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
-            self._device._emit(RobotEvent(kind, "", time.monotonic()))
-
-    def link_down(self, error: BaseException | None, final: bool) -> None:
-        device = self._device
-        device._watchdog.clear()  # never resume motion after an outage
-        device._requests.fail_all(error)
-        if final:
-            device._streams.fail(error)
-
-
-class Device(Motion, Observation, Generic[M, K]):
+class Device(Session[M, K]):
     """Base of every device (:class:`~chassis_sdk.Chassis`, :class:`~chassis_sdk.Board`,
     and any a device package adds). See those classes for the arguments.
 
@@ -157,9 +69,6 @@ class Device(Motion, Observation, Generic[M, K]):
     :meth:`_reply`, :meth:`_drive`, :meth:`_emit`, :meth:`_battery`, :meth:`_integrate`
     and :meth:`_findings`.
     """
-
-    #: The device's profile name, as ``Diagnosis.device`` and the CLI say it.
-    kind: ClassVar[str] = "device"
 
     def __init__(
         self,
@@ -191,116 +100,125 @@ class Device(Motion, Observation, Generic[M, K]):
         link_timeout = check_optional(link_timeout, "link_timeout", **_POSITIVE)
         connect_timeout = check_real(connect_timeout, "connect_timeout", **_POSITIVE)
         close_linger = check_real(close_linger, "close_linger", low=0, unit="s")
-        self._record_path = _recording_path(record)
-        self._recording: Recorder | None = None
-        self.port = port
-        self._log = logger if logger is not None else logging.getLogger("chassis_sdk")
-        self._decoder = self._make_decoder()
-        self._streams = Streams(queue_size)
-        self._listeners: set[Listener[Any]] = set()
-        self._watchdog = VelocityWatchdog(
+        log = logger if logger is not None else logging.getLogger("chassis_sdk")
+        self._motion = Motion(
             self._write_velocity,
+            self._ensure_connected,
+            self._zero_frame,
             interval=resend_interval,
             command_timeout=command_timeout,
-            logger=self._log,
+            logger=log,
         )
-        self._link: LinkSupervisor[M] = LinkSupervisor(
-            _LinkHooks(self),
+        self._watchdog = self._motion.watchdog
+        super().__init__(
             port,
             baudrate=baudrate,
+            request_timeout=request_timeout,
+            retries=retries,
+            reconnect=reconnect,
+            queue_size=queue_size,
+            link_timeout=link_timeout,
             connect_timeout=connect_timeout,
             close_linger=close_linger,
-            link_timeout=link_timeout,
-            reconnect=bool(reconnect),
-            queue_size=queue_size,
-            log=self._log,
+            logger=log,
+            record=record,
             background=[("watchdog", self._watchdog.run)],
         )
-        self._requests: Requester[K] = Requester(
-            port,
-            self._link.writer.write,
-            self._link.writer.ensure_open,
-            timeout=request_timeout,
-            retries=retries,
-            log=self._log,
-        )
         self.limits = limits
-        #: Message type -> what to do with it (set up by ``_init_protocol``); called
-        #: synchronously from the link's ``data_received``, in wire order.
-        self._handlers: dict[type, Callable[[Any], None]] = {}
-        self._pose = OdometryIntegrator()
-        self._odometry: Broadcast[Odometry] = self._stream("odometry")
-        self._events: Broadcast[RobotEvent] = self._stream("events")
-        self._battery_monitor = BatteryMonitor(battery_low)
+        odometry = self._stream("odometry")  # the first named streams, in this order
+        self._reports = Reports(port, log, self._stream("events"), odometry, battery_low)
+        self._pose = self._reports.pose
         self._init_protocol()
 
     # --- the hooks a device implements -----------------------------------------------------
 
     @abc.abstractmethod
-    def _make_decoder(self) -> FrameDecoder[M]:
-        """The device's incremental decoder (one per device, reset per connection)."""
-
-    @abc.abstractmethod
     def _init_protocol(self) -> None:
         """Set up the encoder, streams and :attr:`_handlers` (end of ``__init__``)."""
 
-    def _on_link_up(self) -> None:
-        """Reset per-connection state (called on connect and each reconnect)."""
+    @abc.abstractmethod
+    def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
+        """Check ``(linear, angular)`` (raises ``ValueError``) and return a builder of
+        velocity frames for any values between zero and them."""
 
-    def _make_command_decoder(self) -> FrameDecoder[Any] | None:
-        """A decoder of what the *host* writes, so recordings show the commands
-        decoded (``None``: they hold the raw bytes only)."""
-        return None
+    def _on_odometry_reset(self, heading: float) -> None:
+        """A device with its own heading source resets it too."""
 
-    def _reply_quarantine(self) -> float:
-        """The least time a key whose reply is overdue stays out of use (see
-        RequestTable, which keeps it out longer on a device that has shown itself
-        slower): one more ``request_timeout``."""
-        return self.request_timeout
+    def _sequence_gaps(self) -> int:
+        """Breaks in the device's frame numbers (protocols that number frames)."""
+        return 0
 
-    def _received(self, messages: list[M], now: float) -> None:
-        handlers = self._handlers
-        for msg in messages:
-            try:
-                handlers[type(msg)](msg)
-            except Exception:  # a bug must not stop the frames after it, nor the link
-                self._log.exception("%s: error handling %r", self.port, msg)
+    def _on_fenced(self) -> None:
+        self._watchdog.clear()
 
-    # --- lifetime -------------------------------------------------------------------------
+    def _on_state(self, old: ConnectionState, new: ConnectionState) -> None:
+        kind = _LINK_EVENTS.get(new)
+        if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
+            self._emit(RobotEvent(kind, "", time.monotonic()))
+
+    # --- motion -----------------------------------------------------------------------------------
+
+    async def set_velocity(
+        self, linear: float, angular: float, *, duration: float | None = None
+    ) -> None:
+        """Drive with a linear (m/s) and angular (rad/s) velocity.
+
+        The frame is written at once and re-sent every ``resend_interval``. Without
+        ``duration`` it stays active until ``command_timeout`` after the *last* call
+        (keep calling, as with ROS ``cmd_vel``); with ``duration`` it holds exactly that
+        long. Then one zero frame is written. With :attr:`limits`, what is written is
+        clamped and ramped towards the command; stopping is always immediate.
+
+        Raises:
+            ValueError: NaN, infinity, a value that overflows the wire field, or a bad
+                ``duration``; nothing is written.
+            NotConnectedError: The port is not open.
+        """
+        build = self._velocity_builder(linear, angular)
+        duration = check_duration(duration)
+        self._drive((linear, angular), build, duration, f"({linear}, {angular})", "velocity")
+        await anyio.lowlevel.checkpoint()
+
+    def _drive(
+        self,
+        target: tuple[float, float],
+        build: FrameBuilder,
+        duration: float | None,
+        description: str,
+        axes: Axes,
+    ) -> None:
+        self._motion.drive(target, build, duration, description, axes)
+
+    async def stop(self) -> None:
+        """Write zero velocity now and end the active command.
+
+        Raises:
+            NotConnectedError: The port is not open (the command is ended anyway).
+        """
+        self._motion.stop()
+        await anyio.lowlevel.checkpoint()
 
     @property
-    def connection_state(self) -> ConnectionState:
-        """The current :class:`ConnectionState`."""
-        return self._link.state
+    def limits(self) -> MotionLimits:
+        """The :class:`MotionLimits` applied to what is written; assign to change them
+        (the next write uses the new ones)."""
+        return self._motion.limits
+
+    @limits.setter
+    def limits(self, limits: MotionLimits | None) -> None:
+        self._motion.limits = limits
 
     @property
-    def is_connected(self) -> bool:
-        """True while the port is open (``CONNECTED`` or ``STALE``)."""
-        return self._link.is_open
+    def commanded_velocity(self) -> tuple[float, float] | None:
+        """The active command as asked: ``(linear, angular)`` (``(left, right)`` in
+        wheel mode), or ``None`` when no command is active."""
+        return self._motion.commanded
 
     @property
-    def transport_backend(self) -> str:
-        """Which pyserial asyncio package carries the link."""
-        return backend_name()
-
-    @property
-    def baudrate(self) -> int:
-        """The serial speed."""
-        return self._link.baudrate
-
-    @property
-    def reconnect(self) -> bool:
-        """Whether the port is reopened when the link drops."""
-        return self._link.reconnect
-
-    @property
-    def request_timeout(self) -> float:
-        """Seconds each attempt of a request waits for its reply (may be changed)."""
-        return self._requests.timeout
-
-    @request_timeout.setter
-    def request_timeout(self, value: float) -> None:
-        self._requests.timeout = check_real(value, "request_timeout", **_POSITIVE)
+    def written_velocity(self) -> tuple[float, float]:
+        """What was last written for the active command, after limits and ramps
+        (zeros when none is active)."""
+        return self._watchdog.written
 
     @property
     def command_timeout(self) -> float | None:
@@ -308,214 +226,96 @@ class Device(Motion, Observation, Generic[M, K]):
         after the last call; ``None``: it holds until :meth:`stop`."""
         return self._watchdog.command_timeout
 
-    @property
-    def retries(self) -> int:
-        """Extra attempts of a read-only request after a timeout (may be changed)."""
-        return self._requests.retries
+    # --- events, odometry, reports -------------------------------------------------------------
 
-    @retries.setter
-    def retries(self, value: int) -> None:
-        self._requests.retries = check_int(value, "retries", low=0)
-
-    def connection_states(self) -> Subscription[ConnectionState]:
-        """An async iterator of :class:`ConnectionState` changes, from the next one on.
-
-        It ends after ``DISCONNECTED`` when the device is closed. Example::
-
-            async for state in robot.connection_states():
-                print("link is", state.value)
+    def events(self) -> Subscription[RobotEvent]:
+        """Subscribe to :class:`~chassis_sdk.RobotEvent` edges: e-stops, bumpers, driver
+        faults, docking changes (chassis), battery low/ok (with ``battery_low``), and
+        the link going stale, lost and restored. Each edge is reported once.
         """
-        return self._link.states.subscribe()
-
-    async def wait_connected(self, timeout: float | None = None) -> None:
-        """Wait until the port is open (``CONNECTED`` or ``STALE``), e.g. after a
-        reconnect. Returns at once if it already is.
-
-        Raises:
-            TimeoutError: ``timeout`` elapsed first.
-            NotConnectedError: The device is closed or lost and will not reconnect.
-        """
-        await self._link.states.wait_open(timeout)
-
-    async def connect(self) -> None:
-        """Open the port and start the background tasks.
-
-        Raises:
-            PortOpenError: The port cannot be opened (the message says why).
-            ChassisError: Already connected.
-        """
-
-        def connecting() -> None:
-            self._requests.table.quarantine = self._reply_quarantine()
-            self._streams.reopen()
-
-        if self._record_path is not None and self._recording is None:
-            assert _open_recorder is not None  # checked with the option
-            self._recording = _open_recorder(self._record_path, self)
-        try:
-            await self._link.connect(connecting)
-        except BaseException:
-            self._stop_recording()
-            raise
-
-    async def close(self) -> None:
-        """Stop the robot, close the port and stop the background tasks.
-
-        A zero-velocity frame is written and given a bounded time to leave before the
-        port closes. If the device is not reading, every stale frame is discarded but
-        the zero, which may go on waiting for it in the background for up to
-        ``close_linger`` seconds after this returns (see the safety model); under
-        :func:`chassis_sdk.run` the program ends only once it has left. Safe to call
-        more than once, and from any task; a second call waits for the first to
-        finish. Cancelling it does not interrupt it: it returns (within about a second)
-        before the cancellation goes on.
-        With ``record``, the recording ends after the zero frame, which it holds unless
-        the zero had to wait for a device that was not reading.
-        """
-        try:
-            await self._link.close()
-        finally:
-            self._stop_recording()
+        return self._subscribe(self._reports.events)
 
     @property
-    def recording(self) -> Path | None:
-        """The file this session is being recorded to (the ``record`` option), or
-        ``None``. Connecting again after :meth:`close` starts the file anew."""
-        return self._record_path
+    def battery_low(self) -> float | None:
+        """Voltage below which ``BATTERY_LOW`` is reported (``None``: not watched)."""
+        return self._reports.battery_monitor.threshold
 
-    def _stop_recording(self) -> None:
-        recording, self._recording = self._recording, None
-        if recording is not None:
-            recording.close()
+    def odometry(self) -> Subscription[Odometry]:
+        """Subscribe to the pose dead-reckoned from the device's reported velocities:
+        an async iterator of :class:`~chassis_sdk.Odometry`, one per velocity sample.
 
-    # --- observing the device (recorders, bridges, live views) -----------------------------
-
-    def add_tap(self, tap: Tap) -> Callable[[], None]:
-        """Let ``tap`` see every byte of this device's link, both ways, across
-        reconnects: ``tap.rx(data, now)`` for each chunk received, ``tap.tx(frame,
-        now)`` for each frame as it begins to leave (``now`` is ``time.monotonic()``).
-        Called synchronously on the event loop: it must be quick and must not raise.
-
-        Returns:
-            The function that removes it.
+        Integration runs all the time, subscribed or not, using the samples'
+        timestamps, so irregular intervals and dropped frames do not bias it; a gap
+        longer than half a second (an outage) is not integrated. See
+        ``configure_odometry`` for the sources.
         """
-        self._link.add_tap(tap)
-        return lambda: self._link.remove_tap(tap)
+        return self._subscribe(self._reports.odometry)
 
     @property
-    def stream_names(self) -> tuple[str, ...]:
-        """The names of this device's streams: the methods that subscribe to them
-        (``"telemetry"``, ``"odometry"``, ``"events"``, ...)."""
-        return tuple(self._streams.named)
+    def latest_odometry(self) -> Odometry | None:
+        """The most recent :class:`~chassis_sdk.Odometry`, or ``None``."""
+        return self._reports.latest_odometry
 
-    def listen(self, stream: str, callback: Callable[[Any], None]) -> Callable[[], None]:
-        """Call ``callback(message)`` synchronously for every message of the stream
-        named ``stream`` (see :attr:`stream_names`), in wire order, from now on: for
-        recorders and bridges that must see every message and cost nothing when
-        absent. It must be quick and must not raise.
-
-        Returns:
-            The function that stops it.
+    def reset_odometry(self, x: float = 0.0, y: float = 0.0, heading: float = 0.0) -> None:
+        """Set the current pose (default: the origin, heading 0) and integrate from it.
 
         Raises:
-            ValueError: No stream of that name.
+            ValueError: A value is not finite.
         """
-        found = self._streams.named.get(stream)
-        if found is None:
-            raise ValueError(
-                f"{self.kind} has no stream {stream!r}; it has: {', '.join(self._streams.named)}"
-            )
-        return self._held(found.listen(callback))
+        heading = check_real(heading, "heading")
+        x, y = check_real(x, "x"), check_real(y, "y")
+        self._reports.reset_pose(x, y, heading)
+        self._on_odometry_reset(heading)
 
-    def listen_states(self, callback: Callable[[ConnectionState], None]) -> Callable[[], None]:
-        """Call ``callback(state)`` synchronously on every :class:`ConnectionState`
-        change, from now on. Returns the function that stops it."""
-        return self._held(self._link.states.listen(callback))
+    @property
+    def stats(self) -> LinkStats:
+        """A snapshot of the link counters (see :class:`LinkStats`)."""
+        d = self._decoder.stats
+        link, requests = self._link, self._requests
+        return LinkStats(
+            bytes_received=d.bytes_received,
+            bytes_sent=link.writer.bytes_sent,
+            frames=d.frames,
+            frames_sent=link.writer.frames_sent,
+            bytes_dropped=d.bytes_dropped,
+            checksum_errors=d.checksum_errors,
+            malformed_frames=d.malformed_frames,
+            length_mismatches=d.length_mismatches,
+            misaligned_frames=d.misaligned_frames,
+            unmatched_replies=requests.unmatched,
+            late_replies=requests.late,
+            frames_discarded=link.discarded,
+            queue_drops=self._streams.dropped,
+            sequence_gaps=self._sequence_gaps(),
+            reconnects=link.reconnects,
+            resends=self._watchdog.resends,
+            command_expiries=self._watchdog.expiries,
+        )
 
-    def _held(self, listener: Listener[Any]) -> Callable[[], None]:
-        """Keep ``listener`` (streams hold theirs weakly) until the returned call."""
-        self._listeners.add(listener)
+    def _emit(self, event: RobotEvent) -> None:
+        self._reports.emit(event)
 
-        def stop() -> None:
-            self._listeners.discard(listener)
-            listener.close()
+    def _battery(self, voltage: float, timestamp: float) -> None:
+        self._reports.battery(voltage, timestamp)
 
-        return stop
-
-    def command_decoder(self) -> FrameDecoder[Any] | None:
-        """A new decoder of what the *host* writes to this device, so recordings show
-        the commands decoded (``None``: the device has none; they keep the raw bytes)."""
-        return self._make_command_decoder()
-
-    def feed(self, data: bytes, now: float) -> None:
-        """Take bytes that reached this device other than through its own link (a
-        capture being replayed, a passive recorder, a conversion): tapped, decoded and
-        handled as if they had come through it (streams, odometry, events)."""
-        tap = self._link.tap
-        if tap is not None:
-            tap.rx(data, now)
-        messages = self._decoder.feed(data, now)
-        if messages:
-            self._received(messages, now)
-
-    async def __aenter__(self) -> Self:
-        await self.connect()
-        return self
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
+    def _integrate(
+        self, linear: float, angular: float, timestamp: float, heading: float | None = None
     ) -> None:
-        await self.close()
+        self._reports.integrate(linear, angular, timestamp, heading)
 
-    # --- for the subclasses: writing, requests, streams ---------------------------------------
+    def _findings(self) -> Findings:
+        """The link's and the battery's findings, for ``diagnose()`` to add to."""
+        return self._reports.findings(self._link.state, self.last_frame_age)
 
-    def _ensure_connected(self) -> None:
-        self._link.writer.ensure_open()
-
-    async def _send(self, frame: bytes) -> None:
-        """Write a command that has no reply; return once it is handed to the port."""
-        self._link.writer.write(frame)
-        await anyio.lowlevel.checkpoint()
-
-    async def _request(
-        self, build: Callable[[], tuple[bytes, K]], *, read_only: bool, name: str
-    ) -> Any:
-        """Write a request and wait for its reply (see :meth:`Requester.call`).
-
-        A timeout on a port where bytes arrive but no frame of this protocol does says
-        so: that is another device, or the wrong baud rate, not a slow one.
-        """
-        try:
-            return await self._requests.call(build, read_only=read_only, name=name)
-        except RequestTimeoutError as exc:
-            d = self._decoder.stats
-            if d.bytes_received and not d.frames:
-                raise RequestTimeoutError(
-                    f"{exc}; {d.bytes_received} bytes arrived but none is a {self.kind} "
-                    "frame (another device on the port, or the wrong baud rate?)"
-                ) from None
-            raise
-
-    def _reply(self, key: K, msg: Any) -> None:
-        """A reply arrived for ``key``: answer its call, or count it late or unmatched."""
-        self._requests.reply(key, msg)
-
-    def _stream(self, name: str | None = None) -> Broadcast[Any]:
-        """A new stream (with its latest value) of this device; ``name``, the name of
-        the method that subscribes to it, makes it a topic of recordings and live
-        views."""
-        return self._streams.new(name)
-
-    def _subscribe(self, stream: Broadcast[Any]) -> Subscription[Any]:
-        if self._link.state is ConnectionState.DISCONNECTED:
-            raise NotConnectedError(f"{self.port} is not connected; use `async with` first")
-        return stream.subscribe()
-
-    def _write_velocity(self, frame: bytes, expires: float) -> None:
-        self._link.writer.write_velocity(frame, expires)
-
-    def __repr__(self) -> str:
-        return f"<{type(self).__name__} {self.port!r} {self._link.state.value}>"
+    def _report(self, found: Findings, cls: type[D], **read: Any) -> D:
+        """A :class:`Diagnosis` (``cls``: it or a device's subclass, with what was
+        ``read`` for it) of these findings, now."""
+        return cls(
+            self.kind,
+            self.port,
+            self._link.state,
+            self.stats,
+            tuple(found.faults),
+            tuple(found.notes),
+            **read,
+        )

@@ -1,17 +1,13 @@
-"""The motion facet of a device: its velocity API over the
+"""A device's motion: its commands over the
 :class:`~chassis_sdk.core.watchdog.VelocityWatchdog` that keeps, resends, limits and
 expires the active command."""
 
 from __future__ import annotations
 
-import abc
+import logging
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TypeVar
 
-import anyio.lowlevel
-
-from .supervisor import LinkSupervisor
-from .validation import check_duration
 from .watchdog import Axes, FrameBuilder, MotionLimits, VelocityWatchdog
 
 __all__ = ["Motion", "frame_builder"]
@@ -34,47 +30,36 @@ def frame_builder(
     return build
 
 
-class Motion(abc.ABC):
-    """``set_velocity``, ``stop``, ``limits`` and what was commanded and written.
+class Motion:
+    """A device's motion: the :class:`VelocityWatchdog` that keeps, resends, limits and
+    expires the active command, and the commands over it.
 
-    A device implements the two motion hooks, :meth:`_zero_frame` and
-    :meth:`_velocity_builder`.
+    Args:
+        write_velocity: Writes a velocity frame (``frame, expires``).
+        ensure_open: Raises ``NotConnectedError`` if the port is not open.
+        zero_frame: Makes a zero-velocity frame.
+        interval: Resend period (s).
+        command_timeout: The deadman (s), or ``None``.
+        logger: For the watchdog's messages.
     """
 
-    _watchdog: VelocityWatchdog
-    _link: LinkSupervisor[Any]
-
-    @abc.abstractmethod
-    def _zero_frame(self) -> bytes:
-        """A zero-velocity frame."""
-
-    @abc.abstractmethod
-    def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
-        """Check ``(linear, angular)`` (raises ``ValueError``) and return a builder of
-        velocity frames for any values between zero and them."""
-
-    async def set_velocity(
-        self, linear: float, angular: float, *, duration: float | None = None
+    def __init__(
+        self,
+        write_velocity: Callable[[bytes, float], None],
+        ensure_open: Callable[[], None],
+        zero_frame: Callable[[], bytes],
+        *,
+        interval: float,
+        command_timeout: float | None,
+        logger: logging.Logger,
     ) -> None:
-        """Drive with a linear (m/s) and angular (rad/s) velocity.
+        self.watchdog = VelocityWatchdog(
+            write_velocity, interval=interval, command_timeout=command_timeout, logger=logger
+        )
+        self._ensure_open = ensure_open
+        self._zero_frame = zero_frame
 
-        The frame is written at once and re-sent every ``resend_interval``. Without
-        ``duration`` it stays active until ``command_timeout`` after the *last* call
-        (keep calling, as with ROS ``cmd_vel``); with ``duration`` it holds exactly that
-        long. Then one zero frame is written. With :attr:`limits`, what is written is
-        clamped and ramped towards the command; stopping is always immediate.
-
-        Raises:
-            ValueError: NaN, infinity, a value that overflows the wire field, or a bad
-                ``duration``; nothing is written.
-            NotConnectedError: The port is not open.
-        """
-        build = self._velocity_builder(linear, angular)
-        duration = check_duration(duration)
-        self._drive((linear, angular), build, duration, f"({linear}, {angular})", "velocity")
-        await anyio.lowlevel.checkpoint()
-
-    def _drive(
+    def drive(
         self,
         target: tuple[float, float],
         build: FrameBuilder,
@@ -82,41 +67,28 @@ class Motion(abc.ABC):
         description: str,
         axes: Axes,
     ) -> None:
-        self._link.writer.ensure_open()
-        self._watchdog.command(target, build, self._zero_frame, duration, description, axes)
+        """Make ``target`` the active command (``build`` makes its frames)."""
+        self._ensure_open()
+        self.watchdog.command(target, build, self._zero_frame, duration, description, axes)
+
+    def stop(self) -> None:
+        """End the active command and write zero now (raises if the port is not open,
+        after ending the command)."""
+        self.watchdog.clear()
+        self._ensure_open()
+        self.watchdog.stop(self._zero_frame)
 
     @property
     def limits(self) -> MotionLimits:
-        """The :class:`MotionLimits` applied to what is written; assign to change them
-        (the next write uses the new ones)."""
-        return self._watchdog.limits
+        return self.watchdog.limits
 
     @limits.setter
     def limits(self, limits: MotionLimits | None) -> None:
         if limits is not None and not isinstance(limits, MotionLimits):
             raise ValueError(f"limits must be a MotionLimits or None, got {limits!r}")
-        self._watchdog.limits = limits if limits is not None else MotionLimits()
+        self.watchdog.limits = limits if limits is not None else MotionLimits()
 
     @property
-    def commanded_velocity(self) -> tuple[float, float] | None:
-        """The active command as asked: ``(linear, angular)`` (``(left, right)`` in
-        wheel mode), or ``None`` when no command is active."""
-        active = self._watchdog.active
+    def commanded(self) -> tuple[float, float] | None:
+        active = self.watchdog.active
         return None if active is None else active.target
-
-    @property
-    def written_velocity(self) -> tuple[float, float]:
-        """What was last written for the active command, after limits and ramps
-        (zeros when none is active)."""
-        return self._watchdog.written
-
-    async def stop(self) -> None:
-        """Write zero velocity now and end the active command.
-
-        Raises:
-            NotConnectedError: The port is not open (the command is ended anyway).
-        """
-        self._watchdog.clear()
-        self._link.writer.ensure_open()
-        self._watchdog.stop(self._zero_frame)
-        await anyio.lowlevel.checkpoint()

@@ -1,0 +1,527 @@
+"""``Session``: a device's port side.
+
+It owns the link (through :class:`~chassis_sdk.core.supervisor.LinkSupervisor`: the
+lifetime, the writes, the close fence, reconnect, link health), the requests in flight
+(:class:`~chassis_sdk.core.requests.Requester`), the streams
+(:class:`~chassis_sdk.core.dispatch.Streams`), the session recording, and what
+observers may see of it: the raw traffic and every named stream (recorders, bridges,
+live views use this and nothing private). :class:`~chassis_sdk.core.device.Device`
+adds the robot side: motion, odometry, events and reports.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import os
+import time
+from collections.abc import Callable, Coroutine, Hashable
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVar
+
+import anyio
+import anyio.lowlevel
+
+from ..errors import NotConnectedError, ProtocolError, RequestTimeoutError
+from .dispatch import Broadcast, Listener, Streams, Subscription
+from .framing import FrameDecoder
+from .requests import Requester
+from .supervisor import ConnectionState, LinkSupervisor
+from .transport import Decoder, backend_name
+from .validation import check_int, check_real
+
+if TYPE_CHECKING:
+    from .transport import Tap
+
+__all__ = ["Recorder", "Session", "set_recorder"]
+
+M = TypeVar("M")
+K = TypeVar("K", bound=Hashable)
+T = TypeVar("T")
+
+_POSITIVE: dict[str, Any] = {"low": 0, "low_open": True}
+
+
+class Recorder(Protocol):
+    """A session recording as a device holds it (the ``record`` option): it taps the
+    device's traffic from before the port opens, and :meth:`close` ends it after the
+    final zero."""
+
+    def close(self) -> None:
+        """End the recording (flush and close its file)."""
+
+
+#: Opens the recording of the ``record`` option: ``opener(path, device)`` (the device
+#: is the :class:`~chassis_sdk.core.device.Device` being connected). Set by
+#: :mod:`chassis_sdk.recording` when it is imported (the core knows no file format).
+_open_recorder: Callable[[Path, Any], Recorder] | None = None
+
+
+def set_recorder(opener: Callable[[Path, Any], Recorder]) -> None:
+    """Install what opens the ``record`` option's recordings (the recording package
+    does, on import; ``chassis_sdk.Chassis`` and ``chassis_sdk.Board`` import it)."""
+    global _open_recorder
+    _open_recorder = opener
+
+
+def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
+    """The ``record`` option checked: ``None``, or a file path (``.mcap``: MCAP, which
+    needs foxglove-sdk; any other name: a JSON-lines capture)."""
+    if record is None:
+        return None
+    if _open_recorder is None:
+        raise ValueError(
+            "record= needs the recorders: import chassis_sdk.recording first "
+            "(chassis_sdk.Chassis and chassis_sdk.Board do)"
+        )
+    if not isinstance(record, str | os.PathLike) or not str(record):
+        raise ValueError(f"record must be a file path, got {record!r}")
+    path = Path(record)
+    if path.is_dir():
+        raise ValueError(f"record must be a file path, got the directory {str(path)!r}")
+    if path.suffix.lower() == ".mcap":
+        import importlib.util
+
+        if importlib.util.find_spec("foxglove") is None:
+            raise ValueError(
+                "record='*.mcap' needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
+            )
+    return path
+
+
+class _LinkHooks(Generic[M]):
+    """What the link supervisor needs of a session (:class:`~.supervisor.Supervised`),
+    kept off the session's public surface."""
+
+    __slots__ = ("_session",)
+
+    def __init__(self, session: Session[M, Any]) -> None:
+        self._session = session
+
+    def link_opening(self) -> tuple[Decoder[M], Callable[[list[M], float], None]]:
+        session = self._session
+        session._decoder.reset()
+        session._on_link_up()
+        return session._decoder, session._received
+
+    def zero_frame(self) -> bytes:
+        return self._session._zero_frame()
+
+    def fenced(self) -> None:
+        self._session._on_fenced()
+
+    def state_changed(self, old: ConnectionState, new: ConnectionState) -> None:
+        self._session._on_state(old, new)
+
+    def link_down(self, error: BaseException | None, final: bool) -> None:
+        session = self._session
+        session._on_fenced()  # never resume motion after an outage
+        session._requests.fail_all(error)
+        if final:
+            session._streams.fail(error)
+
+
+class Session(abc.ABC, Generic[M, K]):
+    """A device's port side: see the module. The options are the device's (see
+    :class:`~chassis_sdk.Chassis`); ``background`` are the tasks that run while the
+    port is open, by name.
+
+    A subclass implements :meth:`_make_decoder` and :meth:`_zero_frame`; it may
+    override :meth:`_on_link_up`, :meth:`_make_command_decoder`, :meth:`_reply_quarantine`,
+    :meth:`_on_fenced` and :meth:`_on_state`.
+    """
+
+    #: The device's profile name, as ``Diagnosis.device`` and the CLI say it.
+    kind: ClassVar[str] = "device"
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int,
+        request_timeout: float,
+        retries: int,
+        reconnect: bool,
+        queue_size: int,
+        link_timeout: float | None,
+        connect_timeout: float,
+        close_linger: float,
+        logger: logging.Logger,
+        record: str | os.PathLike[str] | None,
+        background: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]],
+    ) -> None:
+        self.port = port
+        self._log = logger
+        self._record_path = _recording_path(record)
+        self._recording: Recorder | None = None
+        self._decoder = self._make_decoder()
+        self._streams = Streams(queue_size)
+        self._listeners: set[Listener[Any]] = set()
+        self._link: LinkSupervisor[M] = LinkSupervisor(
+            _LinkHooks(self),
+            port,
+            baudrate=baudrate,
+            connect_timeout=connect_timeout,
+            close_linger=close_linger,
+            link_timeout=link_timeout,
+            reconnect=bool(reconnect),
+            queue_size=queue_size,
+            log=logger,
+            background=background,
+        )
+        self._requests: Requester[K] = Requester(
+            port,
+            self._link.writer.write,
+            self._link.writer.ensure_open,
+            timeout=request_timeout,
+            retries=retries,
+            log=logger,
+        )
+        #: Message type -> what to do with it (set up by the device); called
+        #: synchronously from the link's ``data_received``, in wire order.
+        self._handlers: dict[type, Callable[[Any], None]] = {}
+
+    # --- the hooks ----------------------------------------------------------------------------
+
+    @abc.abstractmethod
+    def _make_decoder(self) -> FrameDecoder[M]:
+        """The device's incremental decoder (one per device, reset per connection)."""
+
+    @abc.abstractmethod
+    def _zero_frame(self) -> bytes:
+        """A zero-velocity frame: the last velocity frame on every path."""
+
+    def _on_link_up(self) -> None:
+        """Reset per-connection state (called on connect and each reconnect)."""
+
+    def _on_fenced(self) -> None:
+        """Writes are fenced off, or the link dropped: forget any active command."""
+
+    def _on_state(self, old: ConnectionState, new: ConnectionState) -> None:
+        """The connection went from ``old`` to ``new`` (before anyone hears of it)."""
+
+    def _make_command_decoder(self) -> FrameDecoder[Any] | None:
+        """A decoder of what the *host* writes (``None``: recordings keep raw bytes)."""
+        return None
+
+    def _reply_quarantine(self) -> float:
+        """The least time a key whose reply is overdue stays out of use (see
+        RequestTable, which keeps it out longer on a device that has shown itself
+        slower): one more ``request_timeout``."""
+        return self.request_timeout
+
+    def _received(self, messages: list[M], now: float) -> None:
+        handlers = self._handlers
+        for msg in messages:
+            try:
+                handlers[type(msg)](msg)
+            except Exception:  # a bug must not stop the frames after it, nor the link
+                self._log.exception("%s: error handling %r", self.port, msg)
+
+    # --- the connection -------------------------------------------------------------------------
+
+    @property
+    def connection_state(self) -> ConnectionState:
+        """The current :class:`ConnectionState`."""
+        return self._link.state
+
+    @property
+    def is_connected(self) -> bool:
+        """True while the port is open (``CONNECTED`` or ``STALE``)."""
+        return self._link.is_open
+
+    @property
+    def transport_backend(self) -> str:
+        """Which pyserial asyncio package carries the link."""
+        return backend_name()
+
+    @property
+    def baudrate(self) -> int:
+        """The serial speed."""
+        return self._link.baudrate
+
+    @property
+    def reconnect(self) -> bool:
+        """Whether the port is reopened when the link drops."""
+        return self._link.reconnect
+
+    @property
+    def request_timeout(self) -> float:
+        """Seconds each attempt of a request waits for its reply (may be changed)."""
+        return self._requests.timeout
+
+    @request_timeout.setter
+    def request_timeout(self, value: float) -> None:
+        self._requests.timeout = check_real(value, "request_timeout", **_POSITIVE)
+
+    @property
+    def retries(self) -> int:
+        """Extra attempts of a read-only request after a timeout (may be changed)."""
+        return self._requests.retries
+
+    @retries.setter
+    def retries(self, value: int) -> None:
+        self._requests.retries = check_int(value, "retries", low=0)
+
+    def connection_states(self) -> Subscription[ConnectionState]:
+        """An async iterator of :class:`ConnectionState` changes, from the next one on.
+
+        It ends after ``DISCONNECTED`` when the device is closed. Example::
+
+            async for state in robot.connection_states():
+                print("link is", state.value)
+        """
+        return self._link.states.subscribe()
+
+    async def wait_connected(self, timeout: float | None = None) -> None:
+        """Wait until the port is open (``CONNECTED`` or ``STALE``), e.g. after a
+        reconnect. Returns at once if it already is.
+
+        Raises:
+            TimeoutError: ``timeout`` elapsed first.
+            NotConnectedError: The device is closed or lost and will not reconnect.
+        """
+        await self._link.states.wait_open(timeout)
+
+    @property
+    def last_frame_age(self) -> float | None:
+        """Seconds since the last valid frame of any kind arrived (across reconnects),
+        or ``None`` if none has."""
+        last = self._link.last_frame_time
+        return None if last is None else time.monotonic() - last
+
+    async def verify(self, timeout: float = 3.0) -> None:
+        """Make sure the device on the port is this one: wait until a valid frame of
+        its protocol arrives (returns at once if one has). Call it before driving a
+        robot whose port you are not sure of: another device, a wrong baud rate and a
+        silent port each give one clear error instead of a robot that does not move.
+
+        Raises:
+            ProtocolError: Bytes arrive but none forms a frame of this protocol.
+            RequestTimeoutError: Nothing arrived within ``timeout`` seconds.
+            NotConnectedError: The port is not open.
+            ValueError: ``timeout`` is not a finite number > 0.
+        """
+        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
+        end = time.monotonic() + timeout
+        while not self._decoder.stats.frames:
+            if not self._link.is_open:
+                raise NotConnectedError(f"{self.port} is {self._link.state.value}")
+            if time.monotonic() >= end:
+                received = self._decoder.stats.bytes_received
+                if received:
+                    raise ProtocolError(
+                        f"{received} bytes arrived on {self.port} but none is a {self.kind} "
+                        "frame: is it another device, or the wrong baud rate?"
+                    )
+                raise RequestTimeoutError(
+                    f"nothing arrived from {self.port} within {timeout:g} s (is the device "
+                    "on, and is this its port?)"
+                )
+            await anyio.sleep(0.02)
+
+    # --- lifetime ---------------------------------------------------------------------------------
+
+    async def connect(self) -> None:
+        """Open the port and start the background tasks.
+
+        Raises:
+            PortOpenError: The port cannot be opened (the message says why).
+            ChassisError: Already connected.
+        """
+
+        def connecting() -> None:
+            self._requests.table.quarantine = self._reply_quarantine()
+            self._streams.reopen()
+
+        if self._record_path is not None and self._recording is None:
+            assert _open_recorder is not None  # checked with the option
+            self._recording = _open_recorder(self._record_path, self)
+        try:
+            await self._link.connect(connecting)
+        except BaseException:
+            self._stop_recording()
+            raise
+
+    async def close(self) -> None:
+        """Stop the robot, close the port and stop the background tasks.
+
+        A zero-velocity frame is written and given a bounded time to leave before the
+        port closes. If the device is not reading, every stale frame is discarded but
+        the zero, which may go on waiting for it in the background for up to
+        ``close_linger`` seconds after this returns (see the safety model); under
+        :func:`chassis_sdk.run` the program ends only once it has left. Safe to call
+        more than once, and from any task; a second call waits for the first to
+        finish. Cancelling it does not interrupt it: it returns (within about a second)
+        before the cancellation goes on.
+        With ``record``, the recording ends after the zero frame, which it holds unless
+        the zero had to wait for a device that was not reading.
+        """
+        try:
+            await self._link.close()
+        finally:
+            self._stop_recording()
+
+    @property
+    def recording(self) -> Path | None:
+        """The file this session is being recorded to (the ``record`` option), or
+        ``None``. Connecting again after :meth:`close` starts the file anew."""
+        return self._record_path
+
+    def _stop_recording(self) -> None:
+        recording, self._recording = self._recording, None
+        if recording is not None:
+            recording.close()
+
+    async def __aenter__(self) -> Self:
+        await self.connect()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    # --- observing it (recorders, bridges, live views) -----------------------------------------
+
+    def add_tap(self, tap: Tap) -> Callable[[], None]:
+        """Let ``tap`` see every byte of this device's link, both ways, across
+        reconnects: ``tap.rx(data, now)`` for each chunk received, ``tap.tx(frame,
+        now)`` for each frame as it begins to leave (``now`` is ``time.monotonic()``).
+        Called synchronously on the event loop: it must be quick and must not raise.
+        Returns the function that removes it.
+        """
+        self._link.add_tap(tap)
+        return lambda: self._link.remove_tap(tap)
+
+    @property
+    def stream_names(self) -> tuple[str, ...]:
+        """The names of this device's streams: the methods that subscribe to them
+        (``"telemetry"``, ``"odometry"``, ``"events"``, ...)."""
+        return tuple(self._streams.named)
+
+    def listen(self, stream: str, callback: Callable[[Any], None]) -> Callable[[], None]:
+        """Call ``callback(message)`` synchronously for every message of the stream
+        named ``stream`` (see :attr:`stream_names`), in wire order, from now on: for
+        recorders and bridges that must see every message and cost nothing when
+        absent. It must be quick and must not raise. Returns the function that stops
+        it.
+
+        Raises:
+            ValueError: No stream of that name.
+        """
+        found = self._streams.named.get(stream)
+        if found is None:
+            raise ValueError(
+                f"{self.kind} has no stream {stream!r}; it has: {', '.join(self._streams.named)}"
+            )
+        return self._held(found.listen(callback))
+
+    def listen_states(self, callback: Callable[[ConnectionState], None]) -> Callable[[], None]:
+        """Call ``callback(state)`` synchronously on every :class:`ConnectionState`
+        change, from now on. Returns the function that stops it."""
+        return self._held(self._link.states.listen(callback))
+
+    def _held(self, listener: Listener[Any]) -> Callable[[], None]:
+        """Keep ``listener`` (streams hold theirs weakly) until the returned call."""
+        self._listeners.add(listener)
+
+        def stop() -> None:
+            self._listeners.discard(listener)
+            listener.close()
+
+        return stop
+
+    def command_decoder(self) -> FrameDecoder[Any] | None:
+        """A new decoder of what the *host* writes to this device, so recordings show
+        the commands decoded (``None``: the device has none; they keep the raw bytes)."""
+        return self._make_command_decoder()
+
+    def feed(self, data: bytes, now: float) -> None:
+        """Take bytes that reached this device other than through its own link (a
+        capture being replayed, a passive recorder, a conversion): tapped, decoded and
+        handled as if they had come through it (streams, odometry, events)."""
+        tap = self._link.tap
+        if tap is not None:
+            tap.rx(data, now)
+        messages = self._decoder.feed(data, now)
+        if messages:
+            self._received(messages, now)
+
+    # --- for the device: writing, requests, streams -----------------------------------------------
+
+    def _ensure_connected(self) -> None:
+        self._link.writer.ensure_open()
+
+    async def _send(self, frame: bytes) -> None:
+        """Write a command that has no reply; return once it is handed to the port."""
+        self._link.writer.write(frame)
+        await anyio.lowlevel.checkpoint()
+
+    async def _request(
+        self, build: Callable[[], tuple[bytes, K]], *, read_only: bool, name: str
+    ) -> Any:
+        """Write a request and wait for its reply (see :meth:`Requester.call`).
+
+        A timeout on a port where bytes arrive but no frame of this protocol does says
+        so: that is another device, or the wrong baud rate, not a slow one.
+        """
+        try:
+            return await self._requests.call(build, read_only=read_only, name=name)
+        except RequestTimeoutError as exc:
+            d = self._decoder.stats
+            if d.bytes_received and not d.frames:
+                raise RequestTimeoutError(
+                    f"{exc}; {d.bytes_received} bytes arrived but none is a {self.kind} "
+                    "frame (another device on the port, or the wrong baud rate?)"
+                ) from None
+            raise
+
+    def _reply(self, key: K, msg: Any) -> None:
+        """A reply arrived for ``key``: answer its call, or count it late or unmatched."""
+        self._requests.reply(key, msg)
+
+    def _stream(self, name: str | None = None) -> Broadcast[Any]:
+        """A new stream (with its latest value) of this device; ``name``, the name of
+        the method that subscribes to it, makes it a topic of recordings and live
+        views."""
+        return self._streams.new(name)
+
+    def _subscribe(self, stream: Broadcast[Any]) -> Subscription[Any]:
+        if self._link.state is ConnectionState.DISCONNECTED:
+            raise NotConnectedError(f"{self.port} is not connected; use `async with` first")
+        return stream.subscribe()
+
+    async def _first_match(
+        self, stream: Broadcast[T], predicate: Callable[[T], bool], timeout: float, what: str
+    ) -> T:
+        """The latest message of ``stream`` if it satisfies ``predicate``, else the next
+        one that does (a device's ``wait_for``).
+
+        Raises:
+            TimeoutError: None did within ``timeout`` seconds.
+            ValueError: ``timeout`` is not a finite number > 0.
+            NotConnectedError: The device was closed meanwhile.
+        """
+        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
+        subscription: Subscription[T] = self._subscribe(stream)
+        async with subscription as items:
+            latest = stream.latest
+            if latest is not None and predicate(latest):
+                return latest
+            with anyio.move_on_after(timeout):
+                async for item in items:
+                    if predicate(item):
+                        return item
+                raise NotConnectedError(f"{self.port} was closed while waiting")
+        raise TimeoutError(f"{self.port}: no {what} satisfied the condition in {timeout:g} s")
+
+    def _write_velocity(self, frame: bytes, expires: float) -> None:
+        self._link.writer.write_velocity(frame, expires)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.port!r} {self._link.state.value}>"
