@@ -373,7 +373,7 @@ async def test_replay_with_the_wrong_protocol_says_so(tmp_path: Path) -> None:
     assert code == 1
     assert out == ""
     assert "no chassis frames in" in one_line(err)
-    assert "it looks like a board capture; try --protocol board" in err
+    assert "it looks like a board capture; try --device board" in err
 
 
 async def test_sim_removes_its_port_link_on_sigterm() -> None:

@@ -1,0 +1,135 @@
+"""What the commands' parsers share: the environment's defaults, argument types that
+refuse what the SDK would refuse, the port and ``--device`` arguments, and how a
+command registers itself.
+
+Each command module has an ``add_parser(sub, names)`` that adds its subparser and sets
+its ``func``: ``func(args)`` checks what it needs, does a command that needs no event
+loop there and then (returning ``None``), or returns the coroutine that
+:func:`chassis_sdk.cli.main` runs under :func:`chassis_sdk.run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Callable, Coroutine, Sequence
+from typing import TYPE_CHECKING, Any, TypeAlias
+
+from ..core.validation import check_int, check_real
+
+if TYPE_CHECKING:
+    Subparsers: TypeAlias = argparse._SubParsersAction[argparse.ArgumentParser]
+
+__all__ = [
+    "BAUD",
+    "DRIVE_MAX_ANGULAR",
+    "DRIVE_MAX_LINEAR",
+    "ENV_BROKER",
+    "ENV_PORT",
+    "ENV_PROTOCOL",
+    "Command",
+    "Job",
+    "UsageError",
+    "arg_type",
+    "device_arg",
+    "finite",
+    "port_args",
+    "positive",
+    "require_port",
+]
+
+#: Environment variables that give defaults to the port, ``--device`` and ``--broker``.
+ENV_PORT = "CHASSIS_SDK_PORT"
+ENV_PROTOCOL = "CHASSIS_SDK_PROTOCOL"
+ENV_BROKER = "CHASSIS_SDK_BROKER"
+#: ``drive``'s (and ``serve``'s) default limits: slow enough to walk beside.
+DRIVE_MAX_LINEAR = 0.5
+DRIVE_MAX_ANGULAR = 1.0
+
+#: What a command's ``func`` returns: the coroutine to run, or ``None`` when done.
+Job: TypeAlias = Coroutine[Any, Any, None] | None
+#: A command's ``func``: called with the parsed arguments.
+Command: TypeAlias = Callable[[argparse.Namespace], Job]
+
+
+class UsageError(Exception):
+    """A command's arguments do not do (no port given, ...): ``main`` says so the way
+    argparse does, with the usage and exit status 2."""
+
+
+def arg_type(convert: Callable[[str], Any], check: Callable[[Any], Any]) -> Callable[[str], Any]:
+    """An argparse type that refuses what the SDK would refuse, before any port opens."""
+
+    def parse(text: str) -> Any:
+        try:
+            return check(convert(text))
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def finite(name: str) -> Callable[[str], Any]:
+    """A finite real number, named ``name`` in the refusal."""
+    return arg_type(float, lambda v: check_real(v, name))
+
+
+def positive(name: str) -> Callable[[str], Any]:
+    """A finite real number above zero, named ``name`` in the refusal."""
+    return arg_type(float, lambda v: check_real(v, name, low=0, low_open=True))
+
+
+#: A serial speed: a whole number from 1.
+BAUD = arg_type(int, lambda v: check_int(v, "baudrate", low=1))
+
+
+def port_args(p: argparse.ArgumentParser, *, required: bool = True) -> None:
+    """``PORT`` (default ``$CHASSIS_SDK_PORT``) and ``-b/--baudrate``. With
+    ``required=False`` no port means every serial port."""
+    help_text = f"device path, pty path or socket://host:port (default: ${ENV_PORT})"
+    if not required:
+        help_text = f"the port (default: ${ENV_PORT}, else every serial port)"
+    p.add_argument("port", nargs="?", default=os.environ.get(ENV_PORT) or None, help=help_text)
+    p.add_argument("-b", "--baudrate", type=BAUD, default=115200, help="serial speed")
+
+
+def device_arg(
+    p: argparse.ArgumentParser,
+    names: Sequence[str],
+    *,
+    detected: bool = False,
+    default: str | None = None,
+    help_text: str | None = None,
+) -> None:
+    """``--device NAME`` (into ``args.device``), with ``--protocol`` its old name, still
+    taken but not shown.
+
+    The default is ``default`` if given, else ``$CHASSIS_SDK_PROTOCOL``, else
+    ``None`` when the device is ``detected`` (from a capture or a port), else the
+    first known device. An unknown name from the environment is not checked here
+    (argparse checks only what is typed): ``main`` refuses it.
+    """
+    names = list(names)
+    if default is None:
+        default = os.environ.get(ENV_PROTOCOL) or (None if detected else names[0])
+        help_text = help_text or (
+            f"which device (default: ${ENV_PROTOCOL}, else "
+            + ("detected)" if detected else f"{names[0]})")
+        )
+    p.add_argument("--device", choices=names, default=default, help=help_text)
+    # The old name: the same destination, no default of its own, no line in --help.
+    p.add_argument(
+        "--protocol",
+        choices=names,
+        dest="device",
+        default=argparse.SUPPRESS,
+        help=argparse.SUPPRESS,
+    )
+
+
+def require_port(args: argparse.Namespace) -> str:
+    """``args.port``, or a :class:`UsageError` saying how to give one."""
+    port: str | None = args.port
+    if port is None:
+        raise UsageError(f"{args.command}: no port given (give PORT, or set {ENV_PORT})")
+    return port

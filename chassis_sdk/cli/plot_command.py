@@ -1,0 +1,93 @@
+"""``chassis-sdk plot``: draw a capture into a PNG (the device's own ``plot`` if its
+commands have one, else every numeric field of every message, by type)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+from ..devices import profile
+from ..errors import ChassisError
+from ..recording import capture
+from .arguments import device_arg
+from .captures import detect_file, no_messages
+from .common import jsonable, out
+from .devices import commands
+
+if TYPE_CHECKING:
+    from .arguments import Job, Subparsers
+
+__all__ = ["add_parser", "plot"]
+
+
+def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
+    """Register ``plot``."""
+    p = sub.add_parser("plot", help="plot a capture: velocities, wheel speeds, voltage, ...")
+    p.add_argument("file")
+    p.add_argument("-o", "--output", default="capture.png")
+    device_arg(p, names, detected=True)
+    p.set_defaults(func=_start)
+
+
+def _start(args: argparse.Namespace) -> Job:
+    plot(args.file, args.output, args.device)
+    return None
+
+
+def plot(path: str, output: str, device: str | None) -> None:
+    """Draw the capture ``path`` (of ``device``, else detected) into ``output``.
+
+    Raises:
+        ChassisError: matplotlib is missing, or the capture holds no frames of the
+            device.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ChassisError("plot needs matplotlib: pip install 'chassis-sdk[plot]'") from None
+    proto = device or detect_file(path)
+    profile(proto)  # an unknown name fails here, naming the known ones
+    fig = plt.figure(figsize=(13, 9))
+    draw = commands(proto).plot
+    if draw is not None:  # from arrays: an hour's frames, no object apiece
+        data = capture.capture_columns(path, proto)
+        sent_columns = capture.capture_columns(path, proto, commands=True)
+        messages, sent = data.frames, sent_columns.frames
+        if not messages:
+            no_messages(path, proto)
+        draw(data, sent_columns, fig)
+    else:  # a generic device: every numeric field of every message, by type
+        rows = list(capture.decode_capture(path, proto))
+        if not rows:
+            no_messages(path, proto)
+        messages = len(rows)
+        sent = sum(1 for _ in capture.decode_capture(path, proto, commands=True))
+        _plot_fields(rows, fig)
+    fig.suptitle(f"{proto} capture {path}")
+    fig.tight_layout()
+    fig.savefig(output, dpi=100)
+    plt.close(fig)
+    extra = f" and {sent} commands" if sent else ""
+    out(f"wrote {output} ({messages} messages{extra})")
+
+
+def _plot_fields(rows: list[tuple[float, object]], fig: Any) -> None:
+    series: dict[str, tuple[list[float], list[float]]] = {}
+    for t, msg in rows:
+        for key, value in jsonable(msg).items():
+            numeric = isinstance(value, int | float) and not isinstance(value, bool)
+            if numeric and key != "timestamp":
+                ts, ys = series.setdefault(f"{type(msg).__name__}.{key}", ([], []))
+                ts.append(t)
+                ys.append(float(value))
+    names = sorted(series)[:6]
+    axes = fig.subplots(max(len(names), 1), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, name in zip(axes, names, strict=False):
+        ax.plot(*series[name])
+        ax.set_ylabel(name, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time since start of capture (s)")

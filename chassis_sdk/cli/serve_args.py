@@ -1,0 +1,72 @@
+"""``chassis-sdk serve``'s arguments; the command itself is
+:mod:`chassis_sdk.cli.serve_command`, imported only when it runs."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from ..devices import DeviceProfile, profile
+from .arguments import (
+    DRIVE_MAX_ANGULAR,
+    DRIVE_MAX_LINEAR,
+    device_arg,
+    port_args,
+    positive,
+    require_port,
+)
+
+if TYPE_CHECKING:
+    from .arguments import Job, Subparsers
+
+__all__ = ["add_parser"]
+
+
+def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
+    """Register ``serve``."""
+    p = sub.add_parser("serve", help="serve the device live to the Foxglove app (WebSocket)")
+    port_args(p)
+    device_arg(p, names)
+    p.add_argument("--foxglove-port", type=int, default=8765, help="TCP port (default 8765)")
+    p.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default: this computer only)"
+    )
+    p.add_argument("--read-only", action="store_true", help="no Teleop; only stop services")
+    p.add_argument(
+        "--allow-origin",
+        action="append",
+        metavar="ORIGIN",
+        help="also let in web pages of this origin (scheme://host[:port]); repeatable",
+    )
+    p.add_argument("--token", help="a secret clients must give (?token=...); visible in ps")
+    p.add_argument("--token-file", metavar="FILE", help="read the token from FILE (mode 600)")
+    p.add_argument(
+        "--no-token", action="store_true", help="allow --host beyond loopback without a token"
+    )
+    p.add_argument("--record", metavar="FILE.mcap", help="also record the session")
+    p.add_argument(
+        "--max-linear", type=positive("max_linear"), default=DRIVE_MAX_LINEAR, help="m/s"
+    )
+    p.add_argument(
+        "--max-angular", type=positive("max_angular"), default=DRIVE_MAX_ANGULAR, help="rad/s"
+    )
+    p.add_argument(
+        "--command-timeout",
+        type=positive("command_timeout"),
+        default=0.5,
+        help="stop this long after Teleop's last message (s)",
+    )
+    p.add_argument("--seconds", type=positive("seconds"), help="stop after this long")
+    p.set_defaults(func=_start)
+
+
+def _start(args: argparse.Namespace) -> Job:
+    port = require_port(args)
+    return _serve(profile(args.device), port, args)
+
+
+async def _serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    from .serve_command import serve
+
+    await serve(device, port, args)

@@ -1,0 +1,102 @@
+"""The command line's dispatch: every command is its own ``func``, none falls through
+to another, and ``--device`` has one meaning whichever of its names is typed."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+import chassis_sdk.cli
+from chassis_sdk.cli import build_parser, drive_command, main
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert len(actions) == 1
+    choices: dict[str, argparse.ArgumentParser] = actions[0].choices
+    return choices
+
+
+def test_every_command_has_its_own_func() -> None:
+    commands = _subcommands(build_parser())
+    assert {"demo", "ports", "detect", "sim", "info", "monitor", "drive", "record"} <= set(commands)
+    assert {"replay", "plot", "export", "serve", "bridge"} <= set(commands)
+    funcs = {}
+    for name, sub in commands.items():
+        func = sub.get_default("func")
+        assert callable(func), f"{name} sets no func"
+        funcs[name] = func
+    # No two commands share one: none is another's fallback.
+    assert len(set(funcs.values())) == len(funcs)
+
+
+@pytest.mark.parametrize("argv", [["drvie", "/dev/ttyX"], ["frobnicate"], ["Drive", "/dev/ttyX"]])
+def test_an_unknown_command_is_a_usage_error_and_never_drives(
+    argv: list[str],
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    driven: list[object] = []
+    monkeypatch.setattr(drive_command, "drive", lambda *a: driven.append(a))
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "usage: chassis-sdk" in err
+    assert "invalid choice" in err
+    assert driven == []
+
+
+def test_no_command_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main([])
+    assert exit_info.value.code == 2
+    assert "usage: chassis-sdk" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["info", "/dev/ttyX"],
+        ["monitor", "/dev/ttyX"],
+        ["drive", "/dev/ttyX"],
+        ["record", "/dev/ttyX", "out.jsonl"],
+        ["replay", "cap.jsonl"],
+        ["plot", "cap.jsonl"],
+        ["export", "cap.jsonl", "--csv", "out"],
+        ["serve", "/dev/ttyX"],
+        ["bridge", "/dev/ttyX", "--robot-id", "r1"],
+        ["demo"],
+    ],
+    ids=lambda c: c[0],
+)
+def test_protocol_is_the_old_name_of_device(command: list[str]) -> None:
+    parser = build_parser()
+    old = parser.parse_args([*command, "--protocol", "board"])
+    new = parser.parse_args([*command, "--device", "board"])
+    assert old.device == new.device == "board"
+    assert not hasattr(old, "protocol")
+
+
+def test_protocol_is_taken_but_not_shown(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["info", "--help"])
+    assert exit_info.value.code == 0
+    page = capsys.readouterr().out
+    assert "--device" in page
+    assert "--protocol" not in page
+
+
+def test_an_unknown_device_is_refused_under_either_name(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    for flag in ("--device", "--protocol"):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["info", "/dev/ttyX", flag, "tractor"])
+        assert exit_info.value.code == 2
+        assert "invalid choice: 'tractor'" in capsys.readouterr().err
+
+
+def test_the_package_exports_the_parser() -> None:
+    assert "build_parser" in chassis_sdk.cli.__all__
