@@ -3,7 +3,6 @@ a velocity command alive, explaining silence, and turning messages into JSON."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import stat
 import sys
@@ -11,6 +10,8 @@ import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any, TypeVar
+
+import anyio
 
 from ..core.device import Device
 from ..core.plain import jsonable
@@ -52,11 +53,9 @@ def out(text: str = "") -> None:
 
 async def first(stream: AsyncIterator[Any], timeout: float, what: str) -> Any:
     """The first item of ``stream``, or :class:`RequestTimeoutError` naming ``what``."""
-    try:
-        async with asyncio.timeout(timeout):
-            return await anext(stream)
-    except TimeoutError:
-        raise RequestTimeoutError(f"no {what} within {timeout:g} s") from None
+    with anyio.move_on_after(timeout):
+        return await anext(stream)
+    raise RequestTimeoutError(f"no {what} within {timeout:g} s")
 
 
 async def drive_for(
@@ -75,7 +74,7 @@ async def drive_for(
         if now >= next_show:
             show()
             next_show = now + 0.2
-        await asyncio.sleep(0.1)
+        await anyio.sleep(0.1)
 
 
 @contextlib.asynccontextmanager
@@ -115,7 +114,7 @@ def _wrong_protocol(device: Device[Any, Any]) -> None:
     others = [name for name in profiles() if name != device.kind] or ["different device"]
     raise WrongProtocolError(
         f"{device.stats.bytes_received} bytes arrived on {device.port} but none is a "
-        f"{device.kind} frame: is it a {' or a '.join(others)}? Try --protocol "
+        f"{device.kind} frame: is it a {' or a '.join(others)}? Try --device "
         f"{others[0]}, or `chassis-sdk detect`"
     )
 
