@@ -22,7 +22,8 @@ The runtime:
   device's motion commands over it;
 * :mod:`.odometry`, :mod:`.events`, :mod:`.diagnosis`, :mod:`.stats`: what a device
   reports, generically; :mod:`.observation`: a device's streams and reports;
-* :mod:`.device`: the :class:`Device` base that a device subclasses;
+* :mod:`.session`, :mod:`.device`: the :class:`Device` base that a device subclasses
+  (its port side, and its robot side); :mod:`.notifier`: watching a device from outside;
 * :mod:`.run`: ``chassis_sdk.run``, SIGTERM-safe ``asyncio.run``.
 
 The names below are what a device package is written with (see "Adding a device");
@@ -41,6 +42,7 @@ if TYPE_CHECKING:
     from .events import EdgeDetector, EventKind, RobotEvent
     from .firmware import Firmware, FirmwareModel, next_slot
     from .framing import INVALID, NEED_DATA, DecoderStats, FrameDecoder, FrameTable
+    from .notifier import Notifier
     from .stats import LinkStats
     from .supervisor import ConnectionState
     from .watchdog import FrameBuilder, MotionLimits
@@ -63,6 +65,7 @@ _LAZY = {
     "FirmwareModel": ".firmware",
     "next_slot": ".firmware",
     "LinkStats": ".stats",
+    "Notifier": ".notifier",
     "ConnectionState": ".supervisor",
     "FrameBuilder": ".watchdog",
     "MotionLimits": ".watchdog",
@@ -86,6 +89,7 @@ __all__ = [
     "FrameTable",
     "LinkStats",
     "MotionLimits",
+    "Notifier",
     "RobotEvent",
     "Subscription",
     "next_slot",

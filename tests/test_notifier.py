@@ -1,0 +1,76 @@
+"""``Notifier``: the one way recorders and bridges watch a device (its raw traffic, its
+named streams, its connection states), and everything it adds goes with close()."""
+
+from __future__ import annotations
+
+import gc
+
+import pytest
+
+from chassis_sdk import Chassis, ConnectionState, Telemetry
+from chassis_sdk.core.notifier import Notifier
+from chassis_sdk.devices.chassis.firmware import ChassisFirmware
+from chassis_sdk.sim import ChassisSimulator
+
+
+def _telemetry_bytes() -> bytes:
+    firmware = ChassisFirmware()
+    firmware.on_connect(0.0)
+    return firmware.poll(0.0)
+
+
+class Recorder:
+    """A tap that keeps what it saw."""
+
+    def __init__(self) -> None:
+        self.received: list[bytes] = []
+        self.sent: list[bytes] = []
+
+    def rx(self, data: bytes, now: float) -> None:
+        self.received.append(data)
+
+    def tx(self, data: bytes, now: float) -> None:
+        self.sent.append(data)
+
+
+def test_taps_and_listeners_see_fed_bytes_and_go_with_close() -> None:
+    robot = Chassis("/dev/never-opened")
+    frame = _telemetry_bytes()
+    notifier = Notifier(robot)
+    assert {"telemetry", "odometry", "events"} <= set(notifier.stream_names)
+    first, second = Recorder(), Recorder()
+    seen: list[object] = []
+    notifier.add_tap(first)
+    notifier.add_tap(second)
+    notifier.listen("telemetry", seen.append)
+    gc.collect()  # the notifier holds its listeners: nothing is lost to the collector
+    robot.feed(frame, 1.0)
+    assert first.received == second.received == [frame]
+    assert len(seen) == 1
+    assert isinstance(seen[0], Telemetry)
+    notifier.close()
+    notifier.close()  # again: nothing to remove
+    robot.feed(frame, 2.0)
+    assert first.received == [frame]
+    assert len(seen) == 1
+
+
+def test_an_unknown_stream_is_a_clear_error() -> None:
+    with pytest.raises(ValueError, match="chassis has no stream 'imu'; it has: .*telemetry"):
+        Notifier(Chassis("/dev/never-opened")).listen("imu", print)
+
+
+async def test_it_sees_both_directions_and_the_states_of_a_real_link() -> None:
+    states: list[ConnectionState] = []
+    tap = Recorder()
+    async with ChassisSimulator() as sim:
+        robot = Chassis(sim.port)
+        with Notifier(robot) as notifier:
+            notifier.add_tap(tap)
+            notifier.listen_states(states.append)
+            async with robot:
+                await robot.get_firmware_version()
+        assert ConnectionState.CONNECTED in states
+        assert states[-1] is ConnectionState.DISCONNECTED
+        assert any(frame[4] == 0x07 for frame in tap.sent)  # the 0x07 request, as written
+        assert any(b"\xed\xde" in chunk for chunk in tap.received)
