@@ -71,6 +71,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import logging
 import math
@@ -81,9 +82,11 @@ import socket
 import time
 from collections import deque
 from collections.abc import Callable, Coroutine
-from typing import Any, cast
+from typing import Any
 
 import aiomqtt
+import anyio
+from anyio.abc import TaskGroup
 from paho.mqtt import client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
@@ -467,6 +470,10 @@ class MqttBridge:
         self.dropped = 0
         self._refusals = Refusals(float(report_interval))
         self._reports: deque[RefusalReport] = deque(maxlen=4)
+        # asyncio's events, not anyio's: these wake-ups are cleared by the loop they
+        # wake (anyio's cannot be), and the claim must go on the moment the echo is
+        # in (anyio's wait() yields once even when the event is set already, and a
+        # stop in that moment would find the bridge not yet online: no OFFLINE).
         self._report_wanted = asyncio.Event()
         self._request_ready = asyncio.Event()
         self._urgent = asyncio.Event()
@@ -520,41 +527,50 @@ class MqttBridge:
             RobotIdTaken: Another bridge is ``ONLINE`` for this robot id (this one
                 never took a command), or it took over (this one stopped its robot).
         """
-        # Every await of this task is asyncio.wait (never aiomqtt's own calls, which
-        # use asyncio.wait_for: before Python 3.12 it can lose a cancellation), so a
-        # cancellation always reaches it; the workers are cancelled until they are done.
+        # The bridge's work runs in a task group, and this task awaits nothing else
+        # while it runs: leaving the group cancels the workers until they are done,
+        # however often a library loses a cancellation (aiomqtt's calls use
+        # asyncio.wait_for, which can before Python 3.12).
         try:
             async with self.client:
-                workers = [asyncio.create_task(self._start(), name=f"bridge start:{self.topic}")]
-                try:  # from here on, a clean stop (cancellation) says OFFLINE
-                    await self._until_failure(workers)
-                    workers += [
-                        asyncio.create_task(work, name=f"bridge {name}:{self.topic}")
-                        for name, work in self._loops()
-                    ]
-                    await self._until_failure(workers)
-                except asyncio.CancelledError:
-                    await _cancel_all(workers)
-                    await self._offline()
+                failure: BaseException | None = None
+                try:
+                    async with anyio.create_task_group() as tg:
+                        tg.start_soon(self._serve, tg, name=f"bridge start:{self.topic}")
+                except anyio.get_cancelled_exc_class():
+                    # A clean stop says OFFLINE (if this bridge got as far as owning
+                    # the robot id), bounded, even under a cancelled scope.
+                    with anyio.CancelScope(shield=True):
+                        await self._offline()
                     raise
-                except (aiomqtt.MqttError, RobotIdTaken):
-                    # The broker is gone, or another bridge owns the robot id: either
-                    # way nothing of ours may be published now.
-                    await _cancel_all(workers)
-                    raise
-                except Exception:
-                    await _cancel_all(workers)
-                    await self._stop_robot()  # first the robot, then the fleet
-                    await self._fail_loudly()
-                    raise
-                except BaseException:  # KeyboardInterrupt, SystemExit: the process ends
-                    await _cancel_all(workers)
-                    raise
+                except BaseExceptionGroup as group:
+                    failure = _first_error(group)
+                if failure is not None:
+                    await self._ended_by(failure)
+                    raise failure
         except aiomqtt.MqttError as exc:
             _log.warning("%s: broker lost (%s); the robot is stopped", self.topic, exc)
             raise
         finally:
-            await self._stop_robot()
+            with anyio.CancelScope(shield=True):
+                await self._stop_robot()
+
+    async def _serve(self, tg: TaskGroup) -> None:
+        """Claim the robot id, then start the bridge's loops (in ``tg``)."""
+        await self._start()
+        for name, work in self._loops():
+            tg.start_soon(work, name=f"bridge {name}:{self.topic}")
+
+    async def _ended_by(self, failure: BaseException) -> None:
+        """One of the bridge's tasks failed with ``failure`` (the others are done)."""
+        if isinstance(failure, aiomqtt.MqttError | RobotIdTaken):
+            # The broker is gone, or another bridge owns the robot id: either way
+            # nothing of ours may be published now.
+            return
+        if isinstance(failure, Exception):
+            await self._stop_robot()  # first the robot, then the fleet
+            await self._fail_loudly()
+        # KeyboardInterrupt, SystemExit: the process ends.
 
     async def _start(self) -> None:
         await self._claim()
@@ -577,7 +593,7 @@ class MqttBridge:
         await self._subscribe_commands()  # held until the claim is settled (see _sort)
         await self._publish("connection", self._online_payload, qos=1, retain=True)
         try:
-            async with asyncio.timeout(_ECHO_TIMEOUT):
+            with anyio.fail_after(_ECHO_TIMEOUT):
                 await self._echoed.wait()
         except TimeoutError:
             raise ChassisError(
@@ -609,24 +625,19 @@ class MqttBridge:
             return None  # our own, from before a reconnect
         return str(owner)[:100] if owner is not None else "a bridge without an owner id"
 
-    def _loops(self) -> list[tuple[str, Coroutine[Any, Any, None]]]:
-        loops = [
-            ("commands", self._commands()),
-            ("owner", self._ownership()),
-            ("errors", self._reporter()),
-            ("link", self._link()),
-            ("events", self._events()),
+    def _loops(self) -> list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]]:
+        loops: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]] = [
+            ("commands", self._commands),
+            ("owner", self._ownership),
+            ("errors", self._reporter),
+            ("link", self._link),
+            ("events", self._events),
         ]
-        loops += [(f"requests {n}", self._requests()) for n in range(_REQUEST_WORKERS)]
-        return loops + [(stream, self._telemetry(stream)) for stream in self.profile.remote.streams]
-
-    @staticmethod
-    async def _until_failure(workers: list[asyncio.Task[None]]) -> None:
-        """Wait until every worker is done, or one fails (its error is raised)."""
-        done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_EXCEPTION)
-        for task in done:
-            if not task.cancelled() and task.exception() is not None:
-                raise cast(BaseException, task.exception())
+        loops += [(f"requests {n}", self._requests) for n in range(_REQUEST_WORKERS)]
+        return loops + [
+            (stream, functools.partial(self._telemetry, stream))
+            for stream in self.profile.remote.streams
+        ]
 
     async def _offline(self) -> None:
         """Say ``OFFLINE`` (a clean stop), bounded: a broker that does not acknowledge
@@ -636,13 +647,11 @@ class MqttBridge:
         await self._bounded_publish(_state("OFFLINE", self.owner))
 
     async def _bounded_publish(self, payload: bytes) -> None:
-        publish = asyncio.ensure_future(self._publish("connection", payload, qos=1, retain=True))
-        # asyncio.wait, unlike wait_for, works in a task that is being cancelled.
-        done, _ = await asyncio.wait((publish,), timeout=2.0)
-        if not done:
-            publish.cancel()
-        elif publish.exception() is not None:
-            _log.info("%s: could not publish its state: %r", self.topic, publish.exception())
+        with anyio.move_on_after(2.0):
+            try:
+                await self._publish("connection", payload, qos=1, retain=True)
+            except Exception as exc:
+                _log.info("%s: could not publish its state: %r", self.topic, exc)
 
     async def _fail_loudly(self) -> None:
         """The bridge ends on an error of its own: tell the fleet. A DISCONNECT with
@@ -656,6 +665,8 @@ class MqttBridge:
             reason = ReasonCode(PacketTypes.DISCONNECT, identifier=_DISCONNECT_WITH_WILL)
             with contextlib.suppress(Exception):
                 if inner.disconnect(reasoncode=reason) == paho.MQTT_ERR_SUCCESS:
+                    # aiomqtt's own future: waited for, never cancelled (aiomqtt reads
+                    # it on leaving the client).
                     await asyncio.wait((disconnected,), timeout=2.0)
                     if disconnected.done() and not disconnected.cancelled():
                         disconnected.exception()  # retrieved: it is expected
@@ -713,24 +724,24 @@ class MqttBridge:
         latest: list[Any] = []
 
         async def follow() -> None:
-            async for message in getattr(self.device, stream)():
-                latest[:] = [message]
+            try:
+                async for message in getattr(self.device, stream)():
+                    latest[:] = [message]
+            except Exception as exc:  # the stream ended with an error: nothing new comes
+                _log.debug("%s: the %s stream ended: %r", self.topic, stream, exc)
 
-        follower = asyncio.create_task(follow())
-        try:
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(follow, name=f"bridge follow {stream}:{self.topic}")
             period = 1.0 / self.rate
-            loop = asyncio.get_running_loop()
-            due = loop.time()
+            due = anyio.current_time()
             while True:
                 # An absolute schedule: publishing takes time, and must not slow the rate.
-                due = next_slot(due, period, loop.time())
-                await asyncio.sleep(due - loop.time())
+                due = next_slot(due, period, anyio.current_time())
+                await anyio.sleep(due - anyio.current_time())
                 if latest:
                     message = latest.pop()
                     payload = json.dumps({"type": type(message).__name__, **jsonable(message)})
                     await self._publish(f"telemetry/{stream}", payload.encode())
-        finally:
-            follower.cancel()
 
     async def _link(self) -> None:
         await self._publish("link", _state(self.device.connection_state.value), qos=1, retain=True)
@@ -747,9 +758,8 @@ class MqttBridge:
         ``report_interval``, in a task of its own (a refusal never waits for it)."""
         interval = self._refusals.interval
         while True:
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(interval):
-                    await self._report_wanted.wait()
+            with anyio.move_on_after(interval):
+                await self._report_wanted.wait()
             self._report_wanted.clear()
             report = self._refusals.due()
             if report is not None:
@@ -775,7 +785,6 @@ class MqttBridge:
         something else was published on the connection topic (a racing bridge's
         claim, or a stale last will)."""
         last = -math.inf
-        loop = asyncio.get_running_loop()
         while True:
             await self._owner_wanted.wait()
             self._owner_wanted.clear()
@@ -785,9 +794,9 @@ class MqttBridge:
                     "stopped its robot and takes no more commands"
                 )
             if self._reassert:
-                await asyncio.sleep(max(0.0, last + _REASSERT_INTERVAL - loop.time()))
+                await anyio.sleep(max(0.0, last + _REASSERT_INTERVAL - anyio.current_time()))
                 self._reassert = False
-                last = loop.time()
+                last = anyio.current_time()
                 await self._publish("connection", self._online_payload, qos=1, retain=True)
 
     # --- in ----------------------------------------------------------------------------
@@ -927,13 +936,12 @@ class MqttBridge:
         return engaged
 
     async def _commands(self) -> None:
-        loop = asyncio.get_running_loop()
         lanes = self._inbox.lanes
         next_velocity = -math.inf
         async for message in self.client.messages:
             try:
                 velocity = message.topic.value.endswith("/cmd/velocity")
-                wait = next_velocity - loop.time()
+                wait = next_velocity - anyio.current_time()
                 if velocity and wait > 0:
                     # At most one velocity command per period reaches the device, the
                     # newest: the work (and the serial line) stays bounded whatever
@@ -942,13 +950,12 @@ class MqttBridge:
                     lanes.put_back(message)  # dropped if a stop came after it
                     self._urgent.clear()
                     if not lanes.urgent:
-                        with contextlib.suppress(TimeoutError):
-                            async with asyncio.timeout(wait):
-                                await self._urgent.wait()
+                        with anyio.move_on_after(wait):
+                            await self._urgent.wait()
                     continue
                 await self._act(message)
                 if velocity:
-                    next_velocity = loop.time() + _VELOCITY_PERIOD
+                    next_velocity = anyio.current_time() + _VELOCITY_PERIOD
             except Exception as exc:  # any failure is this message's refusal, no more
                 self._refuse(_topic(message), _why(exc))
 
@@ -1027,16 +1034,8 @@ def _clock(stamp: float) -> str:
     return repr(stamp)
 
 
-async def _cancel_all(tasks: list[asyncio.Task[None]]) -> None:
-    """Cancel ``tasks`` until every one is done: a cancellation that a library loses
-    (asyncio.wait_for before Python 3.12) is asked again."""
-    for _ in range(20):
-        pending = [t for t in tasks if not t.done()]
-        if not pending:
-            return
-        for task in pending:
-            task.cancel()
-        await asyncio.wait(pending, timeout=0.5)
-    _log.error(
-        "bridge tasks ignore cancellation: %s", [t.get_name() for t in tasks if not t.done()]
-    )
+def _first_error(group: BaseExceptionGroup[BaseException]) -> BaseException:
+    """The error a task group ended on: its first (a bridge's tasks fail one at a time;
+    the others are then cancelled, which is no error)."""
+    first = group.exceptions[0]
+    return _first_error(first) if isinstance(first, BaseExceptionGroup) else first
