@@ -30,6 +30,7 @@ PURE_CORE = {
     "chassis_sdk.core.framing",
     "chassis_sdk.core.plain",
     "chassis_sdk.core.validation",
+    "chassis_sdk.core.writequeue",
 }
 #: Layers, bottom up: a module may import its own layer and those below, never above.
 LAYERS = [

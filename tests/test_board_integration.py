@@ -165,8 +165,10 @@ async def test_simulator_led_imu_follows_motion_and_logs() -> None:
         assert await board.set_buzzer(True) is True
         assert await board.set_buzzer(False) is False
         await board.set_servo(2, 45.5)
+        lines = []
         while (line := await anext(logs)) != "servo 2 -> 45.5 deg":
-            pass
+            lines.append(line)
+        assert lines[-3:] == ["led on", "buzzer on", "buzzer off"]  # in the order asked
         assert sim.firmware.servo[2] == 45.5
         await board.set_velocity(0.3, 1.0)
         async for s in board.imu():
@@ -178,7 +180,6 @@ async def test_simulator_led_imu_follows_motion_and_logs() -> None:
             if v.linear == pytest.approx(0.3, abs=0.01):
                 break
         assert (await anext(board.battery())).voltage > 11
-        assert line
 
 
 async def test_with_every_request_id_retired_a_request_times_out_cleanly() -> None:

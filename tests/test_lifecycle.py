@@ -43,7 +43,7 @@ async def test_open_close_cycles_leak_no_tasks_and_no_fds(tcp_port: int | None) 
         # One cycle first, so lazily created loop resources are not counted as leaks.
         async with Chassis(sim.port) as robot:
             await robot.get_firmware_version()
-        await wait_until(lambda: not sim._clients)  # the server's end of it, too
+        await wait_until(lambda: not sim.clients)  # the server's end of it, too
         fds, tasks = open_fds(), other_tasks()
         for i in range(25):
             async with Chassis(sim.port, reconnect=bool(i % 2)) as robot:
@@ -58,7 +58,7 @@ async def test_open_close_cycles_leak_no_tasks_and_no_fds(tcp_port: int | None) 
             await robot2.connect()
             await robot2.close()
             await robot2.close()  # idempotent
-        await wait_until(lambda: other_tasks() == tasks and not sim._clients)
+        await wait_until(lambda: other_tasks() == tasks and not sim.clients)
         assert open_fds() == fds
 
 

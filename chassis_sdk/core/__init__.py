@@ -9,6 +9,7 @@ Modules, bottom up. The pure parts (no asyncio, no clock of their own):
 * :mod:`.enums`: enums and flags that print their names; :mod:`.plain`: messages as
   plain data (JSON, CSV);
 * :mod:`.firmware`: the base of the sans-IO firmware models the simulators serve;
+* :mod:`.writequeue`: the link's write discipline (velocity as state, the final zero);
 * :mod:`.alarm`, :mod:`.backoff`: a wakeable sleep, and reconnect delays.
 
 The runtime:
