@@ -100,3 +100,16 @@ def test_an_unknown_device_is_refused_under_either_name(
 
 def test_the_package_exports_the_parser() -> None:
     assert "build_parser" in chassis_sdk.cli.__all__
+
+
+def test_the_device_comes_from_chassis_sdk_device_before_its_old_name(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setenv("CHASSIS_SDK_PROTOCOL", "chassis")
+    monkeypatch.setenv("CHASSIS_SDK_DEVICE", "board")
+    assert build_parser().parse_args(["info", "/dev/ttyX"]).device == "board"
+    monkeypatch.setenv("CHASSIS_SDK_DEVICE", "tractor")
+    with pytest.raises(SystemExit) as exited:
+        main(["info", "/dev/ttyX"])
+    assert exited.value.code == 2
+    assert "CHASSIS_SDK_DEVICE='tractor' is not a known device" in capsys.readouterr().err

@@ -12,9 +12,9 @@ Each command is a module with an ``add_parser(sub, names)`` that registers its
 subparser and its ``func`` (see :mod:`chassis_sdk.cli.arguments`); :func:`main` calls
 ``args.func`` and nothing else, so no command can fall through to another.
 
-``CHASSIS_SDK_PORT`` and ``CHASSIS_SDK_PROTOCOL`` give the defaults of the port and of
-``--device`` (``--protocol`` is its old name, still taken), so a robot's service file
-or a shell profile sets them once.
+``CHASSIS_SDK_PORT`` and ``CHASSIS_SDK_DEVICE`` give the defaults of the port and of
+``--device`` (``--protocol`` and ``CHASSIS_SDK_PROTOCOL`` are their old names, still
+taken), so a robot's service file or a shell profile sets them once.
 """
 
 from __future__ import annotations
@@ -43,9 +43,9 @@ from . import (
     serve_args,
     sim_command,
 )
-from .arguments import ENV_BROKER, ENV_PORT, ENV_PROTOCOL, Command, UsageError
+from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, Command, UsageError, device_from_env
 
-__all__ = ["ENV_BROKER", "ENV_PORT", "ENV_PROTOCOL", "build_parser", "main"]
+__all__ = ["ENV_BROKER", "ENV_DEVICE", "ENV_PORT", "build_parser", "main"]
 
 #: Every command's module, in the order ``--help`` lists them.
 COMMANDS = (
@@ -110,8 +110,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     device = getattr(args, "device", None)
     if device is not None and device not in profiles():  # from the environment
+        variable = (device_from_env() or (ENV_DEVICE, device))[0]
         parser.error(
-            f"{ENV_PROTOCOL}={device!r} is not a known device (known: {', '.join(profiles())})"
+            f"{variable}={device!r} is not a known device (known: {', '.join(profiles())})"
         )
     command: Command = args.func
     try:

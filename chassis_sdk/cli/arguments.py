@@ -25,6 +25,7 @@ __all__ = [
     "DRIVE_MAX_ANGULAR",
     "DRIVE_MAX_LINEAR",
     "ENV_BROKER",
+    "ENV_DEVICE",
     "ENV_PORT",
     "ENV_PROTOCOL",
     "Command",
@@ -32,6 +33,7 @@ __all__ = [
     "UsageError",
     "arg_type",
     "device_arg",
+    "device_from_env",
     "finite",
     "port_args",
     "positive",
@@ -40,6 +42,8 @@ __all__ = [
 
 #: Environment variables that give defaults to the port, ``--device`` and ``--broker``.
 ENV_PORT = "CHASSIS_SDK_PORT"
+ENV_DEVICE = "CHASSIS_SDK_DEVICE"
+#: The old name of ``CHASSIS_SDK_DEVICE``, still read when that is not set.
 ENV_PROTOCOL = "CHASSIS_SDK_PROTOCOL"
 ENV_BROKER = "CHASSIS_SDK_BROKER"
 #: ``drive``'s (and ``serve``'s) default limits: slow enough to walk beside.
@@ -93,6 +97,15 @@ def port_args(p: argparse.ArgumentParser, *, required: bool = True) -> None:
     p.add_argument("-b", "--baudrate", type=BAUD, default=115200, help="serial speed")
 
 
+def device_from_env() -> tuple[str, str] | None:
+    """``(variable, name)`` of the device the environment names (``$CHASSIS_SDK_DEVICE``,
+    else its old name ``$CHASSIS_SDK_PROTOCOL``), or ``None``."""
+    for variable in (ENV_DEVICE, ENV_PROTOCOL):
+        if value := os.environ.get(variable):
+            return variable, value
+    return None
+
+
 def device_arg(
     p: argparse.ArgumentParser,
     names: Sequence[str],
@@ -104,16 +117,18 @@ def device_arg(
     """``--device NAME`` (into ``args.device``), with ``--protocol`` its old name, still
     taken but not shown.
 
-    The default is ``default`` if given, else ``$CHASSIS_SDK_PROTOCOL``, else
+    The default is ``default`` if given, else ``$CHASSIS_SDK_DEVICE`` (or its old name
+    ``$CHASSIS_SDK_PROTOCOL``), else
     ``None`` when the device is ``detected`` (from a capture or a port), else the
     first known device. An unknown name from the environment is not checked here
     (argparse checks only what is typed): ``main`` refuses it.
     """
     names = list(names)
     if default is None:
-        default = os.environ.get(ENV_PROTOCOL) or (None if detected else names[0])
+        from_env = device_from_env()
+        default = from_env[1] if from_env else (None if detected else names[0])
         help_text = help_text or (
-            f"which device (default: ${ENV_PROTOCOL}, else "
+            f"which device (default: ${ENV_DEVICE}, else "
             + ("detected)" if detected else f"{names[0]})")
         )
     p.add_argument("--device", choices=names, default=default, help=help_text)
