@@ -75,7 +75,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from ..core.device import Device
 from ..errors import ChassisError
-from ..recording.writers import FoxgloveSink, session_metadata
+from ..recording.writers import FoxgloveSink, McapRecording
 from .inbound import CommandError, RefusalReport, Refusals, command_object
 
 __all__ = [
@@ -243,7 +243,9 @@ class FoxgloveServer:
         host: Address to bind; ``127.0.0.1`` (default) serves this computer only.
         port: TCP port; 0 picks a free one (:attr:`port` says which).
         read_only: Take no velocity and offer only ``stop`` and ``emergency_stop``.
-        record: Also record the session to this ``.mcap`` file.
+        record: Also record the session to this ``.mcap`` file, by
+            :class:`~chassis_sdk.recording.McapRecording` (compressed, flushed every
+            second: a hard kill loses at most the last second).
         name: The server's name, as the app shows it.
         allow_origins: ``Origin`` values let in besides no ``Origin`` and
             :data:`APP_ORIGINS` (``scheme://host[:port]``, e.g. a self-hosted Lichtblick).
@@ -310,7 +312,7 @@ class FoxgloveServer:
         self._sink: FoxgloveSink | None = None
         self._server: Any = None
         self._front: _Front | None = None
-        self._writer: Any = None
+        self._recording: McapRecording | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         # Callbacks come from foxglove-sdk's threads, the front's and the event loop's.
         self._lock = threading.Lock()
@@ -413,12 +415,13 @@ class FoxgloveServer:
             raise
         self._front = front
         if self.record is not None:
-            self._writer = self._fg.open_mcap(
-                self.record, allow_overwrite=True, context=self._context
-            )
-            self._writer.write_metadata("chassis_sdk", session_metadata(self.device))
-        self._sink = FoxgloveSink(self._context, self.device)
-        self._sink.attach()
+            # The one recorder, publishing in the server's context: its sink is the
+            # server's, so the file and the app get the same messages.
+            self._recording = McapRecording(self.record, self.device, context=self._context)
+            self._sink = self._recording.sink
+        else:
+            self._sink = FoxgloveSink(self._context, self.device)
+            self._sink.attach()
         _log.info(
             "serving %s to Foxglove at %s (origins: no Origin, %s; token: %s)",
             self.device.port,
@@ -507,12 +510,12 @@ class FoxgloveServer:
             self._stopping = False
 
     def _release(self) -> None:
-        if self._sink is not None:
-            self._sink.detach()
-            self._sink = None
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+        sink, self._sink = self._sink, None
+        recording, self._recording = self._recording, None
+        if recording is not None:
+            recording.close()  # detaches its sink (the server's), then finishes the file
+        elif sink is not None:
+            sink.detach()
 
     # --- the handshake (the front's thread) ----------------------------------------------
 

@@ -421,7 +421,17 @@ class Recording(Protocol):
 
 class McapRecording:
     """A session written to an MCAP file by a :class:`FoxgloveSink`; see the module
-    docstring for what it holds and what a hard kill can lose."""
+    docstring for what it holds and what a hard kill can lose.
+
+    Args:
+        path: The file (overwritten).
+        device: The device whose session this is.
+        flush_interval: Seconds between two flushes of the file.
+        metadata: Added to the :func:`session_metadata` record.
+        context: The ``foxglove.Context`` to publish in (default: a new one). Give a
+            live server's, and the recording's :attr:`sink` is the server's too: one
+            sink, whose every message both the file and the server get.
+    """
 
     def __init__(
         self,
@@ -430,6 +440,7 @@ class McapRecording:
         *,
         flush_interval: float = FLUSH_INTERVAL,
         metadata: dict[str, str] | None = None,
+        context: foxglove.Context | None = None,
     ) -> None:
         try:
             import foxglove
@@ -439,7 +450,8 @@ class McapRecording:
         self.path = path
         self._flush_interval = flush_interval
         self._last_flush = time.monotonic()
-        context = foxglove.Context()
+        if context is None:
+            context = foxglove.Context()
         options = MCAPWriteOptions(compression=MCAPCompression.Zstd, profile="")
         self._writer = foxglove.open_mcap(
             path, allow_overwrite=True, context=context, writer_options=options
