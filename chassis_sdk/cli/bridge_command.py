@@ -10,10 +10,11 @@ from one that started while it was away).
 from __future__ import annotations
 
 import argparse
-import asyncio
 import socket
 import ssl
 import urllib.parse
+
+import anyio
 
 from ..core.backoff import Backoff
 from ..devices import DeviceProfile
@@ -97,7 +98,7 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 take_over=take_over,
                 require_timestamp=args.require_timestamp,
             )
-            started = asyncio.get_running_loop().time()
+            started = anyio.current_time()
             try:
                 await bridge.run()
             except RobotIdTaken:
@@ -107,7 +108,7 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 # in one of the bridge's tasks) is retried: a service must not end on
                 # it. One line each time, never a traceback.
                 take_over = take_over and not bridge.online
-                if asyncio.get_running_loop().time() - started > 5.0:
+                if anyio.current_time() - started > 5.0:
                     backoff.reset()  # it had been up: start the backoff over
                 delay = backoff.next()
                 what = (
@@ -117,7 +118,7 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
                 )
                 stopped = "" if args.read_only else "; the robot is stopped"
                 out(f"{' '.join(what.split())[:500]}{stopped}; retrying in {delay:.1f} s")
-                await asyncio.sleep(delay)
+                await anyio.sleep(delay)
                 continue
             take_over = take_over and not bridge.online
-            await asyncio.sleep(backoff.next())
+            await anyio.sleep(backoff.next())

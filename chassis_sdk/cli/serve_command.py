@@ -13,11 +13,11 @@ values must be origins. The token is never printed.
 from __future__ import annotations
 
 import argparse
-import asyncio
-import contextlib
 import logging
 import os
 import sys
+
+import anyio
 
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
@@ -101,8 +101,8 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
                 + "); Ctrl-C to quit",
                 file=sys.stderr,
             )
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(asyncio.Event().wait(), args.seconds)
+            with anyio.move_on_after(args.seconds):  # None: until Ctrl-C or SIGTERM
+                await anyio.sleep_forever()
         finally:
             # Never blocks the loop (the device's deadman goes on meanwhile); a robot
             # a Teleop client was driving gets its zero first.

@@ -55,6 +55,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import functools
 import hmac
 import http
 import ipaddress
@@ -72,6 +73,9 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 from urllib.parse import parse_qs, urlsplit
+
+import anyio
+import anyio.to_thread
 
 from ..core.device import Device
 from ..errors import ChassisError
@@ -443,8 +447,8 @@ class FoxgloveServer:
             if handing is not None and not handing.done():
                 # A velocity handed over just before may land after that zero: wait
                 # for it (bounded), then zero again.
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(asyncio.shield(handing), _FRONT_TIMEOUT)
+                with anyio.move_on_after(_FRONT_TIMEOUT), contextlib.suppress(Exception):
+                    await asyncio.shield(handing)  # waited for, never cancelled
                 await self._stop_robot()
         front, self._front = self._front, None
         server = self._server
@@ -452,12 +456,12 @@ class FoxgloveServer:
         try:
             if front is not None:
                 front.signal_stop()
-                await asyncio.to_thread(front.join, _FRONT_JOIN)
+                await anyio.to_thread.run_sync(front.join, _FRONT_JOIN, abandon_on_cancel=True)
                 self._flush_final()  # to the app, through the server still up
             self._server = None
             if server is not None:
                 server_stopping = True
-                await asyncio.to_thread(server.stop)
+                await anyio.to_thread.run_sync(server.stop, abandon_on_cancel=True)
         finally:
             self._server = None
             if not server_stopping and server is not None:
@@ -473,8 +477,8 @@ class FoxgloveServer:
             return
         # A link that just dropped (or a stop that cannot be written at once) is no
         # reason to stay: the device's own deadman goes on meanwhile.
-        with contextlib.suppress(ChassisError, TimeoutError):
-            await asyncio.wait_for(self.device.stop(), _FRONT_TIMEOUT)
+        with anyio.move_on_after(_FRONT_TIMEOUT), contextlib.suppress(ChassisError):
+            await self.device.stop()
 
     def stop(self) -> None:
         """Stop serving, blocking until the front's thread ends (up to a few seconds
@@ -859,7 +863,7 @@ class _Front:
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
-        self._stopping: asyncio.Event | None = None
+        self._stopping: anyio.Event | None = None
         self.port = 0
         # What the front sends first on each backend connection, when clients may
         # publish: a channel on the reserved id whose topic carries the secret.
@@ -913,7 +917,7 @@ class _Front:
         from websockets.asyncio.server import serve
 
         self._loop = asyncio.get_running_loop()
-        self._stopping = asyncio.Event()
+        self._stopping = anyio.Event()
         try:
             front = await serve(
                 self._relay,
@@ -936,14 +940,15 @@ class _Front:
         async with front:
             self.port = int(front.sockets[0].getsockname()[1])
             self._ready.set()
-            flusher = asyncio.create_task(self._flush_forever())
-            await self._stopping.wait()
-            flusher.cancel()
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._flush_forever, name="chassis-sdk front reports")
+                await self._stopping.wait()
+                tg.cancel_scope.cancel()
             front.close(close_connections=True)
 
     async def _flush_forever(self) -> None:
         while True:
-            await asyncio.sleep(REPORT_INTERVAL / 2)
+            await anyio.sleep(REPORT_INTERVAL / 2)
             try:
                 self._server._flush_reports()
             except Exception as exc:
@@ -980,15 +985,20 @@ class _Front:
         try:
             if self._hello is not None:
                 await backend.send(self._hello)
-            up = asyncio.create_task(self._up(client, backend))
-            down = asyncio.create_task(_pump(backend, client))
-            done, pending = await asyncio.wait({up, down}, return_when=asyncio.FIRST_COMPLETED)
-            for task in pending:
-                task.cancel()
-            for task in done:
-                error = task.exception()
-                if error is not None and not isinstance(error, ConnectionClosed):
-                    self._server._failed("relaying", error)
+
+            async def relay(direction: Callable[[], Coroutine[Any, Any, None]]) -> None:
+                try:
+                    await direction()
+                except ConnectionClosed:
+                    pass
+                except Exception as exc:
+                    self._server._failed("relaying", exc)
+                finally:
+                    tg.cancel_scope.cancel()  # either direction ending ends the relay
+
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(relay, functools.partial(self._up, client, backend))
+                tg.start_soon(relay, functools.partial(_pump, backend, client))
         finally:
             # Closing the backend connection makes foxglove-sdk unadvertise the
             # client's channels: a Teleop that vanished stops the robot at once.

@@ -10,9 +10,7 @@ Plain text, so captures can be diffed, trimmed and attached to bug reports.
 
 from __future__ import annotations
 
-import asyncio
 import base64
-import contextlib
 import itertools
 import json
 import logging
@@ -22,6 +20,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import anyio
 
 from ..core.backoff import Backoff
 from ..core.transport import Link, open_link
@@ -103,7 +103,7 @@ async def _open_raw(
     return await open_link(port, baudrate, lambda: Link(_RawDecoder(), on_chunks, on_lost, _log))
 
 
-def _setter(event: asyncio.Event) -> Callable[[Exception | None], None]:
+def _setter(event: anyio.Event) -> Callable[[Exception | None], None]:
     return lambda exc: event.set()
 
 
@@ -158,7 +158,7 @@ async def record(
     start = time.monotonic()
     end = start + seconds
     total = chunks = disconnects = 0
-    lost = asyncio.Event()
+    lost = anyio.Event()
     writer: Recording
     if device is not None:
         writer = McapRecording(path, device)
@@ -186,8 +186,8 @@ async def record(
             while (now := time.monotonic()) < end:
                 report()
                 if link is not None:
-                    with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(lost.wait(), min(0.5, end - now))
+                    with anyio.move_on_after(min(0.5, end - now)):
+                        await lost.wait()
                     if lost.is_set():
                         disconnects += 1
                         writer.link_state("lost", time.monotonic())
@@ -195,10 +195,10 @@ async def record(
                         link = None
                         backoff.reset()
                     continue
-                await asyncio.sleep(min(backoff.next(), end - now))
+                await anyio.sleep(min(backoff.next(), end - now))
                 try:
                     # A fresh event per link: a late word from the old one cannot count.
-                    lost = asyncio.Event()
+                    lost = anyio.Event()
                     link = await _open_raw(port, baudrate, on_chunk, _setter(lost))
                 except PortOpenError:
                     continue
@@ -436,18 +436,17 @@ async def detect_protocol(port: str, *, seconds: float = 1.0, baudrate: int = 11
     recognisable arrived.
     """
     received = bytearray()
-    done = asyncio.get_running_loop().create_future()
+    heard = anyio.Event()
 
     def on_chunk(item: tuple[float, bytes]) -> None:
         received.extend(item[1])
-        if not done.done() and detect_in(bytes(received)) is not None and len(received) > 200:
-            done.set_result(None)
+        if not heard.is_set() and detect_in(bytes(received)) is not None and len(received) > 200:
+            heard.set()
 
     link = await _open_raw(port, baudrate, on_chunk)
     try:
-        await asyncio.wait_for(asyncio.shield(done), seconds)
-    except TimeoutError:
-        pass
+        with anyio.move_on_after(seconds):
+            await heard.wait()
     finally:
         await link.aclose(1.0)
     return detect_in(bytes(received))
