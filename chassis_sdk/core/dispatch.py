@@ -106,20 +106,25 @@ class Subscription(Generic[T]):
         self.close()
 
 
-class Listener(Subscription[T]):
+class Listener(Generic[T]):
     """A synchronous subscriber: ``callback(item)`` runs inside :meth:`Broadcast.publish`
     (in wire order, nothing buffered, no task woken). For recorders and live sinks,
-    which must see every message and cost nothing when absent. Held weakly like any
-    subscription: keep it, and :meth:`close` it to stop listening."""
+    which must see every message and cost nothing when absent. Held weakly, as
+    subscriptions are: keep it, and :meth:`close` it to stop listening. A stream that
+    fails (the link lost) does not end it: it is not an iteration that could end."""
 
-    __slots__ = ("_callback",)
+    __slots__ = ("__weakref__", "_broadcast", "_callback")
 
     def __init__(self, broadcast: Broadcast[T], callback: Callable[[T], None]) -> None:
-        super().__init__(broadcast, 1)
+        self._broadcast = broadcast
         self._callback = callback
 
     def _push(self, item: T) -> None:
         self._callback(item)
+
+    def close(self) -> None:
+        """Stop listening."""
+        self._broadcast._discard_listener(self)
 
 
 class _Iteration(Generic[T]):
@@ -150,15 +155,25 @@ class Broadcast(Generic[T]):
         maxlen: Per-subscriber buffer size (``queue_size`` of the device).
     """
 
-    # Subscribers are held weakly (an abandoned iterator unsubscribes itself), as a
-    # tuple of weak references rebuilt when one comes or goes: publishing, which runs
-    # for every frame, is then one loop over a tuple, with nothing allocated (a
-    # WeakSet's iterator costs more than a whole decode: docs/figures.md).
-    __slots__ = ("__weakref__", "_closed", "_error", "_refs", "dropped", "latest", "maxlen")
+    # Subscribers and listeners are held weakly (an abandoned iterator unsubscribes
+    # itself), as tuples of weak references rebuilt when one comes or goes: publishing,
+    # which runs for every frame, is then a loop over a tuple, with nothing allocated
+    # (a WeakSet's iterator costs more than a whole decode: docs/figures.md).
+    __slots__ = (
+        "__weakref__",
+        "_closed",
+        "_error",
+        "_listeners",
+        "_refs",
+        "dropped",
+        "latest",
+        "maxlen",
+    )
 
     def __init__(self, maxlen: int) -> None:
         self.maxlen = maxlen
         self._refs: tuple[weakref.ref[Subscription[T]], ...] = ()
+        self._listeners: tuple[weakref.ref[Listener[T]], ...] = ()
         self._closed = False
         self._error: BaseException | None = None
         #: Messages dropped across all subscribers because one fell behind.
@@ -167,12 +182,13 @@ class Broadcast(Generic[T]):
         self.latest: T | None = None
 
     def __len__(self) -> int:
-        return sum(1 for ref in self._refs if ref() is not None)
+        subs = sum(1 for ref in self._refs if ref() is not None)
+        return subs + sum(1 for ref in self._listeners if ref() is not None)
 
     @property
     def listened(self) -> bool:
         """Whether anyone subscribes or listens (so a message is worth building)."""
-        return bool(self._refs)
+        return bool(self._refs or self._listeners)
 
     def subscribe(self) -> Subscription[T]:
         """Return a new subscription; it receives everything published from now on.
@@ -191,7 +207,14 @@ class Broadcast(Generic[T]):
         """Call ``callback(item)`` synchronously for every item published from now on,
         until the returned :class:`Listener` is closed or dropped."""
         listener = Listener(self, callback)
-        self._add(listener)
+        this = weakref.ref(self)
+
+        def gone(ref: weakref.ref[Listener[T]]) -> None:
+            broadcast = this()
+            if broadcast is not None:
+                broadcast._listeners = tuple(r for r in broadcast._listeners if r is not ref)
+
+        self._listeners = (*self._listeners, weakref.ref(listener, gone))
         return listener
 
     def _add(self, sub: Subscription[T]) -> None:
@@ -205,10 +228,15 @@ class Broadcast(Generic[T]):
         self._refs = (*self._refs, weakref.ref(sub, gone))
 
     def publish(self, item: T) -> None:
-        """Deliver ``item`` to every subscriber (synchronous, never blocks)."""
+        """Deliver ``item`` to every listener and subscriber (synchronous, never
+        blocks)."""
         self.latest = item
-        for ref in self._refs:
-            sub = ref()
+        for ref in self._listeners:
+            listener = ref()
+            if listener is not None:
+                listener._push(item)
+        for sub_ref in self._refs:
+            sub = sub_ref()
             if sub is not None:
                 sub._push(item)
 
@@ -220,7 +248,7 @@ class Broadcast(Generic[T]):
         self._closed = True
         self._error = error
         subs = [sub for ref in self._refs if (sub := ref()) is not None]
-        self._refs = tuple(ref for ref in self._refs if isinstance(ref(), Listener))
+        self._refs = ()
         for sub in subs:
             # One instance each: an exception raised in several tasks would collect
             # all their tracebacks.
@@ -233,6 +261,9 @@ class Broadcast(Generic[T]):
 
     def _discard(self, sub: Subscription[T]) -> None:
         self._refs = tuple(ref for ref in self._refs if ref() is not sub)
+
+    def _discard_listener(self, listener: Listener[T]) -> None:
+        self._listeners = tuple(ref for ref in self._listeners if ref() is not listener)
 
 
 class Streams:
