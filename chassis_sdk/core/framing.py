@@ -50,8 +50,9 @@ T = TypeVar("T")
 #: content is invalid although the frame checked out (counted as malformed). Header
 #: fields a parser needs sit at fixed negative offsets from the data.
 Parser = Callable[[bytes | bytearray, int, int, float], Any]
-#: What a codec knows of each frame type it accepts: type (or id) -> (its size, or 0 if
-#: the frame says its own; its parser). What "size" counts is the codec's own.
+#: What a codec knows of each frame type it accepts: type (or id) -> (the value the
+#: frame's length field must hold, or 0 for a type of variable length; its parser).
+#: The length field is the protocol's own: it may count the whole frame or the data.
 FrameTable = dict[int, tuple[int, Parser]]
 
 #: ``_try_frame`` result: the candidate at this offset is incomplete; wait for more bytes.

@@ -305,7 +305,8 @@ def _parse_servo(b: bytes | bytearray, o: int, n: int, ts: float) -> ServoComman
     return ServoCommand(Servo(servo), angle)
 
 
-# FrameTable sizes: the length byte (or 0 if variable).
+# The value each type's length byte must hold (what it counts: the layout below), or 0
+# if the type's length varies.
 
 _DEVICE_FRAMES: FrameTable = {
     BoardType.IMU: (0x13, _parse_imu),

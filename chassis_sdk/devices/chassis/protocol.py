@@ -392,7 +392,8 @@ def _parse_drive(b: bytes | bytearray, o: int, n: int, ts: float) -> HostCommand
     return None
 
 
-# FrameTable sizes: the total frame length (or 0 if variable).
+# The value each type's length field must hold (here it counts the whole frame, head to
+# tail), or 0 if the type's length varies.
 
 _DEVICE_FRAMES: FrameTable = {
     ReplyId.TELEMETRY: (28, _parse_telemetry),
