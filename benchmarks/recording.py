@@ -113,7 +113,7 @@ def write_hour(path: Path | None, session: list[tuple[float, bool, bytes]]) -> d
     """The session through a ``Chassis`` that is never connected, as fast as it goes,
     recorded to ``path`` (or not: the cost of decoding and handling alone)."""
     from chassis_sdk import Chassis
-    from chassis_sdk.recording.writers import open_recording
+    from chassis_sdk.recording import open_recording
 
     device: Any = Chassis("/dev/bench")
     recording = open_recording(path, device) if path is not None else None

@@ -258,7 +258,7 @@ def test_capture_columns_reads_an_mcap_recording(tmp_path: Path) -> None:
     pytest.importorskip("foxglove")
     pytest.importorskip("mcap")
     from chassis_sdk import Chassis
-    from chassis_sdk.recording.writers import open_recording
+    from chassis_sdk.recording import open_recording
 
     rx, _ = session(2.0)
     device: Any = Chassis("/dev/columns-test")

@@ -21,7 +21,7 @@ from chassis_sdk import Board, Chassis, EventKind, Telemetry
 from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.recording import capture
-from chassis_sdk.recording.writers import json_schema
+from chassis_sdk.recording.sink import json_schema
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .foxglove_client import FoxgloveClient

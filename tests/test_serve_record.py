@@ -20,7 +20,7 @@ from mcap.exceptions import McapError
 from mcap.records import Channel, Header, Message
 from mcap.stream_reader import StreamReader
 
-from chassis_sdk.recording.writers import FLUSH_INTERVAL
+from chassis_sdk.recording.mcap import FLUSH_INTERVAL
 from chassis_sdk.sim import ChassisSimulator
 
 pytestmark = pytest.mark.timeout(60)

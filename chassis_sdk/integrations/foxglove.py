@@ -1,6 +1,6 @@
 """Serve one device live to the Foxglove app over its WebSocket protocol.
 
-Every topic of :mod:`chassis_sdk.recording.writers` goes out as it happens (decoded
+Every topic of :mod:`chassis_sdk.recording.sink` goes out as it happens (decoded
 streams, odometry pose and ``/tf``, events, link state, raw bytes), and the app can:
 
 * call the services ``stop``, ``emergency_stop``, ``release_emergency_stop`` and
@@ -79,7 +79,8 @@ import anyio.to_thread
 
 from ..core.device import Device
 from ..errors import ChassisError
-from ..recording.writers import FoxgloveSink, McapRecording
+from ..recording.mcap import McapRecording
+from ..recording.sink import FoxgloveSink
 from .inbound import CommandError, RefusalReport, Refusals, command_object
 
 __all__ = [

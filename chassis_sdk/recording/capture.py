@@ -1,11 +1,8 @@
 """Captures: record a port's raw bytes with timestamps, decode them later, detect the
 protocol on a port.
 
-A capture is a JSON-lines file: a header line ``{"capture": 1, "port": ..., "started":
-...}``, then one line per chunk read, ``{"t": seconds since the start, "data": hex}``,
-and a line ``{"t": ..., "event": "disconnected"}`` (or ``"reconnected"``) where the link
-dropped or came back.
-Plain text, so captures can be diffed, trimmed and attached to bug reports.
+A capture is a JSON-lines file (the format: :mod:`chassis_sdk.recording.jsonl`) or an
+MCAP recording (:mod:`chassis_sdk.recording.mcap`); every reader here takes both.
 """
 
 from __future__ import annotations
@@ -28,7 +25,9 @@ from ..core.transport import Link, open_link
 from ..core.validation import check_real
 from ..devices import profile, profiles
 from ..errors import ChassisError, PortOpenError
-from .writers import JsonlRecording, McapRecording, Recording
+from . import Recording
+from .jsonl import JsonlRecording, read_jsonl
+from .mcap import McapRecording
 
 if TYPE_CHECKING:
     from .columns import Columns
@@ -120,7 +119,7 @@ async def record(
     writes to the port.
 
     The format is the file's suffix: ``.mcap`` (raw bytes with receive times, every
-    stream decoded, odometry and events; see :mod:`chassis_sdk.recording.writers`; needs
+    stream decoded, odometry and events; see :mod:`chassis_sdk.recording.sink`; needs
     the ``foxglove`` extra and the device's protocol, heard on the port if not given),
     or a JSON-lines capture (raw bytes with receive times) for any other name.
 
@@ -238,48 +237,7 @@ def read_capture(path: str | Path, *, sent: bool = False) -> Iterator[tuple[floa
     if is_mcap(path):
         yield from _read_mcap_bytes(Path(path), "/raw/tx" if sent else "/raw/rx")
         return
-    key = "tx" if sent else "data"
-    with Path(path).open(encoding="utf-8") as f:
-        if not _header_ok(f.readline()):
-            raise ValueError(f"{path} is not a chassis-sdk capture or MCAP file")
-        for n, line in enumerate(f, start=2):
-            if not line.strip():
-                continue
-            try:
-                t, field, value = _capture_line(line)
-                if field == key:
-                    yield t, bytes.fromhex(value)
-            except (ValueError, KeyError, TypeError):
-                raise ValueError(f"{path}:{n}: not a capture line") from None
-
-
-def _header_ok(line: str) -> bool:
-    """Whether ``line`` is a capture's first line (``{"capture": 1, ...}``)."""
-    try:
-        return bool(json.loads(line).get("capture") == 1)
-    except (ValueError, AttributeError):
-        return False
-
-
-_FIELDS = ("data", "tx", "event")
-
-
-def _capture_line(line: str) -> tuple[float, str, str]:
-    """``(t, field, value)`` of a capture line: ``{"t": 1.5, "data": "hex"}``, its
-    ``"tx"`` and ``"event"`` kinds. Lines as this module writes them are split as text
-    (a quarter of a replay's time went to ``json.loads``); anything else is parsed as
-    JSON."""
-    if line.startswith('{"t": '):
-        t_text, comma, rest = line[6:].partition(', "')
-        field, colon, value = rest.partition('": "')
-        end = value.rstrip().removesuffix('"}')
-        if comma and colon and field in _FIELDS and '"' not in end and len(end) < len(value):
-            return float(t_text), field, end
-    item = json.loads(line)
-    for field in _FIELDS:
-        if field in item:
-            return float(item["t"]), field, str(item[field])
-    raise ValueError("not a capture line")
+    yield from read_jsonl(path, sent=sent)
 
 
 def _read_mcap_bytes(path: Path, suffix: str) -> Iterator[tuple[float, bytes]]:
@@ -320,7 +278,7 @@ def _need_mcap() -> None:
 
 def mcap_metadata(path: str | Path) -> dict[str, str]:
     """The ``chassis_sdk`` metadata of an MCAP recording (device, port, baud rate,
-    versions; see :func:`chassis_sdk.recording.writers.session_metadata`), or ``{}``."""
+    versions; see :func:`chassis_sdk.recording.sink.session_metadata`), or ``{}``."""
     _need_mcap()
     from mcap.exceptions import McapError
     from mcap.records import Metadata
