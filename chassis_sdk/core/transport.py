@@ -37,7 +37,8 @@ sends minutes-old velocity commands the moment the device reads again. So:
   late it reads again within that bound, is the zero; the descriptors are closed once
   it has left (the kernel's output queue is empty) or the bound has passed, and then
   whatever is still held is discarded (a socket is reset, so the kernel sends nothing
-  stale either).
+  stale either). The close is the link's :class:`~chassis_sdk.core.linger.Linger`'s,
+  in :mod:`chassis_sdk.core.linger` (with :func:`wait_lingering`, re-exported here).
 
 Opening is bounded and never blocks the loop: device paths are opened in a daemon
 thread (pyserial's open, its advisory ``flock`` and termios set-up are blocking calls),
@@ -62,14 +63,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import fcntl
 import functools
 import importlib
 import logging
 import math
 import os
 import socket
-import struct
 import termios
 import threading
 import time
@@ -80,6 +79,9 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 import serial
 
 from ..errors import PortOpenError
+from .linger import CLOSE_GRACE as CLOSE_GRACE
+from .linger import CLOSE_WAIT as CLOSE_WAIT
+from .linger import Linger, lingering, wait_lingering
 from .writequeue import QUEUE_LIMIT, WriteQueue
 
 #: In order of preference: the first installed is used.
@@ -168,27 +170,6 @@ READ_SIZE = 64 * 1024
 #: device that stops reading has not taken waits in the link, where velocity is state.
 SOCKET_SNDBUF = 4096
 
-#: How often a lingering link looks whether its final zero has left the kernel.
-_LINGER_POLL = 0.005
-#: Links closing in the background (their final zero not yet out), by port: a program
-#: that reopens a port waits for its earlier link to finish, and :func:`wait_lingering`
-#: lets a program end only once every zero has left (or its bound has passed).
-_lingering: dict[tuple[asyncio.AbstractEventLoop, str], Link[Any]] = {}
-
-
-async def wait_lingering(timeout: float | None = None) -> None:
-    """Wait until no link is closing in the background any more (every final zero has
-    left, or its ``close_linger`` bound has passed), at most ``timeout`` seconds.
-
-    :func:`chassis_sdk.run` calls this before the program ends; under a plain
-    :func:`asyncio.run`, a link still lingering when the loop ends discards its zero
-    (nothing stale is ever sent either way).
-    """
-    loop = asyncio.get_running_loop()
-    async with asyncio.timeout(timeout):
-        while mine := [link for (lp, _), link in _lingering.items() if lp is loop]:
-            await mine[0].lingered()
-
 
 class Decoder(Protocol[M]):
     """What the link needs of a decoder."""
@@ -253,8 +234,10 @@ class Link(asyncio.Protocol, Generic[M]):
         self.tap: Tap | None = None
         #: The port's name (set by :func:`open_link`), for the lingering registry.
         self.url = ""
-        self._linger: asyncio.Task[None] | None = None
         self._finished = False  # closed, or half-closed (a socket), with nothing held
+        # The close (bounded drain, stale frames discarded, the final zero kept and
+        # lingering): it reads and changes the write state above.
+        self._closing = Linger(self)
 
     # --- asyncio.Protocol ---------------------------------------------------------------
 
@@ -477,121 +460,9 @@ class Link(asyncio.Protocol, Generic[M]):
             pass
         return self._is_flushed()
 
-    def _kernel_pending(self) -> int:
-        """Bytes the kernel still holds: not yet sent (a serial port's driver) or not
-        yet acknowledged by the peer (a TCP socket): ``TIOCOUTQ`` / ``SIOCOUTQ``; 0
-        where the driver cannot tell (a pty always says 0).
-
-        Closing a tty with bytes pending blocks in the kernel (``closing_wait``, 30 s
-        by default) or discards them; closing a socket with received bytes unread
-        (telemetry keeps coming) resets it, and the kernel drops what the peer has not
-        acknowledged, the final zero with it. Once this is 0, nothing can be lost.
-        """
-        fd = self._wfd
-        if fd is None and self.transport is not None:
-            sock = self.transport.get_extra_info("socket")
-            fd = sock.fileno() if sock is not None else None
-        if fd is None or fd < 0:
-            return 0
-        try:
-            buf = fcntl.ioctl(fd, termios.TIOCOUTQ, b"\0\0\0\0")
-        except OSError:
-            return 0
-        pending: int = struct.unpack("i", buf)[0]
-        return pending
-
-    def _is_out(self) -> bool:
-        """Everything written has left: the link holds nothing and neither does the
-        kernel."""
-        return self._is_flushed() and not self._kernel_pending()
-
-    async def _until_out(self, limit: float) -> bool:
-        """Wait (at most ``limit`` s) until everything written has left; return whether
-        it has."""
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(limit):
-                await self.drain(limit)
-                while self._kernel_pending() and self.transport is not None:  # noqa: ASYNC110
-                    await asyncio.sleep(_LINGER_POLL)  # (the kernel's queue has no event)
-        return self._is_out()
-
-    def _flush_output(self) -> bool:
-        """Discard a serial port's kernel output queue; False for a socket (whose
-        kernel buffer cannot be flushed)."""
-        if self._wfd is None:
-            return False
-        with contextlib.suppress(OSError, termios.error):
-            termios.tcflush(self._wfd, termios.TCOFLUSH)
-        return True
-
-    def _discard_stale(self) -> None:
-        """The device is not reading and the link is closing: discard every frame still
-        held (and, for a serial port, the kernel's output queue), but keep the final
-        zero, whole, and send it at once where that made room."""
-        before = self.discarded
-        self._lost += bool(self._partial)
-        self._partial = b""
-        wfd = self._wfd
-        flushed = self._flush_output()
-        if flushed and self._blocked and wfd is not None:
-            self._loop.remove_writer(wfd)  # the flush made room: write again now
-            self._blocked = False
-        # The zero, held, or (a serial port) flushed from the kernel with the rest, even
-        # part sent, is held again whole, the last frame the device will get. A device
-        # that took the head of a frame before the flush resynchronises on it.
-        if self._held.discard_stale(flushed):
-            self._send_held()
-        stale = self.discarded - before
-        self._log.log(
-            logging.WARNING if stale else logging.INFO,
-            "the device is not reading; discarded %d stale frame(s) on closing%s",
-            stale,
-            "" if self._held.zero is None else ", kept the final zero",
-        )
-
-    async def _finish(self, wait: float) -> bool:
-        """Close a port whose bytes have all left; return whether it is closed.
-
-        A socket is half-closed and read on until its peer closes too (at most
-        ``wait`` seconds here): closing a socket with received bytes unread (telemetry
-        keeps coming) resets it, and a peer reading through a buffered stream (asyncio's
-        own) loses on a reset what it had not read yet, the final zero with it.
-        """
-        transport = self.transport
-        if transport is None or transport.is_closing():
-            return True
-        self._finished = True
-        self._on_messages = _ignore_messages  # what comes now is of no one's use
-        self.tap = None
-        if self._wfd is not None or not transport.can_write_eof():
-            transport.close()
-            return True
-        transport.write_eof()
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(asyncio.shield(self.closed), wait)
-        return self.closed.done()
-
-    def _give_up(self) -> None:
-        """Close now, discarding whatever has not left: nothing stale may reach the
-        device afterwards (a socket is reset, so its kernel buffer is dropped too)."""
-        transport = self.transport
-        if transport is None:
-            return
-        self._finished = True
-        if not self._is_out():
-            self._drop_held()
-            if not self._flush_output():
-                if transport.get_write_buffer_size():
-                    self._lost += 1  # what asyncio's transport still held
-                sock = transport.get_extra_info("socket")
-                if sock is not None:
-                    with contextlib.suppress(OSError):
-                        sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _RESET)
-        transport.abort()
-
     async def aclose(self, timeout: float, linger: float = 0.0) -> None:
-        """Close the port: at once if everything written has left, else see the module
-        docstring (stale frames discarded, the final zero kept).
+        """Close the port: at once if everything written has left, else see
+        :mod:`chassis_sdk.core.linger` (stale frames discarded, the final zero kept).
 
         Args:
             timeout: The most this waits for the port to report closing.
@@ -599,107 +470,12 @@ class Link(asyncio.Protocol, Generic[M]):
                 this has returned, for a device that is not reading; 0: what has not
                 left within a moment is discarded, the zero with it.
         """
-        try:
-            transport = self.transport
-            if transport is not None and not transport.is_closing() and not self._finished:
-                # A moment for what is on its way (the kernel of a healthy line empties
-                # in a millisecond or two), then what is still held is stale.
-                if not await self._until_out(CLOSE_GRACE):
-                    self._discard_stale()
-                if await self._until_out(CLOSE_GRACE):
-                    if not await self._finish(CLOSE_GRACE):  # a peer slow to close
-                        if linger > 0:
-                            self._hand_over(linger)
-                            return
-                        transport.close()
-                elif linger > 0:
-                    self._hand_over(linger)
-                    return
-                else:
-                    self._give_up()
-            await self._wait_closed(timeout)
-        except BaseException:  # cancelled (the loop is ending): never leave it open
-            if self._linger is None:
-                self._give_up()
-                self._release_wfd()
-            raise
-
-    def _hand_over(self, linger: float) -> None:
-        """Go on closing in the background: the caller's close() returns now."""
-        # Nobody is listening any more (a recording is closed once close() returns).
-        self._on_messages = _ignore_messages
-        self.tap = None
-        _lingering[self._loop, self.url] = self  # an open of this port from now on waits
-        self._linger = asyncio.ensure_future(self._linger_then_close(linger))
+        await self._closing.aclose(timeout, linger)
 
     async def lingered(self) -> None:
         """Wait until this link's background close (if any) is over; a cancellation
         stops the wait, not the close."""
-        linger = self._linger
-        if linger is not None and not linger.done():
-            await asyncio.wait((linger,))
-        if _lingering.get((self._loop, self.url)) is self:  # a task that never ran
-            del _lingering[self._loop, self.url]
-            self._give_up()
-            self._release_wfd()
-
-    async def _wait_closed(self, timeout: float) -> None:
-        if not self.closed.done():
-            try:
-                await asyncio.wait_for(asyncio.shield(self.closed), timeout)
-            except TimeoutError:
-                if self.transport is not None:  # stuck: never leave it open
-                    self._log.warning("port did not close within %.1f s; aborted", timeout)
-                    self._give_up()
-                else:
-                    self._log.warning("port did not report closing within %.1f s", timeout)
-        self._release_wfd()
-
-    async def _linger_then_close(self, bound: float) -> None:
-        """Hold the port open (in the background) until the final zero has left and, for
-        a socket, the peer has closed after it, or ``bound`` seconds have passed."""
-        self._log.info("the device is not reading; the final zero waits up to %g s", bound)
-        deadline = self._loop.time() + bound
-        try:
-            if not self._finished:
-                if await self._until_out(bound):
-                    await self._finish(max(deadline - self._loop.time(), 0.0))
-                elif self.transport is not None:
-                    self._log.warning(
-                        "the device did not read for %g s after closing; what had not "
-                        "left is discarded",
-                        bound,
-                    )
-                    self._give_up()
-            elif not self.closed.done():  # half-closed: the peer has it all; let it close
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(
-                        asyncio.shield(self.closed), max(deadline - self._loop.time(), 0.0)
-                    )
-            transport = self.transport
-            if transport is not None and not transport.is_closing():
-                self._log.info("the peer kept the connection open after the final zero")
-                transport.close()
-            await self._wait_closed(CLOSE_WAIT)
-        except BaseException:  # cancelled (the loop is ending): nothing stale, ever
-            self._give_up()
-            self._release_wfd()
-            raise
-        finally:
-            if _lingering.get((self._loop, self.url)) is self:
-                del _lingering[self._loop, self.url]
-
-
-def _ignore_messages(messages: list[Any], now: float) -> None:
-    """The sink of a link that is closing."""
-
-
-#: How long a port (or a socket's peer) closing by itself may take before a lingering
-#: close goes on in the background, and before a given-up close is taken as done.
-CLOSE_GRACE = 0.1
-CLOSE_WAIT = 1.0
-#: ``SO_LINGER`` on, 0 s: ``close()`` resets the connection and drops unsent data.
-_RESET = struct.pack("ii", 1, 0)
+        await self._closing.lingered()
 
 
 # --- opening ---------------------------------------------------------------------------
@@ -887,7 +663,7 @@ async def open_link(
     loop = asyncio.get_running_loop()
     parsed = urllib.parse.urlsplit(url)
     transport: asyncio.BaseTransport | None = None
-    earlier = _lingering.get((loop, url))
+    earlier = lingering(loop, url)
     try:
         async with asyncio.timeout(timeout):
             if earlier is not None:
