@@ -1,4 +1,5 @@
-"""``chassis_sdk.run`` and the event loop it runs on: uvloop when installed."""
+"""``chassis_sdk.run`` and the event loop it runs on: uvloop when installed; a device
+object works in whichever event loop it is connected in."""
 
 from __future__ import annotations
 
@@ -12,8 +13,11 @@ import time
 import pytest
 
 import chassis_sdk
-from chassis_sdk import Chassis
+from chassis_sdk import Chassis, ConnectionState
 from chassis_sdk.sim import ChassisSimulator
+
+from .helpers import ThreadedPeer, until
+from .standin import is_zero_drive
 
 
 async def _loop_module() -> str:
@@ -134,3 +138,32 @@ def test_the_simulator_holds_replies_back_at_least_the_delay_asked(use_uvloop: b
 
     times = chassis_sdk.run(scenario(), uvloop=use_uvloop)
     assert min(times) >= delay, sorted(times)[:5]
+
+
+# --- a device object works in any event loop it is connected in ----------------------------------
+
+
+def test_a_device_works_in_a_second_event_loop() -> None:
+    peer = ThreadedPeer()
+    robot = Chassis(peer.port, command_timeout=0.2)
+    try:
+
+        async def session() -> None:
+            async with robot:
+                await robot.set_velocity(0.2, 0.0)
+                resends = robot.stats.resends
+                expiries = robot.stats.command_expiries
+                await until(lambda: robot.stats.resends >= resends + 3)
+                await until(lambda: robot.stats.command_expiries > expiries)
+                assert robot.connection_state is ConnectionState.CONNECTED
+                assert await robot.wait_for(lambda t: True, 1.0)
+
+        asyncio.run(session())
+        first = len(peer.drive_frames())
+        asyncio.run(session())  # a new loop: the same object must work in it
+        # The close's zero is the last frame (it may still be on its way).
+        peer.wait_for(lambda frames: len(frames) > first + 3 and is_zero_drive(frames[-1]))
+        frames = peer.drive_frames()
+        assert sum(not is_zero_drive(f) for f in frames[first:]) >= 3  # resends in loop 2
+    finally:
+        peer.close()

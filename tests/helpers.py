@@ -1,0 +1,119 @@
+"""Helpers shared by the failure tests (test_stopping.py, test_connecting.py,
+test_requests.py, test_streams.py, test_loops.py): the transports they run on, a
+heartbeat of the event loop, a wait on the SDK's own state, the descriptors held on a
+port, and a firmware stand-in on its own thread for tests that block or replace the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import select
+import struct
+import threading
+import time
+import tty
+from collections.abc import Callable
+
+import pytest
+
+from .standin import ChassisStandIn, Received, frame_a
+
+__all__ = ["TRANSPORTS", "Heartbeat", "ThreadedPeer", "open_fds_on", "until"]
+
+TRANSPORTS = [pytest.param(False, id="pty"), pytest.param(True, id="tcp")]
+
+
+class Heartbeat:
+    """Measures how long the event loop goes without running a 5 ms sleeper."""
+
+    def __init__(self) -> None:
+        self.max_gap = 0.0
+        self._task: asyncio.Task[None] | None = None
+
+    async def _beat(self) -> None:
+        while True:
+            t = time.monotonic()
+            await asyncio.sleep(0.005)
+            self.max_gap = max(self.max_gap, time.monotonic() - t)
+
+    async def __aenter__(self) -> Heartbeat:
+        self._task = asyncio.create_task(self._beat())
+        await asyncio.sleep(0)
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        assert self._task is not None
+        self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self._task
+
+
+async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
+    """Wait for a condition of the SDK's own state (its counters have no event)."""
+    async with asyncio.timeout(timeout):
+        while not condition():
+            await asyncio.sleep(0.005)
+
+
+def open_fds_on(path: str) -> int:
+    """Descriptors this process holds on ``path``."""
+    target = os.path.realpath(path)
+    n = 0
+    for fd in os.listdir("/proc/self/fd"):
+        with contextlib.suppress(OSError):
+            n += os.readlink(f"/proc/self/fd/{fd}") == target
+    return n
+
+
+class ThreadedPeer:
+    """A protocol A firmware stand-in on its own thread: it times what arrives on the
+    wire while the test's event loop is blocked or replaced, and streams telemetry."""
+
+    def __init__(self) -> None:
+        self._master, slave = os.openpty()
+        tty.setraw(slave)
+        self._slave = slave
+        self.port = os.ttyname(slave)
+        self.chunks: list[tuple[float, bytes]] = []
+        self._arrived = threading.Condition()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        seq = 0
+        next_telemetry = time.monotonic()
+        while not self._stop.is_set():
+            ready = select.select([self._master], [], [], 0.005)[0]
+            if ready:
+                with contextlib.suppress(OSError), self._arrived:
+                    self.chunks.append((time.monotonic(), os.read(self._master, 4096)))
+                    self._arrived.notify_all()
+            if time.monotonic() >= next_telemetry:
+                payload = struct.pack("<HHHhhhhhh", 246, 0, 4, 0, 0, 0, 0, 0, 0)
+                with contextlib.suppress(OSError):
+                    os.write(self._master, frame_a(0x81, payload, seq))
+                seq = (seq + 1) & 0xFFFF
+                next_telemetry += 0.02
+
+    def drive_frames(self) -> list[Received]:
+        out: list[Received] = []
+        buf = bytearray()
+        parser = ChassisStandIn()
+        for t, data in list(self.chunks):
+            buf += data
+            out += [r for r in parser.parse(buf, t) if r.kind == 0x02]
+        return out
+
+    def wait_for(self, predicate: Callable[[list[Received]], bool], timeout: float = 3.0) -> None:
+        """Block until ``predicate(drive frames)`` holds (woken by each chunk read)."""
+        with self._arrived:
+            assert self._arrived.wait_for(lambda: predicate(self.drive_frames()), timeout)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        os.close(self._master)
+        os.close(self._slave)

@@ -1,0 +1,104 @@
+"""Bad numbers are ``ValueError``, always: NaN, infinities, huge numbers, bools,
+strings and ``None`` are refused before a byte is written, for every call of both
+devices, and by the settings that take a number without a device to talk to (the
+timeouts, ``MotionLimits``, ``reset_odometry``) (field hardening, issue 11).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import pytest
+
+from chassis_sdk import Board, Chassis, MotionLimits
+
+from .standin import BoardStandIn, ChassisStandIn, drive_frames
+
+BAD = [
+    pytest.param(float("nan"), id="nan"),
+    pytest.param(float("inf"), id="inf"),
+    pytest.param(-float("inf"), id="-inf"),
+    pytest.param(1e308, id="1e308"),
+    pytest.param(-1e308, id="-1e308"),
+    pytest.param(10**400, id="10**400"),
+    pytest.param(1e30, id="1e30"),
+    pytest.param(True, id="bool"),
+    pytest.param("1", id="str"),
+    pytest.param(None, id="None"),
+]
+
+#: (name, call, what a valid value of the argument may also be): a large positive
+#: number is a valid time or factor, ``None`` a valid "not given".
+_CHASSIS_CALLS: list[tuple[str, Callable[[Chassis, Any], Awaitable[Any]], str]] = [
+    ("set_velocity linear", lambda r, x: r.set_velocity(x, 0.0), ""),
+    ("set_velocity angular", lambda r, x: r.set_velocity(0.0, x), ""),
+    ("set_velocity duration", lambda r, x: r.set_velocity(0.1, 0.0, duration=x), "large none"),
+    ("set_wheel_speeds left", lambda r, x: r.set_wheel_speeds(x, 0.0), ""),
+    ("set_wheel_speeds right", lambda r, x: r.set_wheel_speeds(0.0, x), ""),
+    ("set_wheel_speeds duration", lambda r, x: r.set_wheel_speeds(0, 0, duration=x), "large none"),
+    ("wait_for timeout", lambda r, x: r.wait_for(lambda t: True, x), "large"),
+    (
+        "configure_odometry slip",
+        lambda r, x: r.configure_odometry("wheels", slip_factor=x, track_width=0.5),
+        "large",
+    ),
+    (
+        "configure_odometry track",
+        lambda r, x: r.configure_odometry("wheels", track_width=x),
+        "large none",
+    ),
+    ("configure_odometry gap", lambda r, x: r.configure_odometry(max_gap=x), "large"),
+]
+_BOARD_CALLS: list[tuple[str, Callable[[Board, Any], Awaitable[Any]], str]] = [
+    ("set_velocity linear", lambda b, x: b.set_velocity(x, 0.0), ""),
+    ("set_velocity angular", lambda b, x: b.set_velocity(0.0, x), ""),
+    ("set_velocity duration", lambda b, x: b.set_velocity(0.1, 0.0, duration=x), "large none"),
+    ("set_motor_pwm pwm", lambda b, x: b.set_motor_pwm(1, x), ""),
+    ("set_motor_pwm motor", lambda b, x: b.set_motor_pwm(x, 10), ""),
+    ("set_servo angle", lambda b, x: b.set_servo(1, x), ""),
+    ("set_servo servo", lambda b, x: b.set_servo(x, 10.0), ""),
+    ("configure_odometry gap", lambda b, x: b.configure_odometry(max_gap=x), "large"),
+]
+_MAKERS: list[tuple[str, Callable[[Any], object], str]] = [
+    ("request_timeout", lambda x: Chassis("/dev/null", request_timeout=x), "large"),
+    ("connect_timeout", lambda x: Chassis("/dev/null", connect_timeout=x), "large"),
+    ("MotionLimits", lambda x: MotionLimits(max_linear=x), "large none"),
+    ("reset_odometry", lambda x: Chassis("/dev/null").reset_odometry(x, 0.0), "large negative"),
+]
+
+
+def _valid_anyway(bad: Any, allows: str) -> bool:
+    if bad is None:
+        return "none" in allows
+    if bad in (1e30, 1e308):
+        return "large" in allows
+    return bad == -1e308 and "negative" in allows
+
+
+@pytest.mark.parametrize("bad", BAD)
+async def test_every_bad_number_is_a_value_error_before_a_byte_is_written(bad: Any) -> None:
+    async with (
+        ChassisStandIn(noise=False) as cdev,
+        BoardStandIn(noise=False) as bdev,
+        Chassis(cdev.port) as robot,
+        Board(bdev.port) as board,
+    ):
+        calls: list[tuple[Any, str, Callable[[Any, Any], Awaitable[Any]], str]] = [
+            *((robot, *c) for c in _CHASSIS_CALLS),
+            *((board, *c) for c in _BOARD_CALLS),
+        ]
+        for device, name, call, allows in calls:
+            if _valid_anyway(bad, allows):
+                continue
+            sent = device.stats.frames_sent
+            with pytest.raises(ValueError, match=r"must be|out of range|unknown"):
+                await call(device, bad)
+            assert device.stats.frames_sent == sent, name
+        # Nothing was written for any of them (the stand-ins heard no command at all).
+        assert drive_frames(cdev.frames) == []
+        assert bdev.frames == []
+    for _name, make, allows in _MAKERS:
+        if not _valid_anyway(bad, allows):
+            with pytest.raises(ValueError, match="must be"):
+                make(bad)
