@@ -1,7 +1,8 @@
 """Scenarios of a slow or stalled device, shared by the failure tests
-(tests/test_field_hardening.py) and the figures that go with them
-(benchmarks/stalled_port.py, which loads this file by path so that an older
-``chassis_sdk`` first on ``PYTHONPATH`` is measured in the same scenarios).
+(tests/test_stopping.py, tests/test_requests.py, tests/test_connecting.py) and the
+figures that go with them (benchmarks/stalled_port.py, which loads this file by path
+so that an older ``chassis_sdk`` first on ``PYTHONPATH`` is measured in the same
+scenarios).
 
 Nothing here imports ``chassis_sdk`` at import time: each scenario imports what it
 drives when it runs.
