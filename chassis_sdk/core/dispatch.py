@@ -207,25 +207,25 @@ class Broadcast(Generic[T]):
         """Call ``callback(item)`` synchronously for every item published from now on,
         until the returned :class:`Listener` is closed or dropped."""
         listener = Listener(self, callback)
-        this = weakref.ref(self)
-
-        def gone(ref: weakref.ref[Listener[T]]) -> None:
-            broadcast = this()
-            if broadcast is not None:
-                broadcast._listeners = tuple(r for r in broadcast._listeners if r is not ref)
-
-        self._listeners = (*self._listeners, weakref.ref(listener, gone))
+        self._hold(listener, "_listeners")
         return listener
 
     def _add(self, sub: Subscription[T]) -> None:
+        self._hold(sub, "_refs")
+
+    def _hold(self, member: Subscription[T] | Listener[T], where: str) -> None:
+        """Add a weak reference to ``member`` to the tuple attribute ``where``; it
+        removes itself from there when ``member`` is collected."""
         this = weakref.ref(self)
 
-        def gone(ref: weakref.ref[Subscription[T]]) -> None:
+        def gone(ref: weakref.ref[Any]) -> None:
             broadcast = this()
             if broadcast is not None:
-                broadcast._refs = tuple(r for r in broadcast._refs if r is not ref)
+                setattr(
+                    broadcast, where, tuple(r for r in getattr(broadcast, where) if r is not ref)
+                )
 
-        self._refs = (*self._refs, weakref.ref(sub, gone))
+        setattr(self, where, (*getattr(self, where), weakref.ref(member, gone)))
 
     def publish(self, item: T) -> None:
         """Deliver ``item`` to every listener and subscriber (synchronous, never
