@@ -35,7 +35,7 @@ import contextlib
 import enum
 import logging
 import time
-from collections.abc import Callable, Coroutine, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from typing import Any, Generic, Protocol, TypeVar
 
 import anyio
@@ -48,6 +48,7 @@ from .transport import QUEUE_LIMIT, Decoder, Link, Tap, backend_name, open_link
 __all__ = ["ConnectionState", "ConnectionStates", "LinkSupervisor", "Supervised", "Writer"]
 
 M = TypeVar("M")
+T = TypeVar("T")
 
 #: Reconnect backoff: first delay, growth factor, cap (seconds).
 BACKOFF_START = 0.1
@@ -102,6 +103,35 @@ class Supervised(Fenced, Protocol[M]):
         """The link dropped (``error``), or the device closed (``None``): fail what
         waits on it; ``final``: no reconnect follows, so end the streams too."""
         ...
+
+
+async def reopen(
+    open_once: Callable[[], Awaitable[T]],
+    backoff: Backoff,
+    *,
+    until: Callable[[], bool] = lambda: False,
+    each: Callable[[], None] | None = None,
+    log: logging.Logger | None = None,
+    what: str = "",
+) -> T | None:
+    """Open a port again after it dropped: wait ``backoff.next()``, try ``open_once()``,
+    and again on :class:`~chassis_sdk.PortOpenError`, until it opens (its result) or
+    ``until()`` is true before an attempt (``None``). ``each`` runs before every wait
+    (progress). The caller bounds it in time with a cancel scope. Every reconnect of
+    the SDK goes through this: a device's supervisor and the passive recorder.
+    """
+    while not until():
+        if each is not None:
+            each()
+        await anyio.sleep(backoff.next())
+        if until():
+            break
+        try:
+            return await open_once()
+        except PortOpenError as exc:
+            if log is not None:
+                log.debug("%s: reopen failed: %s", what, exc)
+    return None
 
 
 class ConnectionStates:
@@ -481,19 +511,18 @@ class LinkSupervisor(Generic[M]):
             await self._reopen()
 
     async def _reopen(self) -> None:
+        async def open_once() -> bool:
+            await self._open()
+            return True
+
         backoff = Backoff(BACKOFF_START, BACKOFF_CAP, BACKOFF_FACTOR)
-        while not self._closing.is_set():
-            await anyio.sleep(backoff.next())
-            try:
-                await self._open()
-            except PortOpenError as exc:
-                self._log.debug("%s: reconnect failed: %s", self.port, exc)
-                continue
-            if self.writer.link is None:  # closing
-                return
-            self.reconnects += 1
-            self.states.set(ConnectionState.CONNECTED)
+        opened = await reopen(
+            open_once, backoff, until=self._closing.is_set, log=self._log, what=self.port
+        )
+        if opened is None or self.writer.link is None:  # closing
             return
+        self.reconnects += 1
+        self.states.set(ConnectionState.CONNECTED)
 
     # --- close ------------------------------------------------------------------------------
 

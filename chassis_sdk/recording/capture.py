@@ -21,10 +21,11 @@ from typing import TYPE_CHECKING, Any
 import anyio
 
 from ..core.backoff import Backoff
+from ..core.supervisor import reopen
 from ..core.transport import Link, open_link
 from ..core.validation import check_real
 from ..devices import profile, profiles
-from ..errors import ChassisError, PortOpenError
+from ..errors import ChassisError
 from . import Recording
 from .jsonl import JsonlRecording, read_jsonl
 from .mcap import McapRecording
@@ -182,6 +183,12 @@ async def record(
         writer.link_state("connected", time.monotonic())
         try:
             backoff = Backoff(_REOPEN_START, _REOPEN_CAP)
+
+            async def open_again() -> Link[Any]:
+                nonlocal lost
+                lost = anyio.Event()  # a fresh one per link: a late word from the old cannot count
+                return await _open_raw(port, baudrate, on_chunk, _setter(lost))
+
             while (now := time.monotonic()) < end:
                 report()
                 if link is not None:
@@ -194,14 +201,12 @@ async def record(
                         link = None
                         backoff.reset()
                     continue
-                await anyio.sleep(min(backoff.next(), end - now))
-                try:
-                    # A fresh event per link: a late word from the old one cannot count.
-                    lost = anyio.Event()
-                    link = await _open_raw(port, baudrate, on_chunk, _setter(lost))
-                except PortOpenError:
-                    continue
-                writer.link_state("connected", time.monotonic())
+                with anyio.move_on_after(end - now):
+                    link = await reopen(
+                        open_again, backoff, until=lambda: time.monotonic() >= end, each=report
+                    )
+                if link is not None:
+                    writer.link_state("connected", time.monotonic())
         finally:
             if link is not None:
                 await link.aclose(1.0)
