@@ -168,6 +168,7 @@ async def test_board_odometry_with_imu_heading_matches_the_simulator() -> None:
 def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
     """The pose is built per frame only for a listener; read later it is the same."""
     from chassis_sdk import Chassis
+    from chassis_sdk.core.notifier import Notifier
     from chassis_sdk.devices.chassis.firmware import ChassisFirmware
     from chassis_sdk.devices.chassis.protocol import ChassisEncoder
 
@@ -177,7 +178,8 @@ def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
     frames = [(i * 0.01, firmware.poll(i * 0.01)) for i in range(1, 200)]
     listened, alone = Chassis("/dev/a"), Chassis("/dev/b")
     poses: list[object] = []
-    keep = listened.listen("odometry", poses.append)
+    keep = Notifier(listened)
+    keep.listen("odometry", poses.append)
     assert alone.latest_odometry is None
     for i, (now, data) in enumerate(frames):
         listened.feed(data, now)
@@ -191,4 +193,4 @@ def test_the_latest_pose_is_right_whether_or_not_anyone_listens() -> None:
     assert listened.latest_odometry.x > 0.1
     alone.reset_odometry()
     assert alone.latest_odometry == poses[-1]  # the last pose before the reset
-    keep()
+    keep.close()

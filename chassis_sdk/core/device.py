@@ -24,8 +24,10 @@ import time
 from collections.abc import Hashable
 from typing import Any, TypeVar
 
+import anyio
 import anyio.lowlevel
 
+from ..errors import NotConnectedError, ProtocolError, RequestTimeoutError
 from .diagnosis import Diagnosis, Findings
 from .dispatch import Subscription
 from .events import EventKind, RobotEvent
@@ -270,27 +272,57 @@ class Device(Session[M, K]):
     @property
     def stats(self) -> LinkStats:
         """A snapshot of the link counters (see :class:`LinkStats`)."""
-        d = self._decoder.stats
-        link, requests = self._link, self._requests
-        return LinkStats(
-            bytes_received=d.bytes_received,
+        link, requests, watchdog = self._link, self._requests, self._watchdog
+        return LinkStats.of(
+            self._decoder.stats,
             bytes_sent=link.writer.bytes_sent,
-            frames=d.frames,
             frames_sent=link.writer.frames_sent,
-            bytes_dropped=d.bytes_dropped,
-            checksum_errors=d.checksum_errors,
-            malformed_frames=d.malformed_frames,
-            length_mismatches=d.length_mismatches,
-            misaligned_frames=d.misaligned_frames,
             unmatched_replies=requests.unmatched,
             late_replies=requests.late,
             frames_discarded=link.discarded,
             queue_drops=self._streams.dropped,
             sequence_gaps=self._sequence_gaps(),
             reconnects=link.reconnects,
-            resends=self._watchdog.resends,
-            command_expiries=self._watchdog.expiries,
+            resends=watchdog.resends,
+            command_expiries=watchdog.expiries,
         )
+
+    @property
+    def last_frame_age(self) -> float | None:
+        """Seconds since the last valid frame of any kind arrived (across reconnects),
+        or ``None`` if none has."""
+        last = self._link.last_frame_time
+        return None if last is None else time.monotonic() - last
+
+    async def verify(self, timeout: float = 3.0) -> None:
+        """Make sure the device on the port is this one: wait until a valid frame of
+        its protocol arrives (returns at once if one has). Call it before driving a
+        robot whose port you are not sure of: another device, a wrong baud rate and a
+        silent port each give one clear error instead of a robot that does not move.
+
+        Raises:
+            ProtocolError: Bytes arrive but none forms a frame of this protocol.
+            RequestTimeoutError: Nothing arrived within ``timeout`` seconds.
+            NotConnectedError: The port is not open.
+            ValueError: ``timeout`` is not a finite number > 0.
+        """
+        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
+        end = time.monotonic() + timeout
+        while not self._decoder.stats.frames:
+            if not self._link.is_open:
+                raise NotConnectedError(f"{self.port} is {self._link.state.value}")
+            if time.monotonic() >= end:
+                received = self._decoder.stats.bytes_received
+                if received:
+                    raise ProtocolError(
+                        f"{received} bytes arrived on {self.port} but none is a {self.kind} "
+                        "frame: is it another device, or the wrong baud rate?"
+                    )
+                raise RequestTimeoutError(
+                    f"nothing arrived from {self.port} within {timeout:g} s (is the device "
+                    "on, and is this its port?)"
+                )
+            await anyio.sleep(0.02)
 
     def _emit(self, event: RobotEvent) -> None:
         self._reports.emit(event)

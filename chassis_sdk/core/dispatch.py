@@ -18,7 +18,20 @@ from collections.abc import Callable, Coroutine, Hashable
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
-__all__ = ["Broadcast", "Listener", "Reply", "RequestTable", "Streams", "Subscription"]
+import anyio
+
+from ..errors import NotConnectedError
+from .validation import check_real
+
+__all__ = [
+    "Broadcast",
+    "Listener",
+    "Reply",
+    "RequestTable",
+    "Streams",
+    "Subscription",
+    "first_match",
+]
 
 T = TypeVar("T")
 K = TypeVar("K", bound=Hashable)
@@ -264,6 +277,36 @@ class Broadcast(Generic[T]):
 
     def _discard_listener(self, listener: Listener[T]) -> None:
         self._listeners = tuple(ref for ref in self._listeners if ref() is not listener)
+
+
+async def first_match(
+    stream: Broadcast[T],
+    subscribe: Callable[[Broadcast[T]], Subscription[T]],
+    predicate: Callable[[T], bool],
+    timeout: float,
+    what: str,
+    port: str,
+) -> T:
+    """The latest message of ``stream`` if it satisfies ``predicate``, else the next
+    one that does (read through ``subscribe(stream)``, made before the latest is looked
+    at, so nothing in between is missed); ``what`` and ``port`` are for the errors.
+
+    Raises:
+        TimeoutError: None did within ``timeout`` seconds.
+        ValueError: ``timeout`` is not a finite number > 0.
+        NotConnectedError: The device was closed meanwhile.
+    """
+    timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
+    async with subscribe(stream) as items:
+        latest = stream.latest
+        if latest is not None and predicate(latest):
+            return latest
+        with anyio.move_on_after(timeout):
+            async for item in items:
+                if predicate(item):
+                    return item
+            raise NotConnectedError(f"{port} was closed while waiting")
+    raise TimeoutError(f"{port}: no {what} satisfied the condition in {timeout:g} s")
 
 
 class Streams:

@@ -3,10 +3,11 @@
 It owns the link (through :class:`~chassis_sdk.core.supervisor.LinkSupervisor`: the
 lifetime, the writes, the close fence, reconnect, link health), the requests in flight
 (:class:`~chassis_sdk.core.requests.Requester`), the streams
-(:class:`~chassis_sdk.core.dispatch.Streams`), the session recording, and what
-observers may see of it: the raw traffic and every named stream (recorders, bridges,
-live views use this and nothing private). :class:`~chassis_sdk.core.device.Device`
-adds the robot side: motion, odometry, events and reports.
+(:class:`~chassis_sdk.core.dispatch.Streams`) and the session recording; what
+observers may see of it (the raw traffic, every named stream, the connection states)
+they see through :class:`~chassis_sdk.core.notifier.Notifier`.
+:class:`~chassis_sdk.core.device.Device` adds the robot side: motion, odometry, events
+and reports.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from __future__ import annotations
 import abc
 import logging
 import os
-import time
 from collections.abc import Callable, Coroutine, Hashable
 from pathlib import Path
 from types import TracebackType
@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVa
 import anyio
 import anyio.lowlevel
 
-from ..errors import NotConnectedError, ProtocolError, RequestTimeoutError
-from .dispatch import Broadcast, Listener, Streams, Subscription
+from ..errors import NotConnectedError, RequestTimeoutError
+from .dispatch import Broadcast, Streams, Subscription, first_match
 from .framing import FrameDecoder
 from .requests import Requester
 from .supervisor import ConnectionState, LinkSupervisor
@@ -32,7 +32,7 @@ from .transport import Decoder, backend_name
 from .validation import check_int, check_real
 
 if TYPE_CHECKING:
-    from .transport import Tap
+    pass
 
 __all__ = ["Recorder", "Session", "set_recorder"]
 
@@ -157,7 +157,6 @@ class Session(abc.ABC, Generic[M, K]):
         self._recording: Recorder | None = None
         self._decoder = self._make_decoder()
         self._streams = Streams(queue_size)
-        self._listeners: set[Listener[Any]] = set()
         self._link: LinkSupervisor[M] = LinkSupervisor(
             _LinkHooks(self),
             port,
@@ -284,43 +283,6 @@ class Session(abc.ABC, Generic[M, K]):
         """
         await self._link.states.wait_open(timeout)
 
-    @property
-    def last_frame_age(self) -> float | None:
-        """Seconds since the last valid frame of any kind arrived (across reconnects),
-        or ``None`` if none has."""
-        last = self._link.last_frame_time
-        return None if last is None else time.monotonic() - last
-
-    async def verify(self, timeout: float = 3.0) -> None:
-        """Make sure the device on the port is this one: wait until a valid frame of
-        its protocol arrives (returns at once if one has). Call it before driving a
-        robot whose port you are not sure of: another device, a wrong baud rate and a
-        silent port each give one clear error instead of a robot that does not move.
-
-        Raises:
-            ProtocolError: Bytes arrive but none forms a frame of this protocol.
-            RequestTimeoutError: Nothing arrived within ``timeout`` seconds.
-            NotConnectedError: The port is not open.
-            ValueError: ``timeout`` is not a finite number > 0.
-        """
-        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
-        end = time.monotonic() + timeout
-        while not self._decoder.stats.frames:
-            if not self._link.is_open:
-                raise NotConnectedError(f"{self.port} is {self._link.state.value}")
-            if time.monotonic() >= end:
-                received = self._decoder.stats.bytes_received
-                if received:
-                    raise ProtocolError(
-                        f"{received} bytes arrived on {self.port} but none is a {self.kind} "
-                        "frame: is it another device, or the wrong baud rate?"
-                    )
-                raise RequestTimeoutError(
-                    f"nothing arrived from {self.port} within {timeout:g} s (is the device "
-                    "on, and is this its port?)"
-                )
-            await anyio.sleep(0.02)
-
     # --- lifetime ---------------------------------------------------------------------------------
 
     async def connect(self) -> None:
@@ -386,55 +348,7 @@ class Session(abc.ABC, Generic[M, K]):
     ) -> None:
         await self.close()
 
-    # --- observing it (recorders, bridges, live views) -----------------------------------------
-
-    def add_tap(self, tap: Tap) -> Callable[[], None]:
-        """Let ``tap`` see every byte of this device's link, both ways, across
-        reconnects: ``tap.rx(data, now)`` for each chunk received, ``tap.tx(frame,
-        now)`` for each frame as it begins to leave (``now`` is ``time.monotonic()``).
-        Called synchronously on the event loop: it must be quick and must not raise.
-        Returns the function that removes it.
-        """
-        self._link.add_tap(tap)
-        return lambda: self._link.remove_tap(tap)
-
-    @property
-    def stream_names(self) -> tuple[str, ...]:
-        """The names of this device's streams: the methods that subscribe to them
-        (``"telemetry"``, ``"odometry"``, ``"events"``, ...)."""
-        return tuple(self._streams.named)
-
-    def listen(self, stream: str, callback: Callable[[Any], None]) -> Callable[[], None]:
-        """Call ``callback(message)`` synchronously for every message of the stream
-        named ``stream`` (see :attr:`stream_names`), in wire order, from now on: for
-        recorders and bridges that must see every message and cost nothing when
-        absent. It must be quick and must not raise. Returns the function that stops
-        it.
-
-        Raises:
-            ValueError: No stream of that name.
-        """
-        found = self._streams.named.get(stream)
-        if found is None:
-            raise ValueError(
-                f"{self.kind} has no stream {stream!r}; it has: {', '.join(self._streams.named)}"
-            )
-        return self._held(found.listen(callback))
-
-    def listen_states(self, callback: Callable[[ConnectionState], None]) -> Callable[[], None]:
-        """Call ``callback(state)`` synchronously on every :class:`ConnectionState`
-        change, from now on. Returns the function that stops it."""
-        return self._held(self._link.states.listen(callback))
-
-    def _held(self, listener: Listener[Any]) -> Callable[[], None]:
-        """Keep ``listener`` (streams hold theirs weakly) until the returned call."""
-        self._listeners.add(listener)
-
-        def stop() -> None:
-            self._listeners.discard(listener)
-            listener.close()
-
-        return stop
+    # --- observing it (recorders, bridges, live views; see core.notifier) --------------------
 
     def command_decoder(self) -> FrameDecoder[Any] | None:
         """A new decoder of what the *host* writes to this device, so recordings show
@@ -500,25 +414,8 @@ class Session(abc.ABC, Generic[M, K]):
         self, stream: Broadcast[T], predicate: Callable[[T], bool], timeout: float, what: str
     ) -> T:
         """The latest message of ``stream`` if it satisfies ``predicate``, else the next
-        one that does (a device's ``wait_for``).
-
-        Raises:
-            TimeoutError: None did within ``timeout`` seconds.
-            ValueError: ``timeout`` is not a finite number > 0.
-            NotConnectedError: The device was closed meanwhile.
-        """
-        timeout = check_real(timeout, "timeout", low=0, low_open=True, unit="s")
-        subscription: Subscription[T] = self._subscribe(stream)
-        async with subscription as items:
-            latest = stream.latest
-            if latest is not None and predicate(latest):
-                return latest
-            with anyio.move_on_after(timeout):
-                async for item in items:
-                    if predicate(item):
-                        return item
-                raise NotConnectedError(f"{self.port} was closed while waiting")
-        raise TimeoutError(f"{self.port}: no {what} satisfied the condition in {timeout:g} s")
+        one that does (a device's ``wait_for``; see :func:`~.dispatch.first_match`)."""
+        return await first_match(stream, self._subscribe, predicate, timeout, what, self.port)
 
     def _write_velocity(self, frame: bytes, expires: float) -> None:
         self._link.writer.write_velocity(frame, expires)

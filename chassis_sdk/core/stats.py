@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .framing import DecoderStats
 
 __all__ = ["LinkStats"]
 
@@ -55,6 +59,22 @@ class LinkStats:
     reconnects: int = 0
     resends: int = 0
     command_expiries: int = 0
+
+    @classmethod
+    def of(cls, decoded: DecoderStats, **rest: int) -> LinkStats:
+        """The counters of a device: its decoder's (bytes received, frames, bytes
+        dropped, checksum errors, malformed, length mismatches, misaligned), and
+        ``rest`` by name (the writer's, the requests', the streams', ...)."""
+        return cls(
+            bytes_received=decoded.bytes_received,
+            frames=decoded.frames,
+            bytes_dropped=decoded.bytes_dropped,
+            checksum_errors=decoded.checksum_errors,
+            malformed_frames=decoded.malformed_frames,
+            length_mismatches=decoded.length_mismatches,
+            misaligned_frames=decoded.misaligned_frames,
+            **rest,
+        )
 
     def __str__(self) -> str:
         """The counters that are not zero, ``name=value`` each (``frames=55

@@ -15,8 +15,7 @@
   arrays (for plots of hours of frames).
 
 Recorders see a device only through its public observation API
-(:meth:`~chassis_sdk.core.device.Device.add_tap`, :meth:`~chassis_sdk.core.device.Device.listen`,
-:meth:`~chassis_sdk.core.device.Device.listen_states`).
+(:class:`~chassis_sdk.core.notifier.Notifier`, ``feed``, ``command_decoder``).
 """
 
 from __future__ import annotations

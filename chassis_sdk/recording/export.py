@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from ..core.notifier import Notifier
 from ..core.plain import plain
 from ..devices import profile
 from .capture import read_capture
@@ -89,7 +90,9 @@ def export_csv(path: str | Path, directory: str | Path, protocol: str) -> dict[s
     def listener(name: str) -> Any:
         return lambda message: tables.write(name, now, message)
 
-    stops = [device.listen(name, listener(name)) for name in device.stream_names]
+    notifier = Notifier(device)
+    for name in notifier.stream_names:
+        notifier.listen(name, listener(name))
     try:
         for now, data in read_capture(path):
             device.feed(data, now)
@@ -98,7 +101,6 @@ def export_csv(path: str | Path, directory: str | Path, protocol: str) -> dict[s
             for command in decoder.feed(data, t):
                 tables.write(f"commands_{type(command).__name__}", t, command)
     finally:
-        for stop in stops:
-            stop()
+        notifier.close()
         written = tables.close()
     return written

@@ -13,9 +13,11 @@ from __future__ import annotations
 import datetime
 import json
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
+
+from ..core.notifier import Notifier
 
 if TYPE_CHECKING:
     from ..core.device import Device
@@ -54,11 +56,12 @@ class JsonlRecording:
                 "started": datetime.datetime.now(datetime.UTC).isoformat(),
             }
         )
-        self._stops: list[Callable[[], None]] = []
+        self._notifier: Notifier | None = None
         self._up = True
         if device is not None:
-            self._stops.append(device.add_tap(self))
-            self._stops.append(device.listen_states(self._on_state))
+            self._notifier = Notifier(device)
+            self._notifier.add_tap(self)
+            self._notifier.listen_states(self._on_state)
 
     def _line(self, item: dict[str, object]) -> None:
         self._file.write(json.dumps(item) + "\n")
@@ -85,9 +88,9 @@ class JsonlRecording:
     def close(self) -> None:
         if self._file.closed:
             return
-        for stop in self._stops:
-            stop()
-        self._stops.clear()
+        if self._notifier is not None:
+            self._notifier.close()
+            self._notifier = None
         self._file.close()
 
 

@@ -38,6 +38,7 @@ import typing
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from ..core.notifier import Notifier
 from ..core.plain import plain
 
 if TYPE_CHECKING:
@@ -191,7 +192,7 @@ class FoxgloveSink:
         self._tf = fc.FrameTransformsChannel("/tf", context=context)
         self._log = fc.LogChannel(f"{self._prefix}/log", context=context)
         self._command_decoder = device.command_decoder()
-        self._stops: list[Callable[[], None]] = []
+        self._notifier: Notifier | None = None
         self.messages = 0
         # Work is queued and done in one batch after the loop's current callbacks, so
         # the application's task woken by a frame runs before the frame is recorded.
@@ -208,18 +209,19 @@ class FoxgloveSink:
             self._loop = asyncio.get_running_loop()
         except RuntimeError:  # converting a file: no loop, nothing to wait for
             self._loop = None
-        for stream_name in device.stream_names:
-            self._stops.append(device.listen(stream_name, self._stream_logger(stream_name)))
-        self._stops.append(device.listen_states(self._on_state))
-        self._stops.append(device.add_tap(self))
+        notifier = self._notifier = Notifier(device)
+        for stream_name in notifier.stream_names:
+            notifier.listen(stream_name, self._stream_logger(stream_name))
+        notifier.listen_states(self._on_state)
+        notifier.add_tap(self)
         self.link_state(device.connection_state.value, time.monotonic())
 
     def detach(self) -> None:
         """Stop (the device goes on, unrecorded); what is queued is logged first."""
         self._drain()
-        for stop in self._stops:
-            stop()
-        self._stops.clear()
+        if self._notifier is not None:
+            self._notifier.close()
+            self._notifier = None
 
     # --- what is logged -----------------------------------------------------------------------
 
