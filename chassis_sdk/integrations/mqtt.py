@@ -80,7 +80,6 @@ import re
 import secrets
 import socket
 import time
-from collections import deque
 from collections.abc import Callable, Coroutine
 from typing import Any
 
@@ -94,21 +93,19 @@ from paho.mqtt.reasoncodes import ReasonCode
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from ..core.device import Device
-from ..core.firmware import next_slot
-from ..core.plain import jsonable, plain
+from ..core.plain import plain
 from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
 from ..errors import ChassisError
 from .inbound import (
     TIMESTAMP_SKEW,
-    RefusalReport,
-    Refusals,
     check_fresh,
     command_object,
     command_time,
 )
 from .inbound import CommandError as CommandError  # re-exported: it was defined here
 from .mqtt_inbox import CommandInbox, install_inbox
+from .mqtt_publish import Publisher, connection_will, epoch_now, state_payload
 
 __all__ = [
     "CommandError",
@@ -137,38 +134,10 @@ _REASSERT_INTERVAL = 1.0
 _DISCONNECT_WITH_WILL = 0x04
 
 
-def _now() -> float:
-    return time.time()
-
-
-def _state(state: str, owner: str | None = None, *, take_over: bool = False) -> bytes:
-    body: dict[str, Any] = {"state": state, "timestamp": _now()}
-    if owner is not None:
-        body["owner"] = owner
-    if take_over:
-        body["take_over"] = True
-    return json.dumps(body).encode()
-
-
 def new_owner() -> str:
     """A new owner id for a bridge: ``host:pid:random``, unique per bridge, and telling
     an operator where the bridge runs."""
     return f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(3)}"
-
-
-def connection_will(
-    robot_id: str, prefix: str = "robots", owner: str | None = None
-) -> aiomqtt.Will:
-    """The last will a bridge's client must be made with: the broker publishes
-    ``CONNECTIONBROKEN`` (retained) on ``{prefix}/{robot_id}/connection`` if the bridge
-    vanishes without a clean stop. One client per bridge, since a will is per
-    connection; give the bridge's ``owner`` so the fleet knows whose will it is."""
-    return aiomqtt.Will(
-        f"{prefix}/{robot_id}/connection",
-        _state("CONNECTIONBROKEN", owner),
-        qos=1,
-        retain=True,
-    )
 
 
 class RobotIdTaken(ChassisError):
@@ -328,13 +297,10 @@ class MqttBridge:
         #: Commands never acted on for ownership: routed before this bridge's ONLINE,
         #: or after another bridge took over.
         self.dropped = 0
-        self._refusals = Refusals(float(report_interval))
-        self._reports: deque[RefusalReport] = deque(maxlen=4)
         # asyncio's events, not anyio's: these wake-ups are cleared by the loop they
         # wake (anyio's cannot be), and the claim must go on the moment the echo is
         # in (anyio's wait() yields once even when the event is set already, and a
         # stop in that moment would find the bridge not yet online: no OFFLINE).
-        self._report_wanted = asyncio.Event()
         self._request_ready = asyncio.Event()
         self._urgent = asyncio.Event()
         self._owner_wanted = asyncio.Event()
@@ -343,13 +309,14 @@ class MqttBridge:
         self._before: tuple[bytes, dict[str, Any]] | None = None
         self._displaced_by: str | None = None
         self._reassert = False
+        self._out = Publisher(self, float(report_interval))
         self._inbox = install_inbox(client)
         self._inbox.sort = self._sort
 
     @property
     def rejected(self) -> int:
         """Messages refused so far (each counted; reported on ``errors``, summarised)."""
-        return self._refusals.total
+        return self._out.refusals.total
 
     @property
     def superseded(self) -> int:
@@ -384,7 +351,7 @@ class MqttBridge:
                     # A clean stop says OFFLINE (if this bridge got as far as owning
                     # the robot id), bounded, even under a cancelled scope.
                     with anyio.CancelScope(shield=True):
-                        await self._offline()
+                        await self._out.offline()
                     raise
                 except BaseExceptionGroup as group:
                     failure = _first_error(group)
@@ -417,7 +384,7 @@ class MqttBridge:
 
     async def _start(self) -> None:
         await self._claim()
-        await self._publish_info()
+        await self._out.info()
 
     async def _claim(self) -> None:
         """Become the robot id's owner, or raise :class:`RobotIdTaken`.
@@ -426,7 +393,7 @@ class MqttBridge:
         every subscriber a topic's messages in one order, so the message just before
         our own is the state we replaced (a retained one, or a racing bridge's claim).
         """
-        self._online_payload = _state("ONLINE", self.owner, take_over=self.take_over)
+        self._online_payload = state_payload("ONLINE", self.owner, take_over=self.take_over)
         # Retain As Published (MQTT 5 §3.8.3.1): a bridge publishes its state retained,
         # so a claim or take-over keeps RETAIN 1; a message without it is nobody's.
         await self.client.subscribe(
@@ -434,7 +401,7 @@ class MqttBridge:
             options=SubscribeOptions(qos=1, retainAsPublished=True),
         )
         await self._subscribe_commands()  # held until the claim is settled (see _sort)
-        await self._publish("connection", self._online_payload, qos=1, retain=True)
+        await self._out.publish("connection", self._online_payload, qos=1, retain=True)
         try:
             with anyio.fail_after(_ECHO_TIMEOUT):
                 await self._echoed.wait()
@@ -450,7 +417,7 @@ class MqttBridge:
             self._inbox.lanes.clear()  # none of them is ours to act on
             raw, state = self._before
             # Ours replaced theirs as the retained state: put it back before leaving.
-            await self._publish("connection", raw, qos=1, retain=True)
+            await self._out.publish("connection", raw, qos=1, retain=True)
             since = state.get("timestamp")
             when = f" since {_clock(since)}" if isinstance(since, int | float) else ""
             raise RobotIdTaken(
@@ -472,29 +439,19 @@ class MqttBridge:
         loops: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]] = [
             ("commands", self._commands),
             ("owner", self._ownership),
-            ("errors", self._reporter),
-            ("link", self._link),
+            ("errors", self._out.reporter),
+            ("link", self._out.link_states),
             ("events", self._events),
         ]
         loops += [(f"requests {n}", self._requests) for n in range(_REQUEST_WORKERS)]
         return loops + [
-            (stream, functools.partial(self._telemetry, stream))
+            (stream, functools.partial(self._out.telemetry, stream))
             for stream in self.profile.remote.streams
         ]
 
-    async def _offline(self) -> None:
-        """Say ``OFFLINE`` (a clean stop), bounded: a broker that does not acknowledge
-        within two seconds does not hold the stop up (its last will then tells)."""
-        if not self.online:
-            return  # not the owner (or not yet): the connection topic is not ours
-        await self._bounded_publish(_state("OFFLINE", self.owner))
-
-    async def _bounded_publish(self, payload: bytes) -> None:
-        with anyio.move_on_after(2.0):
-            try:
-                await self._publish("connection", payload, qos=1, retain=True)
-            except Exception as exc:
-                _log.info("%s: could not publish its state: %r", self.topic, exc)
+    async def _events(self) -> None:
+        # The events loop, by name on the bridge (where a test puts a failing one).
+        await self._out.events()
 
     async def _fail_loudly(self) -> None:
         """The bridge ends on an error of its own: tell the fleet. A DISCONNECT with
@@ -514,42 +471,13 @@ class MqttBridge:
                     if disconnected.done() and not disconnected.cancelled():
                         disconnected.exception()  # retrieved: it is expected
                     return
-        await self._bounded_publish(_state("CONNECTIONBROKEN", self.owner))  # aiomqtt changed
+        await self._out.bounded_state("CONNECTIONBROKEN")  # aiomqtt changed
 
     async def _stop_robot(self) -> None:
         if self.read_only:
             return  # a viewer never writes to the device, not even a zero
         with contextlib.suppress(ChassisError):
             await self.device.stop()
-
-    async def _publish(
-        self,
-        sub: str,
-        payload: bytes,
-        *,
-        qos: int = 0,
-        retain: bool = False,
-        properties: Properties | None = None,
-    ) -> None:
-        await self.client.publish(
-            f"{self.topic}/{sub}", payload, qos=qos, retain=retain, properties=properties
-        )
-
-    async def _publish_info(self) -> None:
-        info: dict[str, Any] = {
-            "device": self.profile.name,
-            "summary": self.profile.summary,
-            "port": self.device.port,
-            "features": dict(self.profile.remote.features),
-            "owner": self.owner,
-        }
-        for name in self.profile.remote.identity:
-            try:
-                value = await getattr(self.device, name)()
-            except ChassisError as exc:
-                value = {"error": str(exc)}
-            info[name.removeprefix("get_")] = plain(value)
-        await self._publish("info", json.dumps(info).encode(), qos=1, retain=True)
 
     async def _subscribe_commands(self) -> None:
         # QoS 0 and a clean session: a command is never kept for later. Retain As
@@ -560,68 +488,6 @@ class MqttBridge:
                 f"{self.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
             )
         await self.client.subscribe(f"{self.topic}/request/+", qos=0)
-
-    # --- out ---------------------------------------------------------------------------
-
-    async def _telemetry(self, stream: str) -> None:
-        latest: list[Any] = []
-
-        async def follow() -> None:
-            try:
-                async for message in getattr(self.device, stream)():
-                    latest[:] = [message]
-            except Exception as exc:  # the stream ended with an error: nothing new comes
-                _log.debug("%s: the %s stream ended: %r", self.topic, stream, exc)
-
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(follow, name=f"bridge follow {stream}:{self.topic}")
-            period = 1.0 / self.rate
-            due = anyio.current_time()
-            while True:
-                # An absolute schedule: publishing takes time, and must not slow the rate.
-                due = next_slot(due, period, anyio.current_time())
-                await anyio.sleep(due - anyio.current_time())
-                if latest:
-                    message = latest.pop()
-                    payload = json.dumps({"type": type(message).__name__, **jsonable(message)})
-                    await self._publish(f"telemetry/{stream}", payload.encode())
-
-    async def _link(self) -> None:
-        await self._publish("link", _state(self.device.connection_state.value), qos=1, retain=True)
-        async for state in self.device.connection_states():
-            await self._publish("link", _state(state.value), qos=1, retain=True)
-
-    async def _events(self) -> None:
-        async for event in self.device.events():
-            payload = {**jsonable(event), "kind": event.kind.value}
-            await self._publish("events", json.dumps(payload).encode(), qos=1)
-
-    async def _reporter(self) -> None:
-        """Publish what was refused: the first at once, then at most one summary per
-        ``report_interval``, in a task of its own (a refusal never waits for it)."""
-        interval = self._refusals.interval
-        while True:
-            with anyio.move_on_after(interval):
-                await self._report_wanted.wait()
-            self._report_wanted.clear()
-            report = self._refusals.due()
-            if report is not None:
-                self._reports.append(report)
-            while self._reports:
-                report = self._reports.popleft()
-                _log.info("%s: refused %s", self.topic, report.summary())
-                body: dict[str, Any] = {
-                    "topic": report.where,
-                    "error": report.why,
-                    "timestamp": _now(),
-                    "count": report.count,
-                    "total": report.total,
-                }
-                if report.count > 1:
-                    body["reasons"] = report.reasons
-                # Refusals whose reasons did not fit in ``reasons`` (at most eight).
-                body["unlisted"] = report.unlisted
-                await self._publish("errors", json.dumps(body).encode(), qos=1)
 
     async def _ownership(self) -> None:
         """End the bridge when another one took over; say ``ONLINE`` again when
@@ -640,16 +506,9 @@ class MqttBridge:
                 await anyio.sleep(max(0.0, last + _REASSERT_INTERVAL - anyio.current_time()))
                 self._reassert = False
                 last = anyio.current_time()
-                await self._publish("connection", self._online_payload, qos=1, retain=True)
+                await self._out.publish("connection", self._online_payload, qos=1, retain=True)
 
     # --- in ----------------------------------------------------------------------------
-
-    def _refuse(self, where: str, why: str) -> None:
-        """Count a refusal; wake the reporter when a report is due (never waits)."""
-        report = self._refusals.add(where, why)
-        if report is not None:
-            self._reports.append(report)
-            self._report_wanted.set()
 
     def _sort(self, message: aiomqtt.Message) -> bool:
         """Sort one message as it arrives (in paho's read callback): refuse it, act on
@@ -657,7 +516,7 @@ class MqttBridge:
         try:
             return self._sort_one(message)
         except Exception as exc:  # any failure is this message's refusal, no more
-            self._refuse(_topic(message), _why(exc))
+            self._out.refuse(_topic(message), _why(exc))
             return False
 
     def _sort_one(self, message: aiomqtt.Message) -> bool:
@@ -761,10 +620,10 @@ class MqttBridge:
         (the device's own deadman) for a command without a timestamp."""
         if stamp is None:
             return None
-        left = stamp + self.deadman + TIMESTAMP_SKEW - _now()
+        left = stamp + self.deadman + TIMESTAMP_SKEW - epoch_now()
         if left <= 0:
             raise CommandError(
-                f"the command is {_now() - stamp:.3f} s old: its {self.deadman:g} s deadman "
+                f"the command is {epoch_now() - stamp:.3f} s old: its {self.deadman:g} s deadman "
                 "(plus the skew) ran out before it could act"
             )
         return min(self.deadman, left)
@@ -800,7 +659,7 @@ class MqttBridge:
                 if velocity:
                     next_velocity = anyio.current_time() + _VELOCITY_PERIOD
             except Exception as exc:  # any failure is this message's refusal, no more
-                self._refuse(_topic(message), _why(exc))
+                self._out.refuse(_topic(message), _why(exc))
 
     async def _act(self, message: aiomqtt.Message) -> None:
         if self._displaced_by is not None:
@@ -842,7 +701,7 @@ class MqttBridge:
             except aiomqtt.MqttError:
                 raise  # the broker is gone: the bridge ends
             except Exception as exc:  # any failure is this request's refusal, no more
-                self._refuse(_topic(message), _why(exc))
+                self._out.refuse(_topic(message), _why(exc))
 
     async def _request(self, message: aiomqtt.Message) -> None:
         name = message.topic.value.rpartition("/")[2]
