@@ -145,7 +145,7 @@ async def test_detect_record_replay_and_plot(
 ) -> None:
     path = tmp_path / "toy.capture"
     async with ToySimulator() as sim:
-        assert await capture.detect_protocol(sim.port, seconds=2.0) == "toy"
+        assert await capture.detect_device(sim.port, seconds=2.0) == "toy"
         cap = await capture.record(sim.port, path, seconds=0.3)
     assert cap.bytes > 0
     messages = [m for _, m in capture.decode_capture(path, "toy")]

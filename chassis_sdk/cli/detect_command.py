@@ -36,7 +36,7 @@ def _start(args: argparse.Namespace) -> Job:
 
 async def _detect_one(port: str, seconds: float, baudrate: int) -> str:
     try:
-        found = await capture.detect_protocol(port, seconds=seconds, baudrate=baudrate)
+        found = await capture.detect_device(port, seconds=seconds, baudrate=baudrate)
     except ChassisError as exc:
         return str(exc)
     if found is None:

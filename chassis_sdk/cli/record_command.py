@@ -46,7 +46,7 @@ async def record(port: str, path: str, seconds: float, baudrate: int, device: st
         show(f"{n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s{link}", not up)
 
     cap = await capture.record(
-        port, path, seconds=seconds, baudrate=baudrate, progress=progress, protocol=device
+        port, path, seconds=seconds, baudrate=baudrate, progress=progress, device=device
     )
     show.done(
         f"recorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s "

@@ -85,7 +85,7 @@ async def replay_as_device(args: argparse.Namespace) -> None:
     proto = args.device or detect_file(args.file)
     start_after = 0.0 if args.tcp is not None else args.start_after
     finished = anyio.Event()
-    device = capture.CaptureDevice(
+    device = capture.CaptureFirmware(
         args.file, proto, speed=args.speed, start_after=start_after, on_done=finished.set
     )
     total = sum(len(data) for _, data in device.chunks)

@@ -35,12 +35,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Capture",
-    "CaptureDevice",
+    "CaptureFirmware",
     "Progress",
     "capture_columns",
     "decode_capture",
+    "detect_device",
     "detect_in",
-    "detect_protocol",
     "is_mcap",
     "mcap_metadata",
     "read_capture",
@@ -114,7 +114,7 @@ async def record(
     seconds: float,
     baudrate: int = 115200,
     progress: Progress | None = None,
-    protocol: str | None = None,
+    device: str | None = None,
 ) -> Capture:
     """Record what the device sends for ``seconds`` into a capture file; it never
     writes to the port.
@@ -135,34 +135,34 @@ async def record(
         baudrate: Serial speed.
         progress: Called about twice a second, and at once when the link drops or
             comes back, with (bytes so far, seconds so far, link up).
-        protocol: The device's name, for ``.mcap``.
+        device: The device's name, for ``.mcap`` (heard on the port if not given).
 
     Raises:
         PortOpenError: The port cannot be opened at the start.
-        ChassisError: ``.mcap`` without a protocol, and none heard on the port.
-        ValueError: An unknown protocol.
+        ChassisError: ``.mcap`` without a device named, and none heard on the port.
+        ValueError: An unknown device.
     """
     path = Path(path)
-    device: Any = None
+    decoding: Any = None
     if path.suffix.lower() == ".mcap":
-        if protocol is None:
-            protocol = await detect_protocol(port, seconds=2.0, baudrate=baudrate)
-            if protocol is None:
+        if device is None:
+            device = await detect_device(port, seconds=2.0, baudrate=baudrate)
+            if device is None:
                 raise ChassisError(
                     f"no frames of a known device on {port} within 2 s; "
-                    "give its protocol (--protocol) to record MCAP"
+                    "name it (--device) to record MCAP"
                 )
         # The device, never connected: it decodes, integrates and raises events from
         # the bytes this recorder hands it, and its recording holds them all.
-        device = profile(protocol).device(port, baudrate=baudrate)
+        decoding = profile(device).device(port, baudrate=baudrate)
     start = time.monotonic()
     end = start + seconds
     total = chunks = disconnects = 0
     lost = anyio.Event()
     writer: Recording
-    if device is not None:
-        writer = McapRecording(path, device)
-        feed: Callable[[bytes, float], None] = device.feed
+    if decoding is not None:
+        writer = McapRecording(path, decoding)
+        feed: Callable[[bytes, float], None] = decoding.feed
     else:
         writer = JsonlRecording(path, port, baudrate)
         feed = writer.rx
@@ -300,13 +300,13 @@ def mcap_metadata(path: str | Path) -> dict[str, str]:
 
 
 def decode_capture(
-    path: str | Path, protocol: str, *, commands: bool = False
+    path: str | Path, device: str, *, commands: bool = False
 ) -> Iterator[tuple[float, object]]:
     """Decode a capture: yield ``(seconds since start, message)`` in order.
 
     Args:
         path: The capture (JSON lines or MCAP).
-        protocol: The device's name (see :func:`chassis_sdk.devices.profiles`).
+        device: The device's name (see :func:`chassis_sdk.devices.profiles`).
         commands: Decode what the *host* sent instead: the frames written where the
             recording holds them (an application's ``record=``), else the received
             bytes (a capture taken on a tap that sees both directions).
@@ -314,8 +314,8 @@ def decode_capture(
     Raises:
         ValueError: An unknown device, or a file that is not a capture.
     """
-    device = profile(protocol)
-    decoder = device.codec.command_decoder() if commands else device.codec.decoder()
+    spec = profile(device)
+    decoder = spec.codec.command_decoder() if commands else spec.codec.decoder()
     chunks = _chunks(path, commands)
     for t, data in chunks:
         for msg in decoder.feed(data, t):
@@ -333,7 +333,7 @@ def _chunks(path: str | Path, commands: bool) -> Iterator[tuple[float, bytes]]:
     return read_capture(path)
 
 
-def capture_columns(path: str | Path, protocol: str, *, commands: bool = False) -> Columns:
+def capture_columns(path: str | Path, device: str, *, commands: bool = False) -> Columns:
     """Decode a whole capture into arrays (numpy): a column per field, in SI units.
 
     The frames :func:`decode_capture` finds, decoded 10-27 times faster (reading the
@@ -349,7 +349,7 @@ def capture_columns(path: str | Path, protocol: str, *, commands: bool = False) 
 
     Args:
         path: The capture (JSON lines or MCAP).
-        protocol: The device's name (see :func:`chassis_sdk.devices.profiles`).
+        device: The device's name (see :func:`chassis_sdk.devices.profiles`).
         commands: What the host sent instead (see :func:`decode_capture`).
 
     Raises:
@@ -359,8 +359,8 @@ def capture_columns(path: str | Path, protocol: str, *, commands: bool = False) 
         from .columns import decode_joined
     except ImportError:
         raise ValueError("capture_columns needs numpy: pip install 'chassis-sdk[plot]'") from None
-    device = profile(protocol)
-    decoder = device.codec.command_decoder() if commands else device.codec.decoder()
+    spec = profile(device)
+    decoder = spec.codec.command_decoder() if commands else spec.codec.decoder()
     joined = _joined(path, sent=True) if commands else None
     if joined is None or not joined[0]:
         joined = _joined(path, sent=False)
@@ -379,7 +379,7 @@ def _joined(path: str | Path, *, sent: bool) -> tuple[list[float], list[int], by
 
 
 def detect_in(data: bytes) -> str | None:
-    """Which device's protocol ``data`` is in: the one whose decoder finds the most
+    """Which device ``data`` is from: the one whose decoder finds the most
     frames in it (the first registered wins a tie), or ``None`` if none finds any."""
     best, most = None, 0
     for name, device in profiles().items():
@@ -390,7 +390,7 @@ def detect_in(data: bytes) -> str | None:
     return best
 
 
-async def detect_protocol(port: str, *, seconds: float = 1.0, baudrate: int = 115200) -> str | None:
+async def detect_device(port: str, *, seconds: float = 1.0, baudrate: int = 115200) -> str | None:
     """Listen to ``port`` for ``seconds`` and say which device's protocol it speaks
     (a name from :func:`chassis_sdk.devices.profiles`).
 
@@ -415,7 +415,7 @@ async def detect_protocol(port: str, *, seconds: float = 1.0, baudrate: int = 11
     return detect_in(bytes(received))
 
 
-class CaptureDevice:
+class CaptureFirmware:
     """A capture played back as a device: the firmware model of a
     :class:`~chassis_sdk.sim.server.SimulatorServer` that sends the recorded bytes
     at the recorded times (``speed`` times faster), so an unmodified application runs
@@ -428,7 +428,7 @@ class CaptureDevice:
 
     Args:
         path: The capture file.
-        protocol: The device's name, to decode what the application writes.
+        device: The device's name, to decode what the application writes.
         speed: Playback speed (2: twice as fast).
         start_after: Seconds between :meth:`on_connect` and the first chunk.
         on_done: Called once the last chunk has been played.
@@ -437,7 +437,7 @@ class CaptureDevice:
     def __init__(
         self,
         path: str | Path,
-        protocol: str,
+        device: str,
         *,
         speed: float = 1.0,
         start_after: float = 0.0,
@@ -446,7 +446,7 @@ class CaptureDevice:
         self.speed = check_real(speed, "speed", low=0, low_open=True)
         self.chunks = list(read_capture(path))
         self.start_after = float(start_after)
-        self._decoder = profile(protocol).codec.command_decoder()
+        self._decoder = profile(device).codec.command_decoder()
         #: What the application wrote, decoded, in order.
         self.commands: list[object] = []
         #: Bytes the application wrote; bytes and chunks played so far.

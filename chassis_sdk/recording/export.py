@@ -73,7 +73,7 @@ class _Tables:
         return {name: Exported(self.directory / f"{name}.csv", n) for name, n in self.rows.items()}
 
 
-def export_csv(path: str | Path, directory: str | Path, protocol: str) -> dict[str, Exported]:
+def export_csv(path: str | Path, directory: str | Path, device: str) -> dict[str, Exported]:
     """Write one CSV per stream (and per command type) of the capture ``path`` into
     ``directory`` (made if missing). Returns what was written, by name.
 
@@ -82,20 +82,20 @@ def export_csv(path: str | Path, directory: str | Path, protocol: str) -> dict[s
     """
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    spec = profile(protocol)
-    device = spec.device(str(path))  # never connected: it only decodes
+    spec = profile(device)
+    decoding = spec.device(str(path))  # never connected: it only decodes
     tables = _Tables(out)
     now = 0.0
 
     def listener(name: str) -> Any:
         return lambda message: tables.write(name, now, message)
 
-    notifier = Notifier(device)
+    notifier = Notifier(decoding)
     for name in notifier.stream_names:
         notifier.listen(name, listener(name))
     try:
         for now, data in read_capture(path):
-            device.feed(data, now)
+            decoding.feed(data, now)
         decoder = spec.codec.command_decoder()
         for t, data in read_capture(path, sent=True):
             for command in decoder.feed(data, t):
