@@ -23,7 +23,7 @@ __all__ = ["add_parser", "sim"]
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``sim``."""
     p = sub.add_parser("sim", help="run a simulator until Ctrl-C; prints the port to use")
-    p.add_argument("kind", choices=list(names))
+    p.add_argument("device", choices=list(names), help="which device to simulate")
     p.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP instead of a pty")
     for flag, dest, what in (
         ("--noise", "noise", "insert a random byte before a sent byte with this chance"),
@@ -44,7 +44,7 @@ def _start(args: argparse.Namespace) -> Job:
         drop_rate=args.drop,
         reply_delay=args.reply_delay,
     )
-    return sim(profile(args.kind), args.tcp, faults)
+    return sim(profile(args.device), args.tcp, faults)
 
 
 async def sim(device: DeviceProfile, tcp: int | None, faults: LineFaults) -> None:
