@@ -75,11 +75,7 @@ import functools
 import json
 import logging
 import math
-import os
 import re
-import secrets
-import socket
-import time
 from collections.abc import Callable, Coroutine
 from typing import Any
 
@@ -105,7 +101,8 @@ from .inbound import (
 )
 from .inbound import CommandError as CommandError  # re-exported: it was defined here
 from .mqtt_inbox import CommandInbox, install_inbox
-from .mqtt_publish import Publisher, connection_will, epoch_now, state_payload
+from .mqtt_ownership import Ownership, RobotIdTaken, new_owner
+from .mqtt_publish import Publisher, connection_will, epoch_now
 
 __all__ = [
     "CommandError",
@@ -125,24 +122,8 @@ _REQUESTS_MAX = 16
 _VELOCITY_PERIOD = 0.02
 #: Workers answering requests (each may wait for the device for a few seconds).
 _REQUEST_WORKERS = 2
-#: Seconds to wait for the broker to send a bridge's own ``ONLINE`` back at start.
-_ECHO_TIMEOUT = 5.0
-#: Least seconds between two re-publications of ``ONLINE`` (another message appeared
-#: on the connection topic: a racing bridge's, or a stale last will).
-_REASSERT_INTERVAL = 1.0
 #: The disconnect reason that makes the broker publish the last will (MQTT 5 §3.14.2.1).
 _DISCONNECT_WITH_WILL = 0x04
-
-
-def new_owner() -> str:
-    """A new owner id for a bridge: ``host:pid:random``, unique per bridge, and telling
-    an operator where the bridge runs."""
-    return f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(3)}"
-
-
-class RobotIdTaken(ChassisError):
-    """Another bridge holds this robot id: this one refused to start, or it was taken
-    over and stopped its robot. The message names the other bridge's owner."""
 
 
 def _deadman(device: Device[Any, Any]) -> float:
@@ -291,9 +272,6 @@ class MqttBridge:
         self.topic = f"{prefix}/{robot_id}"
         self._base = f"{self.topic}/"
         self.profile: DeviceProfile = profile(device.kind)
-        #: True once this bridge is the robot id's owner on the broker (it has read its
-        #: own ``ONLINE`` back and found no other bridge before it).
-        self.online = False
         #: Commands never acted on for ownership: routed before this bridge's ONLINE,
         #: or after another bridge took over.
         self.dropped = 0
@@ -303,20 +281,27 @@ class MqttBridge:
         # stop in that moment would find the bridge not yet online: no OFFLINE).
         self._request_ready = asyncio.Event()
         self._urgent = asyncio.Event()
-        self._owner_wanted = asyncio.Event()
-        self._online_payload = b""
-        self._echoed = asyncio.Event()
-        self._before: tuple[bytes, dict[str, Any]] | None = None
-        self._displaced_by: str | None = None
-        self._reassert = False
         self._out = Publisher(self, float(report_interval))
         self._inbox = install_inbox(client)
+        self._ownership = Ownership(self, self._out, self._inbox.lanes)
         self._inbox.sort = self._sort
 
     @property
     def rejected(self) -> int:
         """Messages refused so far (each counted; reported on ``errors``, summarised)."""
         return self._out.refusals.total
+
+    @property
+    def online(self) -> bool:
+        """True once this bridge is the robot id's owner on the broker (it has read its
+        own ``ONLINE`` back and found no other bridge before it)."""
+        return self._ownership.online
+
+    @property
+    def _echoed(self) -> asyncio.Event:
+        # Set when the broker sent this bridge's ONLINE back (a test sets it to skip
+        # the claim).
+        return self._ownership.echoed
 
     @property
     def superseded(self) -> int:
@@ -383,62 +368,13 @@ class MqttBridge:
         # KeyboardInterrupt, SystemExit: the process ends.
 
     async def _start(self) -> None:
-        await self._claim()
+        await self._ownership.claim(self._subscribe_commands)
         await self._out.info()
-
-    async def _claim(self) -> None:
-        """Become the robot id's owner, or raise :class:`RobotIdTaken`.
-
-        The bridge publishes its ``ONLINE`` and reads the topic back: the broker sends
-        every subscriber a topic's messages in one order, so the message just before
-        our own is the state we replaced (a retained one, or a racing bridge's claim).
-        """
-        self._online_payload = state_payload("ONLINE", self.owner, take_over=self.take_over)
-        # Retain As Published (MQTT 5 §3.8.3.1): a bridge publishes its state retained,
-        # so a claim or take-over keeps RETAIN 1; a message without it is nobody's.
-        await self.client.subscribe(
-            f"{self.topic}/connection",
-            options=SubscribeOptions(qos=1, retainAsPublished=True),
-        )
-        await self._subscribe_commands()  # held until the claim is settled (see _sort)
-        await self._out.publish("connection", self._online_payload, qos=1, retain=True)
-        try:
-            with anyio.fail_after(_ECHO_TIMEOUT):
-                await self._echoed.wait()
-        except TimeoutError:
-            raise ChassisError(
-                f"{self.topic}/connection: the broker did not send this bridge's ONLINE "
-                f"back within {_ECHO_TIMEOUT:g} s (may its user read that topic? see "
-                "docs/mqtt.md, Access control)"
-            ) from None
-        other = self._other_owner(self._before)
-        if other is not None and not self.take_over:
-            assert self._before is not None
-            self._inbox.lanes.clear()  # none of them is ours to act on
-            raw, state = self._before
-            # Ours replaced theirs as the retained state: put it back before leaving.
-            await self._out.publish("connection", raw, qos=1, retain=True)
-            since = state.get("timestamp")
-            when = f" since {_clock(since)}" if isinstance(since, int | float) else ""
-            raise RobotIdTaken(
-                f"{self.topic} is already bridged by {other} (ONLINE{when}); stop that "
-                "bridge first, or start this one with --take-over (take_over=True)"
-            )
-        self.online = True
-
-    def _other_owner(self, seen: tuple[bytes, dict[str, Any]] | None) -> str | None:
-        """The owner of ``seen`` if it says another bridge is ONLINE."""
-        if seen is None or seen[1].get("state") != "ONLINE":
-            return None
-        owner = seen[1].get("owner")
-        if owner == self.owner:
-            return None  # our own, from before a reconnect
-        return str(owner)[:100] if owner is not None else "a bridge without an owner id"
 
     def _loops(self) -> list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]]:
         loops: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]] = [
             ("commands", self._commands),
-            ("owner", self._ownership),
+            ("owner", self._ownership.watch),
             ("errors", self._out.reporter),
             ("link", self._out.link_states),
             ("events", self._events),
@@ -489,25 +425,6 @@ class MqttBridge:
             )
         await self.client.subscribe(f"{self.topic}/request/+", qos=0)
 
-    async def _ownership(self) -> None:
-        """End the bridge when another one took over; say ``ONLINE`` again when
-        something else was published on the connection topic (a racing bridge's
-        claim, or a stale last will)."""
-        last = -math.inf
-        while True:
-            await self._owner_wanted.wait()
-            self._owner_wanted.clear()
-            if self._displaced_by is not None:
-                raise RobotIdTaken(
-                    f"{self.topic} was taken over by {self._displaced_by}: this bridge "
-                    "stopped its robot and takes no more commands"
-                )
-            if self._reassert:
-                await anyio.sleep(max(0.0, last + _REASSERT_INTERVAL - anyio.current_time()))
-                self._reassert = False
-                last = anyio.current_time()
-                await self._out.publish("connection", self._online_payload, qos=1, retain=True)
-
     # --- in ----------------------------------------------------------------------------
 
     def _sort(self, message: aiomqtt.Message) -> bool:
@@ -525,7 +442,7 @@ class MqttBridge:
             return False  # not ours (a wider subscription of the user's)
         sub = topic[len(self._base) :]
         if sub == "connection":
-            self._on_connection(message)
+            self._ownership.on_connection(message)
             return False
         kind, _, name = sub.partition("/")
         lanes = self._inbox.lanes
@@ -540,7 +457,7 @@ class MqttBridge:
             return False
         if kind != "cmd" or self.read_only or "/" in name:
             return False
-        if self._displaced_by is not None:
+        if self._ownership.displaced_by is not None:
             self.dropped += 1  # another bridge owns the robot id now
             return False
         if message.retain:
@@ -565,38 +482,6 @@ class MqttBridge:
             return lanes.put_velocity(message)
         self._urgent.set()  # a velocity command held for its period gives way
         return lanes.put_urgent(lane, message)
-
-    def _on_connection(self, message: aiomqtt.Message) -> None:
-        raw = message.payload if isinstance(message.payload, bytes) else b""
-        if raw == self._online_payload and raw:
-            self._echoed.set()
-            return
-        if not message.retain:
-            # Every bridge publishes its state retained: a message without RETAIN is
-            # not a bridge's claim, and one of them must not end this bridge (it
-            # would leave the robot id ONLINE with nobody behind it). Refused, and
-            # reported on errors like any other (rate-limited).
-            raise CommandError(
-                "a connection message that is not retained is ignored (a bridge publishes "
-                "its state retained)"
-            )
-        try:
-            state = command_object(raw)
-        except CommandError:
-            state = {}
-        if not self._echoed.is_set():
-            self._before = (raw, state)  # the state our ONLINE is about to replace
-            return
-        owner = state.get("owner")
-        taking = state.get("state") == "ONLINE" and state.get("take_over") is True
-        if taking and owner != self.owner:
-            # In the broker's order: every command routed to the new bridge comes
-            # after this, so from here on none is acted on here.
-            self._displaced_by = str(owner)[:100]
-            self._inbox.lanes.clear_motion()
-        elif self.online:
-            self._reassert = True
-        self._owner_wanted.set()
 
     def _check_time(self, payload: dict[str, Any]) -> float | None:
         """The command's timestamp (epoch seconds), checked fresh; ``None`` if none."""
@@ -662,7 +547,7 @@ class MqttBridge:
                 self._out.refuse(_topic(message), _why(exc))
 
     async def _act(self, message: aiomqtt.Message) -> None:
-        if self._displaced_by is not None:
+        if self._ownership.displaced_by is not None:
             self.dropped += 1
             return
         name = message.topic.value.rpartition("/")[2]
@@ -728,12 +613,6 @@ def _topic(message: aiomqtt.Message) -> str:
     with contextlib.suppress(Exception):
         return str(message.topic.value)[:200]
     return "?"
-
-
-def _clock(stamp: float) -> str:
-    with contextlib.suppress(ValueError, OverflowError, OSError):
-        return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(stamp))
-    return repr(stamp)
 
 
 def _first_error(group: BaseExceptionGroup[BaseException]) -> BaseException:
