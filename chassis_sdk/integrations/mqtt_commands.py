@@ -1,0 +1,347 @@
+"""A bridge's command side: what it does with the messages it takes in.
+
+Each message is sorted as paho hands it over (:meth:`Commands.sort`, the
+:class:`~chassis_sdk.integrations.mqtt_inbox.CommandInbox`'s ``sort``), in bounded
+work, before anything waits: junk, a retained command, a stale one, an unknown topic
+is refused there and then (counted, reported on ``errors``), never queued; stops and
+e-stops take their lane (and cancel the velocity command before them), a velocity
+command the one slot, a request the short queue its workers serve. Then
+:meth:`Commands.consume` acts on the commands in the inbox's order (at most one
+velocity command per period, each one command under the device's deadman), and
+:meth:`Commands.answer_requests` answers the requests (MQTT 5 request/response), so a
+slow request never holds a command up. Nothing is acted on before the bridge owns the
+robot id, nor after another bridge took it over
+(:class:`~chassis_sdk.integrations.mqtt_ownership.Ownership`).
+
+:class:`Commands` is :class:`~chassis_sdk.integrations.mqtt.MqttBridge`'s collaborator
+for this: it reads the bridge's client, device, profile and options (``read_only``,
+``require_timestamp``, ``max_age``, ``deadman``) as they are when it acts.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import re
+from typing import TYPE_CHECKING, Any
+
+import aiomqtt
+import anyio
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from paho.mqtt.subscribeoptions import SubscribeOptions
+
+from ..core.plain import plain
+from ..core.validation import check_real
+from ..errors import ChassisError
+from .inbound import TIMESTAMP_SKEW, CommandError, check_fresh, command_object, command_time
+from .mqtt_inbox import Lanes
+from .mqtt_ownership import Ownership
+from .mqtt_publish import Publisher, epoch_now
+
+if TYPE_CHECKING:
+    from .mqtt import MqttBridge
+
+__all__ = ["REQUEST_WORKERS", "Commands"]
+
+#: Requests pending; more are refused (a request is answered or refused, never late).
+_REQUESTS_MAX = 16
+#: Workers answering requests (each may wait for the device for a few seconds).
+REQUEST_WORKERS = 2
+
+
+def _number(payload: dict[str, Any], key: str) -> float:
+    try:
+        return check_real(payload.get(key), repr(key))
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+
+
+def _why(exc: Exception) -> str:
+    """One line saying why a message was refused, whatever went wrong with it."""
+    if isinstance(exc, CommandError):
+        text = str(exc)
+    elif isinstance(exc, ChassisError):
+        text = f"the device refused it: {exc}"
+    elif isinstance(exc, ValueError):
+        text = str(exc)
+    else:  # a failure nobody foresaw is still only this message's refusal
+        text = f"{type(exc).__name__} while handling it: {exc}"
+    return " ".join(text.split())[:300] or type(exc).__name__
+
+
+#: ``{prefix}/{id}/cmd/...`` and ``{prefix}/{id}/request/...`` of any robot: never a
+#: response topic, or a request could command a robot (its own or another).
+_COMMAND_TREE = re.compile(r"^[^/]+/[^/]+/(cmd|request)(/|$)")
+#: The subtrees of a robot under the bridge's prefix: what a bridge publishes or takes
+#: there (a reply must not forge a robot's state, nor command one).
+_ROBOT_TREES = ("connection", "cmd", "request", "errors", "info", "link", "telemetry", "events")
+#: The longest response topic and correlation data answered (bytes): a reply is small,
+#: and a request must not make the bridge publish (or hold) much more than it sent.
+_MAX_RESPONSE_TOPIC = 1024
+_MAX_CORRELATION = 1024
+
+
+def _check_response_topic(topic: object, prefix: str = "robots") -> str:
+    """A response topic the bridge may publish to (MQTT 5 §3.3.2.3.5, §4.7): at most
+    1024 bytes, no wildcard, and never in a robot's subtree under ``prefix``."""
+    if not isinstance(topic, str) or not topic:
+        raise CommandError("a request needs an MQTT 5 response topic")
+    if "#" in topic or "+" in topic:
+        raise CommandError("the response topic has a wildcard ('#' or '+'; MQTT 5 §3.3.2.3.5)")
+    size = len(topic.encode(errors="replace"))
+    if size > _MAX_RESPONSE_TOPIC:
+        raise CommandError(
+            f"the response topic is {size} bytes; at most {_MAX_RESPONSE_TOPIC} are answered"
+        )
+    if "\x00" in topic or topic.startswith("$"):
+        raise CommandError("the response topic is not a topic a client may publish to")
+    if _COMMAND_TREE.match(topic):
+        raise CommandError("the response topic is a command or request topic")
+    levels = topic.split("/")
+    if len(levels) >= 3 and levels[0] == prefix and levels[2] in _ROBOT_TREES:
+        raise CommandError(
+            f"the response topic is in a robot's {levels[2]!r} subtree under {prefix!r}/"
+        )
+    return topic
+
+
+def _check_correlation(data: object) -> bytes | None:
+    """The correlation data to send back, at most 1024 bytes (``None``: there is none)."""
+    if data is None:
+        return None
+    if not isinstance(data, bytes | bytearray):
+        raise CommandError(f"the correlation data is {type(data).__name__}, not bytes")
+    if len(data) > _MAX_CORRELATION:
+        raise CommandError(
+            f"the correlation data is {len(data)} bytes; at most {_MAX_CORRELATION} are answered"
+        )
+    return bytes(data)
+
+
+def _topic(message: aiomqtt.Message) -> str:
+    with contextlib.suppress(Exception):
+        return str(message.topic.value)[:200]
+    return "?"
+
+
+class Commands:
+    """A bridge's command side: sorting what comes in, acting on the commands and
+    answering the requests (see the module docstring)."""
+
+    def __init__(
+        self, bridge: MqttBridge, publisher: Publisher, ownership: Ownership, lanes: Lanes
+    ) -> None:
+        self._bridge = bridge
+        self._out = publisher
+        self._ownership = ownership
+        self._lanes = lanes
+        self._base = f"{bridge.topic}/"
+        #: Commands never acted on for ownership: routed before this bridge's ONLINE,
+        #: or after another bridge took over.
+        self.dropped = 0
+        # asyncio's events, not anyio's: these wake-ups are cleared by the loop they
+        # wake (anyio's cannot be).
+        self._request_ready = asyncio.Event()
+        self._urgent = asyncio.Event()
+
+    async def subscribe(self) -> None:
+        """Subscribe to the commands (unless read-only) and the requests."""
+        bridge = self._bridge
+        # QoS 0 and a clean session: a command is never kept for later. Retain As
+        # Published (MQTT 5 §3.8.3.1): a live retained command keeps RETAIN 1, so it is
+        # refused like a stored one (without it the broker clears the flag).
+        if not bridge.read_only:
+            await bridge.client.subscribe(
+                f"{bridge.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
+            )
+        await bridge.client.subscribe(f"{bridge.topic}/request/+", qos=0)
+
+    def sort(self, message: aiomqtt.Message) -> bool:
+        """Sort one message as it arrives (in paho's read callback): refuse it, act on
+        it (the connection topic), or leave it in its lane. Never raises."""
+        try:
+            return self._sort_one(message)
+        except Exception as exc:  # any failure is this message's refusal, no more
+            self._out.refuse(_topic(message), _why(exc))
+            return False
+
+    def _sort_one(self, message: aiomqtt.Message) -> bool:
+        topic = message.topic.value
+        if not topic.startswith(self._base):
+            return False  # not ours (a wider subscription of the user's)
+        sub = topic[len(self._base) :]
+        if sub == "connection":
+            self._ownership.on_connection(message)
+            return False
+        kind, _, name = sub.partition("/")
+        lanes = self._lanes
+        if kind == "request" and name and "/" not in name:
+            if not self._ownership.echoed.is_set():
+                self.dropped += 1  # as a command: the previous owner answers it
+                return False
+            if len(lanes.requests) >= _REQUESTS_MAX:
+                raise CommandError(f"{_REQUESTS_MAX} requests are pending already")
+            lanes.requests.append(message)
+            self._request_ready.set()
+            return False
+        if kind != "cmd" or self._bridge.read_only or "/" in name:
+            return False
+        if self._ownership.displaced_by is not None:
+            self.dropped += 1  # another bridge owns the robot id now
+            return False
+        if message.retain:
+            raise CommandError("a retained command is never acted on (it would be stale)")
+        if name == "velocity":
+            self._velocity_of(message)  # junk and stale ones never take the slot
+            lane = "velocity"
+        elif name == "stop":
+            lane = "stop"
+        elif name == "estop":
+            lane = "engage" if self._estop_of(message) else "release"
+        else:
+            raise CommandError(f"unknown command {name[:40]!r}: velocity, stop or estop")
+        if not self._ownership.echoed.is_set():
+            # Routed before our ONLINE, in the broker's order: it may have reached the
+            # bridge that owned the robot id until then. Those after it are held until
+            # the claim is settled (the consumer starts only then; a lost claim clears
+            # them), so the robot is commanded from the moment ONLINE is seen.
+            self.dropped += 1
+            return False
+        if lane == "velocity":
+            return lanes.put_velocity(message)
+        self._urgent.set()  # a velocity command held for its period gives way
+        return lanes.put_urgent(lane, message)
+
+    def _check_time(self, payload: dict[str, Any]) -> float | None:
+        """The command's timestamp (epoch seconds), checked fresh; ``None`` if none."""
+        stamp = payload.get("timestamp")
+        if stamp is None:
+            if self._bridge.require_timestamp:
+                raise CommandError("the command has no 'timestamp', and this bridge requires one")
+            return None
+        seconds = command_time(stamp)
+        check_fresh(seconds, self._bridge.max_age)
+        return seconds
+
+    def _velocity_of(self, message: aiomqtt.Message) -> tuple[float, float, float | None]:
+        payload = command_object(message.payload)
+        linear, angular = _number(payload, "linear"), _number(payload, "angular")
+        return linear, angular, self._check_time(payload)
+
+    def _hold(self, stamp: float | None) -> float | None:
+        """How long a velocity command stamped ``stamp`` may hold from now: until its
+        stamp plus the deadman (plus the skew), never longer than the deadman; ``None``
+        (the device's own deadman) for a command without a timestamp."""
+        if stamp is None:
+            return None
+        deadman = self._bridge.deadman
+        left = stamp + deadman + TIMESTAMP_SKEW - epoch_now()
+        if left <= 0:
+            raise CommandError(
+                f"the command is {epoch_now() - stamp:.3f} s old: its {deadman:g} s deadman "
+                "(plus the skew) ran out before it could act"
+            )
+        return min(deadman, left)
+
+    def _estop_of(self, message: aiomqtt.Message) -> bool:
+        payload = command_object(message.payload)
+        engaged = payload.get("engaged")
+        if not isinstance(engaged, bool):
+            raise CommandError(f"'engaged' must be true or false, got {str(engaged)[:40]!r}")
+        if not engaged:
+            self._check_time(payload)  # a release is as late-sensitive as a velocity
+        return engaged
+
+    async def consume(self, period: float) -> None:
+        """Act on the commands as the inbox serves them: stops and e-stops first, at
+        most one velocity command per ``period`` (the newest)."""
+        lanes = self._lanes
+        next_velocity = -math.inf
+        async for message in self._bridge.client.messages:
+            try:
+                velocity = message.topic.value.endswith("/cmd/velocity")
+                wait = next_velocity - anyio.current_time()
+                if velocity and wait > 0:
+                    # At most one velocity command per period reaches the device, the
+                    # newest: the work (and the serial line) stays bounded whatever
+                    # the rate. It waits in its slot, where a newer one replaces it
+                    # and a stop or e-stop cancels it and is served at once.
+                    lanes.put_back(message)  # dropped if a stop came after it
+                    self._urgent.clear()
+                    if not lanes.urgent:
+                        with anyio.move_on_after(wait):
+                            await self._urgent.wait()
+                    continue
+                await self._act(message)
+                if velocity:
+                    next_velocity = anyio.current_time() + period
+            except Exception as exc:  # any failure is this message's refusal, no more
+                self._out.refuse(_topic(message), _why(exc))
+
+    async def _act(self, message: aiomqtt.Message) -> None:
+        if self._ownership.displaced_by is not None:
+            self.dropped += 1
+            return
+        bridge = self._bridge
+        name = message.topic.value.rpartition("/")[2]
+        if name == "velocity":
+            if not self._lanes.current(message):
+                # A stop or e-stop was sorted after it (while it was out of its slot):
+                # it must never act after that stop.
+                self._lanes.superseded += 1
+                return
+            # Checked again: it may have waited (a little) for a stop to be served.
+            linear, angular, stamp = self._velocity_of(message)
+            # One command under the deadman, counted from when it was sent: a stamped
+            # command holds until its stamp plus command_timeout, no longer (a newer
+            # one replaces it). Nothing awaits between the epoch's check and the write
+            # (set_velocity writes before its first await), so no stop comes between.
+            await bridge.device.set_velocity(linear, angular, duration=self._hold(stamp))
+        elif name == "stop":
+            await bridge.device.stop()
+        elif name == "estop":
+            engaged = self._estop_of(message)
+            device: Any = bridge.device
+            if not hasattr(device, "emergency_stop"):
+                await bridge.device.stop()
+                raise CommandError(f"a {bridge.profile.name} has no e-stop; it was stopped")
+            await (device.emergency_stop() if engaged else device.release_emergency_stop())
+
+    async def answer_requests(self) -> None:
+        """Answer the requests as they come (one of the bridge's request workers)."""
+        requests = self._lanes.requests
+        while True:
+            while not requests:
+                self._request_ready.clear()
+                await self._request_ready.wait()
+            message = requests.popleft()
+            try:
+                await self._request(message)
+            except aiomqtt.MqttError:
+                raise  # the broker is gone: the bridge ends
+            except Exception as exc:  # any failure is this request's refusal, no more
+                self._out.refuse(_topic(message), _why(exc))
+
+    async def _request(self, message: aiomqtt.Message) -> None:
+        bridge = self._bridge
+        name = message.topic.value.rpartition("/")[2]
+        props = message.properties
+        response = _check_response_topic(getattr(props, "ResponseTopic", None), bridge.prefix)
+        correlation = _check_correlation(getattr(props, "CorrelationData", None))
+        reply = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
+        if correlation is not None:
+            reply.CorrelationData = correlation
+        known = bridge.profile.remote.requests
+        if name not in known:
+            body: dict[str, Any] = {
+                "error": f"unknown request {name[:40]!r}; known: {', '.join(known)}"
+            }
+        else:
+            try:
+                body = {"result": plain(await getattr(bridge.device, name)())}
+            except ChassisError as exc:
+                body = {"error": str(exc)}
+        await bridge.client.publish(response, json.dumps(body).encode(), properties=reply)
