@@ -35,6 +35,8 @@ import struct
 import termios
 from typing import TYPE_CHECKING, Any
 
+import anyio
+
 if TYPE_CHECKING:
     from .transport import Link
 
@@ -68,7 +70,7 @@ async def wait_lingering(timeout: float | None = None) -> None:
     (nothing stale is ever sent either way).
     """
     loop = asyncio.get_running_loop()
-    async with asyncio.timeout(timeout):
+    with anyio.fail_after(timeout):
         while mine := [closing for (lp, _), closing in _lingering.items() if lp is loop]:
             await mine[0].lingered()
 
@@ -121,11 +123,10 @@ class Linger:
         """Wait (at most ``limit`` s) until everything written has left; return whether
         it has."""
         link = self._link
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(limit):
-                await link.drain(limit)
-                while self._kernel_pending() and link.transport is not None:  # noqa: ASYNC110
-                    await asyncio.sleep(_LINGER_POLL)  # (the kernel's queue has no event)
+        with anyio.move_on_after(limit):
+            await link.drain(limit)
+            while self._kernel_pending() and link.transport is not None:  # noqa: ASYNC110
+                await anyio.sleep(_LINGER_POLL)  # (the kernel's queue has no event)
         return self._is_out()
 
     def _flush_output(self) -> bool:
@@ -185,8 +186,8 @@ class Linger:
             transport.close()
             return True
         transport.write_eof()
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(asyncio.shield(link.closed), wait)
+        with anyio.move_on_after(wait):
+            await asyncio.shield(link.closed)  # a future of the transport's: never cancelled
         return link.closed.done()
 
     def _give_up(self) -> None:
@@ -261,7 +262,8 @@ class Linger:
         link = self._link
         if not link.closed.done():
             try:
-                await asyncio.wait_for(asyncio.shield(link.closed), timeout)
+                with anyio.fail_after(timeout):
+                    await asyncio.shield(link.closed)
             except TimeoutError:
                 if link.transport is not None:  # stuck: never leave it open
                     link._log.warning("port did not close within %.1f s; aborted", timeout)
@@ -289,10 +291,8 @@ class Linger:
                     )
                     self._give_up()
             elif not link.closed.done():  # half-closed: the peer has it all; let it close
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(
-                        asyncio.shield(link.closed), max(deadline - loop.time(), 0.0)
-                    )
+                with anyio.move_on_after(max(deadline - loop.time(), 0.0)):
+                    await asyncio.shield(link.closed)
             transport = link.transport
             if transport is not None and not transport.is_closing():
                 link._log.info("the peer kept the connection open after the final zero")

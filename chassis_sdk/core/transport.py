@@ -76,6 +76,7 @@ import urllib.parse
 from collections.abc import Callable
 from typing import Any, Generic, Protocol, TypeVar, cast
 
+import anyio
 import serial
 
 from ..errors import PortOpenError
@@ -449,7 +450,7 @@ class Link(asyncio.Protocol, Generic[M]):
             True if everything left; False if something is still held.
         """
         try:
-            async with asyncio.timeout(timeout):
+            with anyio.fail_after(timeout):
                 while not self._is_flushed():
                     self._flushed = waiter = self._loop.create_future()
                     try:
@@ -665,7 +666,7 @@ async def open_link(
     transport: asyncio.BaseTransport | None = None
     earlier = lingering(loop, url)
     try:
-        async with asyncio.timeout(timeout):
+        with anyio.fail_after(timeout):
             if earlier is not None:
                 # The previous link's final zero still waits for the device: it must be
                 # the last frame of that session, so this open waits for it (bounded).
