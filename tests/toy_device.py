@@ -183,7 +183,7 @@ class Toy(Device[ToyMessage, int]):
     """The toy base: ``set_velocity``/``stop`` (from :class:`Device`), :meth:`ping`,
     and :meth:`telemetry`. Options are those of every device."""
 
-    kind = "toy"
+    device_name = "toy"
 
     def _make_decoder(self) -> ToyDecoder:
         return ToyDecoder()

@@ -111,10 +111,10 @@ async def first_frame(device: Device[Any, Any], timeout: float, what: str) -> No
 def _wrong_protocol(device: Device[Any, Any]) -> None:
     from ..devices import profiles
 
-    others = [name for name in profiles() if name != device.kind] or ["different device"]
+    others = [name for name in profiles() if name != device.device_name] or ["different device"]
     raise WrongProtocolError(
         f"{device.stats.bytes_received} bytes arrived on {device.port} but none is a "
-        f"{device.kind} frame: is it a {' or a '.join(others)}? Try --device "
+        f"{device.device_name} frame: is it a {' or a '.join(others)}? Try --device "
         f"{others[0]}, or `chassis-sdk detect`"
     )
 

@@ -315,7 +315,7 @@ class Device(Session[M, K]):
                 received = self._decoder.stats.bytes_received
                 if received:
                     raise ProtocolError(
-                        f"{received} bytes arrived on {self.port} but none is a {self.kind} "
+                        f"{received} bytes arrived on {self.port} but none is a {self.device_name} "
                         "frame: is it another device, or the wrong baud rate?"
                     )
                 raise RequestTimeoutError(
@@ -343,7 +343,7 @@ class Device(Session[M, K]):
         """A :class:`Diagnosis` (``cls``: it or a device's subclass, with what was
         ``read`` for it) of these findings, now."""
         return cls(
-            self.kind,
+            self.device_name,
             self.port,
             self._link.state,
             self.stats,

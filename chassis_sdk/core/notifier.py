@@ -71,7 +71,7 @@ class Notifier:
         found = named.get(stream)
         if found is None:
             raise ValueError(
-                f"{self.device.kind} has no stream {stream!r}; it has: {', '.join(named)}"
+                f"{self.device.device_name} has no stream {stream!r}; it has: {', '.join(named)}"
             )
         self._listeners.append(found.listen(callback))
 

@@ -133,7 +133,7 @@ class Session(abc.ABC, Generic[M, K]):
     """
 
     #: The device's profile name, as ``Diagnosis.device`` and the CLI say it.
-    kind: ClassVar[str] = "device"
+    device_name: ClassVar[str] = "device"
 
     def __init__(
         self,
@@ -390,7 +390,7 @@ class Session(abc.ABC, Generic[M, K]):
             d = self._decoder.stats
             if d.bytes_received and not d.frames:
                 raise RequestTimeoutError(
-                    f"{exc}; {d.bytes_received} bytes arrived but none is a {self.kind} "
+                    f"{exc}; {d.bytes_received} bytes arrived but none is a {self.device_name} "
                     "frame (another device on the port, or the wrong baud rate?)"
                 ) from None
             raise

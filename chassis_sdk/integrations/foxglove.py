@@ -197,7 +197,7 @@ class FoxgloveServer:
         self.record = Path(record) if record is not None else None
         if self.record is not None and self.record.suffix.lower() != ".mcap":
             raise ValueError(f"record must name a .mcap file, got {str(record)!r}")
-        self.name = name or f"chassis-sdk {device.kind} {device.port}"
+        self.name = name or f"chassis-sdk {device.device_name} {device.port}"
         self._context = foxglove.Context()
         self._sink: FoxgloveSink | None = None
         self._server: Any = None

@@ -200,7 +200,7 @@ class MqttBridge:
         self.require_timestamp = require_timestamp
         self.max_age = float(max_age)
         self.topic = f"{prefix}/{robot_id}"
-        self.profile: DeviceProfile = profile(device.kind)
+        self.profile: DeviceProfile = profile(device.device_name)
         # Its collaborators, by job: what it publishes, who owns the robot id, and
         # what it does with what comes in (sorted into the inbox's lanes as it comes).
         self._out = Publisher(self, float(report_interval))

@@ -134,7 +134,7 @@ def session_metadata(device: Device[Any, Any]) -> dict[str, str]:
     from ..core.transport import backend_name
 
     return {
-        "device": device.kind,
+        "device": device.device_name,
         "device_class": f"{type(device).__module__}.{type(device).__qualname__}",
         "port": device.port,
         "baudrate": str(device.baudrate),
@@ -178,7 +178,7 @@ class FoxgloveSink:
         self._fg, self._fm = foxglove, fm
         self._context = context
         self.device = device
-        name = device.kind
+        name = device.device_name
         self._prefix = f"/{name}"
         # Monotonic seconds -> epoch nanoseconds, fixed once per session.
         self._epoch_offset = time.time_ns() - int(time.monotonic() * _NS)
@@ -261,7 +261,7 @@ class FoxgloveSink:
         if decoder is not None:
             for command in decoder.feed(data, now):
                 if self._commands is None:
-                    name = f"chassis_sdk.{self.device.kind}.Command"
+                    name = f"chassis_sdk.{self.device.device_name}.Command"
                     self._commands = self._json_channel("commands", {"type": "object"}, name)
                 payload = {"type": type(command).__name__, **_fields(command)}
                 self._json(self._commands, payload, now)
@@ -281,7 +281,7 @@ class FoxgloveSink:
             channel = self._channels.get(stream)
             if channel is None:
                 channel = self._channels[stream] = self._json_channel(
-                    stream, _message_schema(msg), _schema_name(self.device.kind, msg)
+                    stream, _message_schema(msg), _schema_name(self.device.device_name, msg)
                 )
             self._json(channel, _fields(msg), now)
             if stream == "odometry":
@@ -342,7 +342,7 @@ class FoxgloveSink:
                 timestamp=self._stamp(getattr(event, "timestamp", 0.0) or now),
                 level=level,
                 message=str(event),
-                name=f"{self.device.kind} {self.device.port}",
+                name=f"{self.device.device_name} {self.device.port}",
             ),
             log_time=self._ns(now),
         )

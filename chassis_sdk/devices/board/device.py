@@ -71,7 +71,7 @@ class Board(Device[BoardMessage, _Key]):
         ...             print(sample.accel.z)
     """
 
-    kind = "board"
+    device_name = "board"
 
     def _init_protocol(self) -> None:
         self._encoder = BoardEncoder()

@@ -89,7 +89,7 @@ class Chassis(ChassisCommands):
         ValueError: An option is out of range.
     """
 
-    kind = "chassis"
+    device_name = "chassis"
     _decoder: ChassisDecoder
 
     def _init_protocol(self) -> None:
