@@ -36,7 +36,7 @@ import aiomqtt
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
-from tests.mqtt_broker import Mosquitto
+from tests.support.mqtt_broker import Mosquitto
 
 BRIDGES = Path(__file__).with_name("_bridges.py")
 RATE = 10.0

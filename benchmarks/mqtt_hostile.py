@@ -8,7 +8,7 @@ much memory the bridge takes meanwhile.
 The bridge is the real ``chassis-sdk bridge`` in a process of its own, of whichever
 ``chassis_sdk`` ``PYTHONPATH`` names (this checkout by default), on a simulated chassis
 on a pty in this process, with mosquitto on loopback. The flood comes from
-``tests/mqtt_flood.py`` in a third process (raw MQTT 5 PUBLISH packets at QoS 0,
+``tests/support/mqtt_flood.py`` in a third process (raw MQTT 5 PUBLISH packets at QoS 0,
 127.0.0.1 only, bounded in count and time). Printed, each beside its floor and goal:
 
 * velocity flood (``rate``/s valid ``cmd/velocity`` for ``seconds``): from the last
@@ -54,7 +54,7 @@ from chassis_sdk.sim import ChassisSimulator  # noqa: E402
 
 
 def _load(name: str) -> Any:  # the tests' helpers of this checkout, whatever PYTHONPATH says
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tests" / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tests" / "support" / f"{name}.py")
     assert spec is not None
     assert spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -63,7 +63,7 @@ def _load(name: str) -> Any:  # the tests' helpers of this checkout, whatever PY
 
 
 Mosquitto = _load("mqtt_broker").Mosquitto
-FLOOD = ROOT / "tests" / "mqtt_flood.py"
+FLOOD = ROOT / "tests" / "support" / "mqtt_flood.py"
 DEADMAN = 0.5
 #: The checkout this process imported: the bridge runs the same one.
 CHECKOUT = Path(chassis_sdk.__file__).resolve().parent.parent

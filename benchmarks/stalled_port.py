@@ -22,7 +22,7 @@ child process with ``CHASSIS_SDK_BACKEND`` set):
   message (from the simulator's write to the SDK's receipt) and how many frames came in
   the first 30 ms (the floor: a fresh line gives 30).
 
-The scenarios and stand-ins are the tests' own (tests/stalls.py, loaded from this
+The scenarios and stand-ins are the tests' own (tests/support/stalls.py, loaded from this
 checkout by path), so an older ``chassis_sdk`` first on ``PYTHONPATH`` is measured in
 the same scenarios against the same devices.
 """
@@ -54,12 +54,12 @@ TIMEOUT = 0.3
 
 
 def _scenarios() -> Any:
-    """tests/stalls.py (and the stand-ins it uses) from this checkout, as the package
-    ``_tests``: an older checkout on ``PYTHONPATH`` has its own ``tests``."""
+    """tests/support/stalls.py (and the stand-ins it uses) from this checkout, as the
+    package ``_tests``: an older checkout on ``PYTHONPATH`` has its own ``tests``."""
     if "_tests.stalls" not in sys.modules:
-        tests = ROOT / "tests"
+        support = ROOT / "tests" / "support"
         spec = importlib.util.spec_from_file_location(
-            "_tests", tests / "__init__.py", submodule_search_locations=[str(tests)]
+            "_tests", support / "__init__.py", submodule_search_locations=[str(support)]
         )
         assert spec is not None
         assert spec.loader is not None

@@ -13,7 +13,7 @@ import pytest
 
 from chassis_sdk import Board, Chassis, MotionLimits
 
-from .standin import BoardStandIn, ChassisStandIn, drive_frames
+from .support.standin import BoardStandIn, ChassisStandIn, drive_frames
 
 BAD = [
     pytest.param(float("nan"), id="nan"),

@@ -13,7 +13,7 @@ import pytest
 from chassis_sdk import Board, Motor, RequestTimeoutError
 from chassis_sdk.sim import BoardSimulator
 
-from .standin import BoardStandIn, Received
+from .support.standin import BoardStandIn, Received
 
 
 def velocity_frames(frames: list[Received]) -> list[Received]:

@@ -28,7 +28,7 @@ from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .mqtt_broker import Broker, broker
+from .support.mqtt_broker import Broker, broker
 
 ROOT = Path(__file__).resolve().parent.parent
 V5 = aiomqtt.ProtocolVersion.V5

@@ -4,7 +4,7 @@ robot driving nor holds an e-stop up, stale commands are refused, two bridges ne
 drive for one robot id, retained commands are refused, the password file is handled
 as ssh would, and JSON that is not quite JSON is refused.
 
-Floods come from ``tests/mqtt_flood.py`` in a process of its own, bounded in count and
+Floods come from ``tests/support/mqtt_flood.py`` in a process of its own, bounded in count and
 time, to 127.0.0.1 only. Where timing is measured on the wire, the bridge runs as the
 real ``chassis-sdk bridge`` in a process of its own too, as in the field.
 """
@@ -37,7 +37,7 @@ from chassis_sdk.integrations.mqtt import MqttBridge, RobotIdTaken
 from chassis_sdk.protocol import CommandId, DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
-from .mqtt_broker import Broker, broker
+from .support.mqtt_broker import Broker, broker
 from .test_bridge import Observer, bridge_client, drives, request, wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -136,7 +136,7 @@ async def flood(
     b: Broker, topic: str, *, kind: str, rate: float = 10_000, seconds: float = 2.0
 ) -> asyncio.subprocess.Process:
     return await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "tests.mqtt_flood", str(b.port), topic,
+        sys.executable, "-m", "tests.support.mqtt_flood", str(b.port), topic,
         "--rate", str(rate), "--seconds", str(seconds), "--kind", kind,
         cwd=ROOT, stdout=asyncio.subprocess.PIPE,
     )  # fmt: skip

@@ -26,7 +26,13 @@ from chassis_sdk import (
 )
 from chassis_sdk.sim import ChassisSimulator
 
-from .standin import ChassisStandIn, Received, drive_frames, is_zero_drive, last_drive_is_zero
+from .support.standin import (
+    ChassisStandIn,
+    Received,
+    drive_frames,
+    is_zero_drive,
+    last_drive_is_zero,
+)
 
 
 def host_seqs(frames: list[Received]) -> list[int]:

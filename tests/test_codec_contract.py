@@ -19,7 +19,7 @@ import pytest
 from chassis_sdk.core import FrameDecoder
 from chassis_sdk.devices import DeviceProfile, profiles
 
-from .toy_device import PROFILE as TOY
+from .support.toy_device import PROFILE as TOY
 
 
 @dataclass(frozen=True)

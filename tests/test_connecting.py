@@ -23,9 +23,9 @@ import pytest
 
 from chassis_sdk import Chassis, ConnectionState, NotConnectedError, PortOpenError
 
-from .helpers import TRANSPORTS, Heartbeat, open_fds_on, until
-from .stalls import first_telemetry
-from .standin import ChassisStandIn, drive_frames
+from .support.helpers import TRANSPORTS, Heartbeat, open_fds_on, until
+from .support.stalls import first_telemetry
+from .support.standin import ChassisStandIn, drive_frames
 
 # --- connects are bounded and never block the loop -----------------------------------------------
 

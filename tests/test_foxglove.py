@@ -1,6 +1,6 @@
 """MCAP recordings, CSV export, replay of MCAP, and the live Foxglove server: against
 the simulators over real ptys, read back with the independent ``mcap`` reader and an
-independent WebSocket client (tests/foxglove_client.py)."""
+independent WebSocket client (tests/support/foxglove_client.py)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from chassis_sdk.recording import capture
 from chassis_sdk.recording.sink import json_schema
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .foxglove_client import FoxgloveClient
+from .support.foxglove_client import FoxgloveClient
 from .test_cli_operator import ROOT, cli, running
 
 pytestmark = pytest.mark.timeout(60)

@@ -1,7 +1,7 @@
 """The Foxglove server under hostile clients (issue 23, points 8-10): who may connect
 (Origin, token, the private port behind the front), and what a Teleop channel does
 with what is not quite a Twist. Against the real server, over the chassis simulator
-on a pty, with the independent client of tests/foxglove_client.py."""
+on a pty, with the independent client of tests/support/foxglove_client.py."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
-from .foxglove_client import FoxgloveClient
+from .support.foxglove_client import FoxgloveClient
 from .test_cli_operator import cli, running
 
 pytestmark = pytest.mark.timeout(60)

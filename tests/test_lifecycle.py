@@ -13,7 +13,7 @@ import pytest
 from chassis_sdk import Board, Chassis, ConnectionState, PortOpenError
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .standin import BoardStandIn, ChassisStandIn, last_drive_is_zero
+from .support.standin import BoardStandIn, ChassisStandIn, last_drive_is_zero
 
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 

@@ -16,8 +16,8 @@ import chassis_sdk
 from chassis_sdk import Chassis, ConnectionState
 from chassis_sdk.sim import ChassisSimulator
 
-from .helpers import ThreadedPeer, until
-from .standin import is_zero_drive
+from .support.helpers import ThreadedPeer, until
+from .support.standin import is_zero_drive
 
 
 async def _loop_module() -> str:

@@ -12,7 +12,7 @@ import pytest
 from chassis_sdk import Chassis, MotionLimits
 from chassis_sdk.core.watchdog import _ramp
 
-from .standin import ChassisStandIn, Received, drive_frames
+from .support.standin import ChassisStandIn, Received, drive_frames
 
 
 def velocities(frames: list[Received]) -> list[tuple[float, float]]:
@@ -162,7 +162,7 @@ async def test_wheel_mode_ramps_each_side_with_the_linear_limits() -> None:
 async def test_the_board_ramps_through_the_same_watchdog() -> None:
     from chassis_sdk import Board
 
-    from .standin import BoardStandIn
+    from .support.standin import BoardStandIn
 
     limits = MotionLimits(linear_acceleration=1.0, max_angular=0.5)
     async with (

@@ -2,7 +2,7 @@
 simulators' fault injection, over TCP and pty through the real transport.
 
 The acceptance checks of issue 5 run against the independent TCP stand-in
-(``tests/standin.py``); the fault-injection checks run against the simulators, over
+(``tests/support/standin.py``); the fault-injection checks run against the simulators, over
 both a pty and TCP.
 """
 
@@ -28,7 +28,7 @@ from chassis_sdk import (
 from chassis_sdk.protocol import Command, CommandId, DriveVelocity
 from chassis_sdk.sim import BoardSimulator, BoardSpec, ChassisSimulator, ChassisSpec, LineFaults
 
-from .standin import ChassisStandIn, drive_frames
+from .support.standin import ChassisStandIn, drive_frames
 
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 S = ConnectionState

@@ -14,9 +14,9 @@ import pytest
 
 from chassis_sdk import Board, Chassis, RequestTimeoutError
 
-from .helpers import TRANSPORTS, until
-from .stalls import NumberedReplies, own_answers
-from .standin import BoardStandIn, Received, frame_b
+from .support.helpers import TRANSPORTS, until
+from .support.stalls import NumberedReplies, own_answers
+from .support.standin import BoardStandIn, Received, frame_b
 
 # --- a late reply never answers a later call -----------------------------------------------------
 

@@ -29,9 +29,15 @@ import chassis_sdk
 from chassis_sdk import Chassis, ConnectionState, NotConnectedError
 from chassis_sdk.core.transport import wait_lingering
 
-from .helpers import TRANSPORTS, Heartbeat, ThreadedPeer, open_fds_on, until
-from .stalls import drive_until_the_link_blocks
-from .standin import ChassisStandIn, Received, drive_frames, is_zero_drive, last_drive_is_zero
+from .support.helpers import TRANSPORTS, Heartbeat, ThreadedPeer, open_fds_on, until
+from .support.stalls import drive_until_the_link_blocks
+from .support.standin import (
+    ChassisStandIn,
+    Received,
+    drive_frames,
+    is_zero_drive,
+    last_drive_is_zero,
+)
 
 
 def velocity(rec: Received) -> tuple[int, float]:

@@ -12,8 +12,8 @@ import pytest
 from chassis_sdk import Chassis
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec
 
-from .helpers import until
-from .standin import ChassisStandIn
+from .support.helpers import until
+from .support.standin import ChassisStandIn
 
 # --- leaving a loop unsubscribes at once ---------------------------------------------------------
 

@@ -1,4 +1,4 @@
-"""A third device defined in one file (tests/toy_device.py), registered at run time or
+"""A third device defined in one file (tests/support/toy_device.py), registered at run time or
 installed through an entry point, works end to end with no edit to the SDK: lifetime,
 watchdog and deadman, requests with timeouts, streams, events, the simulator server,
 detect, record/replay/plot, sim and drive."""
@@ -24,7 +24,7 @@ from chassis_sdk.cli import main as cli_main
 from chassis_sdk.devices import DeviceProfile, profile, profiles, register, unregister
 from chassis_sdk.recording import capture
 
-from .toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
+from .support.toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
 
 REPO = Path(__file__).resolve().parent.parent
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
@@ -188,7 +188,7 @@ def _install_entry_point(site: Path, value: str) -> None:
 def test_an_installed_entry_point_adds_the_device(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    _install_entry_point(tmp_path, "tests.toy_device:PROFILE")
+    _install_entry_point(tmp_path, "tests.support.toy_device:PROFILE")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(registry, "_installed", None)
     assert profiles()["toy"] is PROFILE
@@ -216,7 +216,7 @@ async def _cli(env: dict[str, str], *args: str) -> tuple[int, str, str]:
 
 
 async def test_sim_detect_and_drive_from_the_command_line(tmp_path: Path) -> None:
-    _install_entry_point(tmp_path, "tests.toy_device:PROFILE")
+    _install_entry_point(tmp_path, "tests.support.toy_device:PROFILE")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path), str(REPO)))}
     sim = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "chassis_sdk.cli", "sim", "toy", "--tcp", "0",

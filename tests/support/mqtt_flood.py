@@ -1,7 +1,7 @@
 """A flood of MQTT 5 PUBLISH packets from its own process, written from the spec (no
 MQTT library): the hostile sender of the bridge's tests and ``benchmarks/mqtt_hostile.py``.
 
-``python -m tests.mqtt_flood PORT TOPIC --rate 10000 --seconds 2 --kind velocity``
+``python -m tests.support.mqtt_flood PORT TOPIC --rate 10000 --seconds 2 --kind velocity``
 connects to ``127.0.0.1:PORT``, publishes ``rate`` messages a second for ``seconds``
 (bounded in count and time: at most ``rate * seconds`` messages, and it gives up
 ``seconds + 5`` after starting), disconnects cleanly and prints one JSON line::
