@@ -17,12 +17,9 @@ them under the paths code was written against (``chassis_sdk.devices.chassis.pro
 """
 
 from ..core.framing import DecoderStats, FrameDecoder
-from ..devices.board.protocol import (
+from ..devices.board.messages import (
     BatteryReading,
     BoardCommand,
-    BoardCommandDecoder,
-    BoardDecoder,
-    BoardEncoder,
     BoardMessage,
     BoardType,
     BuzzerCommand,
@@ -42,10 +39,8 @@ from ..devices.board.protocol import (
     VelocityCommand,
     VelocityFeedback,
 )
-from ..devices.chassis.protocol import (
-    ChassisCommandDecoder,
-    ChassisDecoder,
-    ChassisEncoder,
+from ..devices.board.protocol import BoardCommandDecoder, BoardDecoder, BoardEncoder
+from ..devices.chassis.messages import (
     ChassisInfo,
     ChassisMessage,
     ChassisStatus,
@@ -69,6 +64,7 @@ from ..devices.chassis.protocol import (
     WheelDriver,
     WheelSpeeds,
 )
+from ..devices.chassis.protocol import ChassisCommandDecoder, ChassisDecoder, ChassisEncoder
 
 __all__ = [
     "BatteryReading",

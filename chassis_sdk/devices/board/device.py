@@ -14,11 +14,8 @@ from ...core.motion import frame_builder
 from ...core.validation import check_real
 from ...core.watchdog import FrameBuilder
 from ...errors import ChassisError, RequestTimeoutError
-from .protocol import (
+from .messages import (
     BatteryReading,
-    BoardCommandDecoder,
-    BoardDecoder,
-    BoardEncoder,
     BoardMessage,
     BoardType,
     BuzzerCommand,
@@ -31,6 +28,11 @@ from .protocol import (
     SwitchAction,
     VelocityCommand,
     VelocityFeedback,
+)
+from .protocol import (
+    BoardCommandDecoder,
+    BoardDecoder,
+    BoardEncoder,
     motor_pwm_command,
     servo_command,
     velocity_command,

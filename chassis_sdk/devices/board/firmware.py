@@ -16,11 +16,9 @@ import random
 from dataclasses import dataclass
 
 from ...core.firmware import FirmwareModel, next_slot
-from .protocol import (
+from .messages import (
     BatteryReading,
     BoardCommand,
-    BoardCommandDecoder,
-    BoardEncoder,
     BuzzerCommand,
     BuzzerReply,
     ImuSample,
@@ -34,6 +32,7 @@ from .protocol import (
     VelocityCommand,
     VelocityFeedback,
 )
+from .protocol import BoardCommandDecoder, BoardEncoder
 
 __all__ = ["BoardFirmware", "BoardSpec"]
 

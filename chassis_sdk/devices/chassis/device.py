@@ -16,11 +16,7 @@ from ...core.watchdog import FrameBuilder
 from ...errors import ProtocolError, RequestTimeoutError
 from .commands import ChassisCommands
 from .health import ChassisDiagnosis, StatusEdges, driver_findings, status_findings
-from .protocol import (
-    REPLY_TO,
-    ChassisCommandDecoder,
-    ChassisDecoder,
-    ChassisEncoder,
+from .messages import (
     ChassisInfo,
     CommandId,
     DriverStatus,
@@ -31,6 +27,12 @@ from .protocol import (
     ReplyId,
     ShipDate,
     Telemetry,
+)
+from .protocol import (
+    REPLY_TO,
+    ChassisCommandDecoder,
+    ChassisDecoder,
+    ChassisEncoder,
     velocity_command,
     wheel_speeds_command,
 )

@@ -17,9 +17,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from ...core.firmware import FirmwareModel, next_slot
-from .protocol import (
-    ChassisCommandDecoder,
-    ChassisEncoder,
+from .messages import (
     ChassisInfo,
     ChassisMessage,
     ChassisStatus,
@@ -41,6 +39,7 @@ from .protocol import (
     WheelDriver,
     WheelSpeeds,
 )
+from .protocol import ChassisCommandDecoder, ChassisEncoder
 
 __all__ = ["ChassisFirmware", "ChassisSpec"]
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from ...core.diagnosis import Diagnosis, Findings, flag_names
 from ...core.events import Edge, EdgeDetector, EventKind
-from .protocol import ChassisStatus, DriverError, DriverStatus, MotorStatus
+from .messages import ChassisStatus, DriverError, DriverStatus, MotorStatus
 
 __all__ = [
     "EDGES",
