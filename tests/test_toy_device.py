@@ -21,6 +21,7 @@ import pytest
 import chassis_sdk.devices as registry
 from chassis_sdk import ConnectionState, EventKind, NotConnectedError, RequestTimeoutError
 from chassis_sdk.cli import main as cli_main
+from chassis_sdk.cli.devices import DeviceCommands, commands
 from chassis_sdk.devices import DeviceProfile, profile, profiles, register, unregister
 from chassis_sdk.recording import capture
 
@@ -238,3 +239,38 @@ async def test_sim_detect_and_drive_from_the_command_line(tmp_path: Path) -> Non
     finally:
         sim.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(sim.wait(), 10) == 128 + signal.SIGTERM
+
+
+async def _toy_info(port: str, baudrate: int, timeout: float) -> None:
+    """The toy's own ``info`` (what an installed package would bring)."""
+
+
+TOY_COMMANDS = DeviceCommands(info=_toy_info)
+
+
+def _install_commands(site: Path, value: str) -> None:
+    """Make ``site`` hold a distribution that declares ``toy = value`` in the CLI's group."""
+    info = site / "toy_cli-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-cli\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[chassis_sdk.cli]\ntoy = {value}\n")
+
+
+@pytest.mark.usefixtures("toy")
+def test_a_device_brings_its_own_commands_through_the_cli_entry_point_group(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert commands("toy").info is None  # none installed: the generic info serves
+    _install_commands(tmp_path, "tests.test_toy_device:TOY_COMMANDS")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert commands("toy") is TOY_COMMANDS
+
+
+@pytest.mark.usefixtures("toy")
+def test_broken_commands_of_a_device_leave_the_generic_ones(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    _install_commands(tmp_path, "tests.no_such_module:COMMANDS")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert commands("toy").info is None
+    assert "commands of device 'toy' failed to load" in caplog.text
