@@ -162,8 +162,6 @@ def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    if name in ("Chassis", "Board"):
-        _import_module(".recording", __name__)  # their record= option: the recorders
     value = getattr(_import_module(module, __name__), name)
     globals()[name] = value  # the next lookup is a plain attribute
     return value

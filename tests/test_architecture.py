@@ -267,6 +267,19 @@ def test_import_chassis_sdk_loads_no_runtime() -> None:
     assert result.stdout.strip() == "[]"
 
 
+def test_record_works_whichever_way_the_device_class_was_imported(tmp_path: Path) -> None:
+    # The core names no recorder: it finds the one chassis_sdk.recording declares.
+    code = (
+        "import sys\n"
+        "from chassis_sdk.devices.chassis.device import Chassis\n"
+        f"robot = Chassis('/dev/never-opened', record={str(tmp_path / 'x.jsonl')!r})\n"
+        "print(robot.recording is not None, 'chassis_sdk.recording' in sys.modules)"
+    )
+    result = _run(code)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "True True"
+
+
 def test_a_bogus_backend_fails_only_the_open_in_one_line() -> None:
     cli = [sys.executable, "-m", "chassis_sdk.cli"]
     env = {**os.environ, "CHASSIS_SDK_BACKEND": "bogus"}

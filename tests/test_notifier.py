@@ -74,3 +74,50 @@ async def test_it_sees_both_directions_and_the_states_of_a_real_link() -> None:
         assert states[-1] is ConnectionState.DISCONNECTED
         assert any(frame[4] == 0x07 for frame in tap.sent)  # the 0x07 request, as written
         assert any(b"\xed\xde" in chunk for chunk in tap.received)
+
+
+def test_a_notifier_nobody_keeps_goes_on_until_closed() -> None:
+    robot = Chassis("/dev/never-opened")
+    seen: list[object] = []
+    Notifier(robot).listen("telemetry", seen.append)  # no reference kept
+    gc.collect()
+    robot.feed(_telemetry_bytes(), 1.0)
+    assert len(seen) == 1
+    for notifier in list(robot._notifiers):
+        notifier.close()
+    robot.feed(_telemetry_bytes(), 2.0)
+    assert len(seen) == 1
+
+
+def test_a_listener_that_raises_does_not_starve_the_others(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    robot = Chassis("/dev/never-opened")
+    seen: list[object] = []
+
+    def broken(message: object) -> None:
+        raise OSError("disk full")
+
+    with Notifier(robot) as notifier:
+        notifier.listen("telemetry", broken)
+        notifier.listen("telemetry", seen.append)
+        robot.feed(_telemetry_bytes(), 1.0)
+    assert len(seen) == 1
+    assert "a listener failed" in caplog.text
+
+
+def test_a_device_class_with_the_old_kind_is_refused() -> None:
+    class Mower(Chassis):
+        kind = "mower"
+
+    with pytest.raises(TypeError, match="`kind` is now `device_name`"):
+        Mower("/dev/never-opened")
+
+
+async def test_a_simulator_keeps_its_counts_after_it_stops() -> None:
+    async with ChassisSimulator() as sim:
+        async with Chassis(sim.port) as robot:
+            await robot.get_firmware_version()
+        sent = sim.bytes_sent
+    assert sent > 0
+    assert sim.bytes_sent == sent

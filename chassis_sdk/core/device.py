@@ -132,6 +132,9 @@ class Device(Session[M, K]):
         self._pose = self._reports.pose
         self._init_protocol()
 
+    def _write_velocity(self, frame: bytes, expires: float) -> None:
+        self._link.writer.write_velocity(frame, expires)
+
     # --- the hooks a device implements -----------------------------------------------------
 
     @abc.abstractmethod

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import copy
 import enum
+import logging
 import time
 import weakref
 from collections import deque
@@ -33,6 +34,7 @@ __all__ = [
     "first_match",
 ]
 
+_log = logging.getLogger("chassis_sdk")
 T = TypeVar("T")
 K = TypeVar("K", bound=Hashable)
 
@@ -247,7 +249,10 @@ class Broadcast(Generic[T]):
         for ref in self._listeners:
             listener = ref()
             if listener is not None:
-                listener._push(item)
+                try:
+                    listener._push(item)
+                except Exception:  # a recorder's error must not starve the rest
+                    _log.exception("a listener failed on %r", item)
         for sub_ref in self._refs:
             sub = sub_ref()
             if sub is not None:

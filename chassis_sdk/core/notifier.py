@@ -35,7 +35,8 @@ class Notifier:
 
     Every callback runs synchronously inside the device's receive path (in wire
     order, nothing buffered, no task woken): it must be quick and must not raise.
-    The notifier holds its listeners strongly, so they live until it is closed.
+    The device keeps the notifier until :meth:`close`, so nothing it added is lost to
+    the collector whether or not the caller keeps a reference.
 
     Args:
         device: The device to watch (connected or not; it goes on across reconnects).
@@ -45,6 +46,7 @@ class Notifier:
         self.device = device
         self._taps: list[Tap] = []
         self._listeners: list[Listener[Any]] = []
+        device._notifiers.add(self)
 
     @property
     def stream_names(self) -> tuple[str, ...]:
@@ -87,6 +89,7 @@ class Notifier:
             listener.close()
         self._taps.clear()
         self._listeners.clear()
+        self.device._notifiers.discard(self)
 
     def __enter__(self) -> Self:
         return self

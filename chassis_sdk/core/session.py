@@ -32,7 +32,7 @@ from .transport import Decoder, backend_name
 from .validation import check_int, check_real
 
 if TYPE_CHECKING:
-    pass
+    from .notifier import Notifier
 
 __all__ = ["Recorder", "Session", "set_recorder"]
 
@@ -65,16 +65,31 @@ def set_recorder(opener: Callable[[Path, Any], Recorder]) -> None:
     _open_recorder = opener
 
 
+#: Where the recorders are declared (pyproject: ``chassis_sdk.recording``): found like
+#: devices, by entry point, when ``record=`` is first used and none is installed yet.
+RECORDER_GROUP = "chassis_sdk.recorders"
+
+
+def _find_recorder() -> None:
+    """Load the declared recorders (importing one installs it with :func:`set_recorder`)."""
+    from importlib import metadata
+
+    for ep in metadata.entry_points(group=RECORDER_GROUP):
+        try:
+            ep.load()
+        except Exception as exc:  # a broken plugin must not break a device
+            logging.getLogger("chassis_sdk").warning(
+                "recorder entry point %s = %s failed to load: %r", ep.name, ep.value, exc
+            )
+        if _open_recorder is not None:
+            return
+
+
 def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
     """The ``record`` option checked: ``None``, or a file path (``.mcap``: MCAP, which
     needs foxglove-sdk; any other name: a JSON-lines capture)."""
     if record is None:
         return None
-    if _open_recorder is None:
-        raise ValueError(
-            "record= needs the recorders: import chassis_sdk.recording first "
-            "(chassis_sdk.Chassis and chassis_sdk.Board do)"
-        )
     if not isinstance(record, str | os.PathLike) or not str(record):
         raise ValueError(f"record must be a file path, got {record!r}")
     path = Path(record)
@@ -86,6 +101,13 @@ def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
         if importlib.util.find_spec("foxglove") is None:
             raise ValueError(
                 "record='*.mcap' needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
+            )
+    if _open_recorder is None:
+        _find_recorder()
+        if _open_recorder is None:
+            raise ValueError(
+                "record= found no recorder: install chassis-sdk (it declares one in the "
+                f"entry-point group {RECORDER_GROUP!r}) or import chassis_sdk.recording"
             )
     return path
 
@@ -151,12 +173,15 @@ class Session(abc.ABC, Generic[M, K]):
         record: str | os.PathLike[str] | None,
         background: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]],
     ) -> None:
+        if any("kind" in vars(c) for c in type(self).__mro__):  # the old name: not "device"
+            raise TypeError(f"{type(self).__name__}: `kind` is now `device_name`")
         self.port = port
         self._log = logger
         self._record_path = _recording_path(record)
         self._recording: Recorder | None = None
         self._decoder = self._make_decoder()
         self._streams = Streams(queue_size)
+        self._notifiers: set[Notifier] = set()  # kept until closed (core.notifier)
         self._link: LinkSupervisor[M] = LinkSupervisor(
             _LinkHooks(self),
             port,
@@ -416,9 +441,6 @@ class Session(abc.ABC, Generic[M, K]):
         """The latest message of ``stream`` if it satisfies ``predicate``, else the next
         one that does (a device's ``wait_for``; see :func:`~.dispatch.first_match`)."""
         return await first_match(stream, self._subscribe, predicate, timeout, what, self.port)
-
-    def _write_velocity(self, frame: bytes, expires: float) -> None:
-        self._link.writer.write_velocity(frame, expires)
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.port!r} {self._link.state.value}>"

@@ -180,6 +180,7 @@ class DeviceProfile:
 _registered: dict[str, DeviceProfile] = {}
 _loaded: dict[str, DeviceProfile] = {}
 _installed: dict[str, metadata.EntryPoint] | None = None
+_broken: set[str] = set()  # entry points that failed to load (until read anew)
 
 
 def _load(target: str | metadata.EntryPoint) -> DeviceProfile:
@@ -199,12 +200,14 @@ def _entry_points() -> dict[str, metadata.EntryPoint]:
 
         for name in [n for n in _loaded if n not in BUILTIN]:
             del _loaded[name]  # read anew with the entry points
-
-        _installed = {
-            ep.name: ep
-            for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)
-            if BUILTIN.get(ep.name) != ep.value and ep.name not in BUILTIN
-        }
+        _broken.clear()
+        _installed = {}
+        for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+            if ep.name in BUILTIN:
+                if BUILTIN[ep.name] != ep.value:  # the SDK's own are declared there too
+                    _log.warning("device %r from %s ignored: the name is taken", ep.name, ep.value)
+                continue
+            _installed[ep.name] = ep
     return _installed
 
 
@@ -219,12 +222,21 @@ def _get(name: str) -> DeviceProfile | None:
     if name not in _loaded:
         if name in BUILTIN:
             _loaded[name] = _load(BUILTIN[name])
-        elif (ep := _entry_points().get(name)) is not None:
+        elif (ep := _entry_points().get(name)) is not None and name not in _broken:
             try:
                 loaded = _load(ep)
             except Exception as exc:  # one broken plugin must not break every tool
                 _log.warning("device entry point %s = %s failed to load: %r", name, ep.value, exc)
+                _broken.add(name)  # said once, not on every lookup
                 return None
+            if loaded.name != name:
+                _log.warning(
+                    "device entry point %s = %s is named %r: known as %r",
+                    name,
+                    ep.value,
+                    loaded.name,
+                    name,
+                )
             _loaded[name] = loaded
         else:
             return None

@@ -61,6 +61,7 @@ class SimulatorServer:
         self._ticker: asyncio.Task[None] | None = None
         self._alarm = Alarm()
         self._unsent = 0  # sent while unplugged
+        self._sent_before = self._discarded_before = 0  # by lines of earlier runs
 
     # --- lifetime -------------------------------------------------------------------------
 
@@ -89,12 +90,13 @@ class SimulatorServer:
     @property
     def bytes_sent(self) -> int:
         """Bytes written towards the host."""
-        return 0 if self._line is None else self._line.bytes_sent
+        return self._sent_before + (0 if self._line is None else self._line.bytes_sent)
 
     @property
     def bytes_discarded(self) -> int:
         """Bytes dropped because nobody was reading (or the cable was out)."""
-        return self._unsent + (0 if self._line is None else self._line.bytes_discarded)
+        line = self._line
+        return self._unsent + self._discarded_before + (0 if line is None else line.bytes_discarded)
 
     async def start(self) -> None:
         """Open the pty or start listening, and start the firmware's clock."""
@@ -123,6 +125,9 @@ class SimulatorServer:
         if self._link_dir is not None:
             shutil.rmtree(self._link_dir, ignore_errors=True)
             self._link_dir = None
+        if self._line is not None:  # its counts stay the server's
+            self._sent_before += self._line.bytes_sent
+            self._discarded_before += self._line.bytes_discarded
         self._line = None
 
     async def replug(self) -> None:
