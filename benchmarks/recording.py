@@ -115,16 +115,15 @@ def write_hour(path: Path | None, session: list[tuple[float, bool, bytes]]) -> d
     from chassis_sdk import Chassis
     from chassis_sdk.recording import open_recording
 
-    device: Any = Chassis("/dev/bench")
+    device = Chassis("/dev/bench")
     recording = open_recording(path, device) if path is not None else None
-    tap = device._link.tap
     c0 = time.process_time()
     try:
         for now, sent, data in session:
             if not sent:
-                device._ingest(data, now)
-            elif tap is not None:
-                tap.tx(data, now)
+                device.feed(data, now)  # decoded, handled and tapped as if received
+            elif recording is not None:
+                recording.tx(data, now)  # as the device's tap sees a frame written
     finally:
         if recording is not None:
             recording.close()

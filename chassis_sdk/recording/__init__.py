@@ -42,6 +42,9 @@ class Recording(Protocol):
     def rx(self, data: bytes, now: float) -> None:
         """Bytes arrived at ``now`` (``time.monotonic()``)."""
 
+    def tx(self, data: bytes, now: float) -> None:
+        """The frame ``data`` began to leave at ``now``."""
+
     def link_state(self, state: str, now: float) -> None:
         """The link went to ``state``."""
 

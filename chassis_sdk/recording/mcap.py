@@ -81,6 +81,9 @@ class McapRecording:
     def rx(self, data: bytes, now: float) -> None:
         self.sink.rx(data, now)
 
+    def tx(self, data: bytes, now: float) -> None:
+        self.sink.tx(data, now)
+
     def link_state(self, state: str, now: float) -> None:
         self.sink.link_state(state, now)
 
