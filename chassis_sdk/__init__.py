@@ -34,9 +34,9 @@ nothing of the runtime, so ``chassis_sdk.protocol`` decodes captures without asy
 from __future__ import annotations
 
 import logging as _logging
-from importlib import import_module as _import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from ._lazy import lazy as _lazy
 from ._version import __version__
 from .errors import (
     ChassisError,
@@ -158,14 +158,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(_import_module(module, __name__), name)
-    globals()[name] = value  # the next lookup is a plain attribute
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__getattr__, __dir__ = _lazy(__name__, _LAZY, globals())

@@ -34,7 +34,7 @@ PURE_CORE = {
 }
 #: Layers, bottom up: a module may import its own layer and those below, never above.
 LAYERS = [
-    ("base", ("chassis_sdk.errors", "chassis_sdk._version")),
+    ("base", ("chassis_sdk.errors", "chassis_sdk._version", "chassis_sdk._lazy")),
     ("pure core", tuple(PURE_CORE)),
     ("core", ("chassis_sdk.core",)),
     ("devices", ("chassis_sdk.devices", "chassis_sdk.protocol")),

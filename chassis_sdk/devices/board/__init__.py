@@ -11,7 +11,9 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ..._lazy import lazy as _lazy
 
 if TYPE_CHECKING:
     from .device import Board
@@ -19,9 +21,4 @@ if TYPE_CHECKING:
 __all__ = ["Board"]
 
 
-def __getattr__(name: str) -> Any:
-    if name == "Board":
-        from .device import Board
-
-        return Board
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = _lazy(__name__, {"Board": ".device"}, globals())

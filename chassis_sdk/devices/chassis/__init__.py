@@ -12,7 +12,9 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ..._lazy import lazy as _lazy
 
 if TYPE_CHECKING:
     from .device import Chassis
@@ -20,9 +22,4 @@ if TYPE_CHECKING:
 __all__ = ["Chassis"]
 
 
-def __getattr__(name: str) -> Any:
-    if name == "Chassis":
-        from .device import Chassis
-
-        return Chassis
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = _lazy(__name__, {"Chassis": ".device"}, globals())
