@@ -1,0 +1,698 @@
+"""ROS 2 messages without ROS: the types the ROS 2 bridge and the rosbag2 recorder use,
+with their message definitions, type hashes and topics, in one place.
+
+Each type is a Cyclone DDS ``IdlStruct`` in ROS 2's DDS shape (``rosidl``'s mapping:
+the DDS type of ``geometry_msgs/msg/Twist`` is ``geometry_msgs::msg::dds_::Twist_``,
+and its fields are the ``.msg`` file's, in order), so the same class is what the
+bridge puts on the wire (plain CDR, encapsulation ``00 01 00 00``) and what a rosbag2
+MCAP file holds. From the fields alone this module derives what ROS 2 tools check:
+
+* :func:`definition`: the full message definition text that rosbag2 stores as a
+  ``ros2msg`` schema (the type's ``.msg`` fields and constants, then every type it uses
+  under ``MSG: pkg/Type`` separators);
+* :func:`type_hash`: the ``RIHS01_…`` type hash of REP 2011 that Jazzy and newer put in
+  every endpoint's USER_DATA (``typehash=…;``) and in a bag's ``topic_type_hash``.
+
+Both are checked against an independent source (``rosbags``' Jazzy type store) by
+``tests/test_ros2_types.py``, as are the bytes of each serialised message.
+
+:data:`TOPICS` names every topic the bridge offers and the recorder writes, with its
+type and QoS; the converters (:func:`odometry_message`, :func:`transform_message`, ...)
+turn what a device reports into these messages. Stamps are wall-clock time, as ROS
+expects (``wall_time`` converts a reading's ``time.monotonic()`` timestamp).
+
+Needs the ``ros2`` extra (``cyclonedds``).
+"""
+
+import hashlib
+import json
+import math
+import time
+import typing
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final, Literal
+
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl import types as t
+
+__all__ = [
+    "BATTERY_STATUS_UNKNOWN",
+    "DEFAULT_POSE_COVARIANCE",
+    "DEFAULT_TWIST_COVARIANCE",
+    "DIAGNOSTIC_ERROR",
+    "DIAGNOSTIC_OK",
+    "DIAGNOSTIC_STALE",
+    "DIAGNOSTIC_WARN",
+    "TOPICS",
+    "BatteryState",
+    "Bool",
+    "DiagnosticArray",
+    "DiagnosticStatus",
+    "Header",
+    "Imu",
+    "KeyValue",
+    "MultiArrayDimension",
+    "MultiArrayLayout",
+    "Odometry",
+    "Point",
+    "Pose",
+    "PoseWithCovariance",
+    "Quaternion",
+    "TFMessage",
+    "Time",
+    "TopicSpec",
+    "Transform",
+    "TransformStamped",
+    "Twist",
+    "TwistStamped",
+    "TwistWithCovariance",
+    "UInt8MultiArray",
+    "Vector3",
+    "battery_message",
+    "covariance",
+    "definition",
+    "diagnostics_message",
+    "imu_message",
+    "odometry_message",
+    "ros_name",
+    "stamp",
+    "transform_message",
+    "type_hash",
+    "wall_time",
+]
+
+# --- the types (field names and order exactly as the .msg files of ROS 2 Jazzy) --------------
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    """``builtin_interfaces/msg/Time``."""
+
+    sec: t.int32 = 0
+    nanosec: t.uint32 = 0
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    """``std_msgs/msg/Header``."""
+
+    stamp: Time = field(default_factory=Time)
+    frame_id: str = ""
+
+
+@dataclass
+class Bool(IdlStruct, typename="std_msgs::msg::dds_::Bool_"):
+    """``std_msgs/msg/Bool``."""
+
+    data: bool = False
+
+
+@dataclass
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    """``geometry_msgs/msg/Vector3``."""
+
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    """``geometry_msgs/msg/Point``."""
+
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    """``geometry_msgs/msg/Quaternion`` (the identity by default, as in ROS)."""
+
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+    w: t.float64 = 1.0
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    """``geometry_msgs/msg/Pose``."""
+
+    position: Point = field(default_factory=Point)
+    orientation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    """``geometry_msgs/msg/PoseWithCovariance``."""
+
+    pose: Pose = field(default_factory=Pose)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    """``geometry_msgs/msg/Twist``: what Nav2 and teleop send on ``cmd_vel``."""
+
+    linear: Vector3 = field(default_factory=Vector3)
+    angular: Vector3 = field(default_factory=Vector3)
+
+
+@dataclass
+class TwistStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TwistStamped_"):
+    """``geometry_msgs/msg/TwistStamped`` (Jazzy's diff_drive_controller takes it)."""
+
+    header: Header = field(default_factory=Header)
+    twist: Twist = field(default_factory=Twist)
+
+
+@dataclass
+class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    """``geometry_msgs/msg/TwistWithCovariance``."""
+
+    twist: Twist = field(default_factory=Twist)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    """``geometry_msgs/msg/Transform``."""
+
+    translation: Vector3 = field(default_factory=Vector3)
+    rotation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    """``geometry_msgs/msg/TransformStamped``."""
+
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    transform: Transform = field(default_factory=Transform)
+
+
+@dataclass
+class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    """``tf2_msgs/msg/TFMessage``: what ``/tf`` and ``/tf_static`` carry."""
+
+    transforms: t.sequence[TransformStamped] = field(default_factory=list)
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    """``nav_msgs/msg/Odometry``."""
+
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+    twist: TwistWithCovariance = field(default_factory=TwistWithCovariance)
+
+
+@dataclass
+class BatteryState(IdlStruct, typename="sensor_msgs::msg::dds_::BatteryState_"):
+    """``sensor_msgs/msg/BatteryState``; what is not measured is NaN, as it documents."""
+
+    header: Header = field(default_factory=Header)
+    voltage: t.float32 = math.nan
+    temperature: t.float32 = math.nan
+    current: t.float32 = math.nan
+    charge: t.float32 = math.nan
+    capacity: t.float32 = math.nan
+    design_capacity: t.float32 = math.nan
+    percentage: t.float32 = math.nan
+    power_supply_status: t.uint8 = 0
+    power_supply_health: t.uint8 = 0
+    power_supply_technology: t.uint8 = 0
+    present: bool = True
+    cell_voltage: t.sequence[t.float32] = field(default_factory=list)
+    cell_temperature: t.sequence[t.float32] = field(default_factory=list)
+    location: str = ""
+    serial_number: str = ""
+
+
+@dataclass
+class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
+    """``sensor_msgs/msg/Imu``."""
+
+    header: Header = field(default_factory=Header)
+    orientation: Quaternion = field(default_factory=Quaternion)
+    orientation_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    angular_velocity: Vector3 = field(default_factory=Vector3)
+    angular_velocity_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    linear_acceleration: Vector3 = field(default_factory=Vector3)
+    linear_acceleration_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+
+
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    """``diagnostic_msgs/msg/KeyValue``."""
+
+    key: str = ""
+    value: str = ""
+
+
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    """``diagnostic_msgs/msg/DiagnosticStatus`` (``level``: :data:`DIAGNOSTIC_OK`, ...)."""
+
+    level: t.byte = 0
+    name: str = ""
+    message: str = ""
+    hardware_id: str = ""
+    values: t.sequence[KeyValue] = field(default_factory=list)
+
+
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    """``diagnostic_msgs/msg/DiagnosticArray``: what ``/diagnostics`` carries."""
+
+    header: Header = field(default_factory=Header)
+    status: t.sequence[DiagnosticStatus] = field(default_factory=list)
+
+
+@dataclass
+class MultiArrayDimension(IdlStruct, typename="std_msgs::msg::dds_::MultiArrayDimension_"):
+    """``std_msgs/msg/MultiArrayDimension``."""
+
+    label: str = ""
+    size: t.uint32 = 0
+    stride: t.uint32 = 0
+
+
+@dataclass
+class MultiArrayLayout(IdlStruct, typename="std_msgs::msg::dds_::MultiArrayLayout_"):
+    """``std_msgs/msg/MultiArrayLayout``."""
+
+    dim: t.sequence[MultiArrayDimension] = field(default_factory=list)
+    data_offset: t.uint32 = 0
+
+
+@dataclass
+class UInt8MultiArray(IdlStruct, typename="std_msgs::msg::dds_::UInt8MultiArray_"):
+    """``std_msgs/msg/UInt8MultiArray``: raw bytes of the serial line, in a recording."""
+
+    layout: MultiArrayLayout = field(default_factory=MultiArrayLayout)
+    data: t.sequence[t.uint8] = field(default_factory=list)
+
+
+#: ``sensor_msgs/msg/BatteryState.POWER_SUPPLY_STATUS_UNKNOWN``.
+BATTERY_STATUS_UNKNOWN: Final = 0
+#: ``diagnostic_msgs/msg/DiagnosticStatus`` levels.
+DIAGNOSTIC_OK: Final = 0
+DIAGNOSTIC_WARN: Final = 1
+DIAGNOSTIC_ERROR: Final = 2
+DIAGNOSTIC_STALE: Final = 3
+
+#: The constants of each type that has some, as its ``.msg`` file declares them (they
+#: are part of the definition text, not of the type hash).
+_CONSTANTS: dict[type, tuple[tuple[str, str, int], ...]] = {
+    BatteryState: tuple(
+        ("uint8", f"POWER_SUPPLY_{group}_{name}", value)
+        for group, names in (
+            ("STATUS", ("UNKNOWN", "CHARGING", "DISCHARGING", "NOT_CHARGING", "FULL")),
+            (
+                "HEALTH",
+                (
+                    "UNKNOWN",
+                    "GOOD",
+                    "OVERHEAT",
+                    "DEAD",
+                    "OVERVOLTAGE",
+                    "UNSPEC_FAILURE",
+                    "COLD",
+                    "WATCHDOG_TIMER_EXPIRE",
+                    "SAFETY_TIMER_EXPIRE",
+                ),
+            ),
+            (
+                "TECHNOLOGY",
+                ("UNKNOWN", "NIMH", "LION", "LIPO", "LIFE", "NICD", "LIMN", "TERNARY", "VRLA"),
+            ),
+        )
+        for value, name in enumerate(names)
+    ),
+    DiagnosticStatus: (
+        ("byte", "OK", 0),
+        ("byte", "WARN", 1),
+        ("byte", "ERROR", 2),
+        ("byte", "STALE", 3),
+    ),
+}
+
+# --- names, definitions and hashes, derived from the fields ----------------------------------
+
+
+def ros_name(cls: type) -> str:
+    """The ROS type name of a message class: ``geometry_msgs/msg/Twist``."""
+    idl: str = getattr(cls, "__idl_typename__", "")
+    package, kind, dds, base = idl.split("::")
+    if dds != "dds_" or not base.endswith("_"):
+        raise ValueError(f"{cls!r} is not in ROS 2's DDS shape: {idl!r}")
+    return f"{package}/{kind}/{base[:-1]}"
+
+
+#: REP 2011's field type ids (``type_description_interfaces/msg/FieldType``).
+_TYPE_IDS: Final = {
+    "int8": 2, "uint8": 3, "int16": 4, "uint16": 5, "int32": 6, "uint32": 7, "int64": 8,
+    "uint64": 9, "float32": 10, "float64": 11, "char": 13, "bool": 15, "byte": 16,
+    "string": 17,
+}  # fmt: skip
+_NESTED: Final = 1
+_ARRAY, _UNBOUNDED_SEQUENCE = 48, 144
+
+
+@dataclass(frozen=True)
+class _Field:
+    name: str
+    base: str  # a primitive's name, or a nested type's ROS name
+    nested: type | None
+    array: int | None  # fixed length
+    sequence: bool
+
+    @property
+    def msg_type(self) -> str:
+        base = self.base.replace("/msg/", "/") if self.nested is not None else self.base
+        if self.array is not None:
+            return f"{base}[{self.array}]"
+        return f"{base}[]" if self.sequence else base
+
+    def description(self) -> dict[str, Any]:
+        type_id = _NESTED if self.nested is not None else _TYPE_IDS[self.base]
+        if self.array is not None:
+            type_id += _ARRAY
+        elif self.sequence:
+            type_id += _UNBOUNDED_SEQUENCE
+        return {
+            "name": self.name,
+            "type": {
+                "type_id": type_id,
+                "capacity": self.array or 0,
+                "string_capacity": 0,
+                "nested_type_name": self.base if self.nested is not None else "",
+            },
+        }
+
+
+def _element(hint: Any) -> tuple[str, type | None]:
+    """The ROS base type of an annotation that is not an array or a sequence."""
+    if hint is bool:
+        return "bool", None
+    if hint is str:
+        return "string", None
+    if isinstance(hint, type) and issubclass(hint, IdlStruct):
+        return ros_name(hint), hint
+    metadata = getattr(hint, "__metadata__", ())
+    if metadata and isinstance(metadata[0], str) and metadata[0] in _TYPE_IDS:
+        return metadata[0], None
+    raise TypeError(f"no ROS type for the annotation {hint!r}")
+
+
+def _fields(cls: type) -> list[_Field]:
+    out = []
+    for name, hint in typing.get_type_hints(cls, include_extras=True).items():
+        holder = next(iter(getattr(hint, "__metadata__", ())), None)
+        kind = type(holder).__name__
+        if kind in ("array", "sequence"):
+            if kind == "sequence" and getattr(holder, "max_length", None):
+                raise TypeError(f"{cls.__name__}.{name}: bounded sequences are not used here")
+            base, nested = _element(typing.cast(Any, holder).subtype)
+            length = getattr(holder, "length", None) if kind == "array" else None
+            out.append(_Field(name, base, nested, length, kind == "sequence"))
+        else:
+            base, nested = _element(hint)
+            out.append(_Field(name, base, nested, None, False))
+    return out
+
+
+def _closure(cls: type) -> list[type]:
+    """``cls`` and every type it uses, depth first in field order, each once."""
+    seen: list[type] = []
+
+    def visit(tp: type) -> None:
+        if tp in seen:
+            return
+        seen.append(tp)
+        for f in _fields(tp):
+            if f.nested is not None:
+                visit(f.nested)
+
+    visit(cls)
+    return seen
+
+
+def _msg_text(cls: type) -> str:
+    lines = [f"{ctype} {cname}={value}" for ctype, cname, value in _CONSTANTS.get(cls, ())]
+    lines += [f"{f.msg_type} {f.name}" for f in _fields(cls)]
+    return "\n".join(lines) + "\n"
+
+
+def definition(cls: type) -> str:
+    """The full message definition of ``cls`` as rosbag2 stores it in a ``ros2msg``
+    schema: its own ``.msg`` text, then each type it uses after a line of 80 ``=`` and
+    ``MSG: pkg/Type``."""
+    parts = [_msg_text(cls)]
+    for dep in _closure(cls)[1:]:
+        parts.append(f"{'=' * 80}\nMSG: {ros_name(dep).replace('/msg/', '/')}\n{_msg_text(dep)}")
+    return "".join(parts)
+
+
+def type_hash(cls: type) -> str:
+    """The REP 2011 type hash of ``cls`` (``RIHS01_`` and 64 hex digits): the SHA-256 of
+    its type description (fields only, referenced types sorted by name) as compact JSON
+    with ``", "`` and ``": "`` separators, as ``rosidl`` computes it."""
+
+    def described(tp: type) -> dict[str, Any]:
+        fields = [f.description() for f in _fields(tp)]
+        return {"type_name": ros_name(tp), "fields": fields}
+
+    referenced = sorted(_closure(cls)[1:], key=ros_name)
+    document = {
+        "type_description": described(cls),
+        "referenced_type_descriptions": [described(tp) for tp in referenced],
+    }
+    return "RIHS01_" + hashlib.sha256(json.dumps(document).encode()).hexdigest()
+
+
+# --- the topics --------------------------------------------------------------------------------
+
+Reliability = Literal["reliable", "best_effort"]
+Durability = Literal["volatile", "transient_local"]
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """A topic the bridge offers (``out``) or reads (``in``), and the recorder writes.
+
+    Attributes:
+        name: The ROS name: relative (under the namespace) or absolute (``/tf``).
+        type: Its message class.
+        direction: ``"out"`` (published) or ``"in"`` (subscribed).
+        reliability: ``"reliable"`` or ``"best_effort"``.
+        durability: ``"volatile"`` or ``"transient_local"`` (latched, for late joiners).
+        depth: The history depth (KEEP_LAST).
+    """
+
+    name: str
+    type: type
+    direction: Literal["in", "out"]
+    reliability: Reliability = "reliable"
+    durability: Durability = "volatile"
+    depth: int = 10
+
+    def qualified(self, namespace: str = "") -> str:
+        """The fully qualified ROS name under ``namespace`` (``/robot1/odom``)."""
+        if self.name.startswith("/"):
+            return self.name
+        return f"{namespace.rstrip('/')}/{self.name}" if namespace else f"/{self.name}"
+
+    def dds_topic(self, namespace: str = "") -> str:
+        """The DDS topic name (``rt`` and the qualified name: ``rt/robot1/odom``)."""
+        return "rt" + self.qualified(namespace)
+
+
+#: Every topic, by a short key. ``cmd_vel`` is read BEST_EFFORT so that any writer
+#: matches (a RELIABLE reader would refuse a BEST_EFFORT one); the rest is RELIABLE, as
+#: rclpy's default profile; ``/tf_static`` is latched (TRANSIENT_LOCAL, depth 1), as
+#: tf2's static broadcaster.
+TOPICS: Final[dict[str, TopicSpec]] = {
+    "cmd_vel": TopicSpec("cmd_vel", Twist, "in", "best_effort"),
+    "cmd_vel_stamped": TopicSpec("cmd_vel", TwistStamped, "in", "best_effort"),
+    "emergency_stop": TopicSpec("emergency_stop", Bool, "in"),
+    "odom": TopicSpec("odom", Odometry, "out"),
+    "tf": TopicSpec("/tf", TFMessage, "out", depth=100),
+    "tf_static": TopicSpec("/tf_static", TFMessage, "out", durability="transient_local", depth=1),
+    "battery_state": TopicSpec("battery_state", BatteryState, "out"),
+    "diagnostics": TopicSpec("/diagnostics", DiagnosticArray, "out"),
+    "imu": TopicSpec("imu/data_raw", Imu, "out"),
+}
+
+# --- from the SDK's readings to messages -------------------------------------------------------
+
+#: diff_drive_controller's default covariance diagonals (x, y, z, roll, pitch, yaw). A
+#: planar robot knows nothing of z, roll and pitch; robot_localization reads a zero as
+#: certainty, so none is zero.
+DEFAULT_POSE_COVARIANCE: Final = (0.001, 0.001, 1e6, 1e6, 1e6, 0.01)
+DEFAULT_TWIST_COVARIANCE: Final = (0.001, 0.001, 1e6, 1e6, 1e6, 0.01)
+_G: Final = 9.80665  # m/s² per g
+
+
+def covariance(diagonal: Sequence[float], name: str = "covariance") -> list[float]:
+    """A 6x6 row-major covariance with ``diagonal`` (six variances) on its diagonal.
+
+    Raises:
+        ValueError: Not six finite numbers >= 0, or all of them zero.
+    """
+    values = [float(v) for v in diagonal]
+    if len(values) != 6 or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise ValueError(f"{name} must be six finite variances >= 0, got {list(diagonal)!r}")
+    if not any(values):
+        raise ValueError(f"{name} must not be all zero (a reader takes zero as certainty)")
+    matrix = [0.0] * 36
+    for i, v in enumerate(values):
+        matrix[i * 7] = v
+    return matrix
+
+
+def wall_time(monotonic: float, *, now: float | None = None) -> float:
+    """The wall-clock time (epoch seconds) of a ``time.monotonic()`` reading."""
+    if now is None:
+        now = time.time()
+    return now - (time.monotonic() - monotonic) if monotonic > 0 else now
+
+
+def stamp(epoch: float) -> Time:
+    """``builtin_interfaces/Time`` of epoch seconds."""
+    ns = round(epoch * 1e9)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def _yaw(heading: float) -> Quaternion:
+    return Quaternion(z=math.sin(heading / 2.0), w=math.cos(heading / 2.0))
+
+
+def odometry_message(
+    odom: Any,
+    epoch: float,
+    *,
+    frame_id: str = "odom",
+    child_frame_id: str = "base_link",
+    pose_covariance: Sequence[float] | None = None,
+    twist_covariance: Sequence[float] | None = None,
+) -> Odometry:
+    """``nav_msgs/Odometry`` of a :class:`~chassis_sdk.core.odometry.Odometry` sample.
+
+    Args:
+        odom: The sample (``x``, ``y``, ``heading``, ``linear``, ``angular``).
+        epoch: Its stamp (wall-clock seconds).
+        frame_id: The pose's frame (REP 105: ``odom``).
+        child_frame_id: The twist's frame (``base_link``).
+        pose_covariance: 36 numbers (see :func:`covariance`); default
+            :data:`DEFAULT_POSE_COVARIANCE` on the diagonal.
+        twist_covariance: The same for the twist.
+    """
+    return Odometry(
+        header=Header(stamp=stamp(epoch), frame_id=frame_id),
+        child_frame_id=child_frame_id,
+        pose=PoseWithCovariance(
+            pose=Pose(position=Point(x=odom.x, y=odom.y), orientation=_yaw(odom.heading)),
+            covariance=list(pose_covariance or covariance(DEFAULT_POSE_COVARIANCE)),
+        ),
+        twist=TwistWithCovariance(
+            twist=Twist(linear=Vector3(x=odom.linear), angular=Vector3(z=odom.angular)),
+            covariance=list(twist_covariance or covariance(DEFAULT_TWIST_COVARIANCE)),
+        ),
+    )
+
+
+def transform_message(
+    odom: Any, epoch: float, *, frame_id: str = "odom", child_frame_id: str = "base_link"
+) -> TFMessage:
+    """``tf2_msgs/TFMessage`` with the one transform ``frame_id`` → ``child_frame_id``."""
+    return TFMessage(
+        transforms=[
+            TransformStamped(
+                header=Header(stamp=stamp(epoch), frame_id=frame_id),
+                child_frame_id=child_frame_id,
+                transform=Transform(
+                    translation=Vector3(x=odom.x, y=odom.y), rotation=_yaw(odom.heading)
+                ),
+            )
+        ]
+    )
+
+
+def battery_message(
+    voltage: float, epoch: float, *, frame_id: str = "", percentage: float | None = None
+) -> BatteryState:
+    """``sensor_msgs/BatteryState`` of a voltage; every field not measured is NaN and the
+    status, health and technology are UNKNOWN (0), as the message documents.
+
+    Args:
+        voltage: Volts.
+        epoch: The stamp (wall-clock seconds).
+        frame_id: The header's frame.
+        percentage: Charge from 0 to 1, if known.
+    """
+    return BatteryState(
+        header=Header(stamp=stamp(epoch), frame_id=frame_id),
+        voltage=float(voltage),
+        percentage=math.nan if percentage is None else float(percentage),
+        present=True,
+    )
+
+
+def imu_message(sample: Any, epoch: float, *, frame_id: str = "imu_link") -> Imu:
+    """``sensor_msgs/Imu`` of a board's :class:`~chassis_sdk.devices.board.ImuSample`:
+    acceleration from g to m/s², rates from degrees to radians per second, and no
+    orientation (``orientation_covariance[0] = -1``, as the message documents)."""
+    accel, gyro = sample.accel, sample.gyro
+    unknown = [-1.0] + [0.0] * 8
+    return Imu(
+        header=Header(stamp=stamp(epoch), frame_id=frame_id),
+        orientation=Quaternion(w=0.0),
+        orientation_covariance=unknown,
+        angular_velocity=Vector3(
+            x=math.radians(gyro.x), y=math.radians(gyro.y), z=math.radians(gyro.z)
+        ),
+        linear_acceleration=Vector3(x=accel.x * _G, y=accel.y * _G, z=accel.z * _G),
+    )
+
+
+def diagnostics_message(
+    epoch: float,
+    *,
+    name: str,
+    hardware_id: str,
+    level: int,
+    message: str,
+    values: Iterable[tuple[str, str]] = (),
+) -> DiagnosticArray:
+    """``diagnostic_msgs/DiagnosticArray`` with one status.
+
+    Args:
+        epoch: The stamp (wall-clock seconds).
+        name: The status's name (``chassis_sdk: chassis``).
+        hardware_id: The device (its port, or its serial number).
+        level: :data:`DIAGNOSTIC_OK`, ``WARN``, ``ERROR`` or ``STALE``.
+        message: One line.
+        values: Key and value pairs (faults, notes, counters).
+    """
+    status = DiagnosticStatus(
+        level=level,
+        name=name,
+        message=message,
+        hardware_id=hardware_id,
+        values=[KeyValue(key=k, value=v) for k, v in values],
+    )
+    return DiagnosticArray(header=Header(stamp=stamp(epoch)), status=[status])
+
+
+def _all_types() -> tuple[type, ...]:
+    """Every message class here (for the tests and the recorder's schemas)."""
+    return tuple(
+        obj
+        for obj in globals().values()
+        if isinstance(obj, type) and issubclass(obj, IdlStruct) and obj is not IdlStruct
+    )
