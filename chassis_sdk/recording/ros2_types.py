@@ -59,6 +59,7 @@ __all__ = [
     "Pose",
     "PoseWithCovariance",
     "Quaternion",
+    "StaticTransform",
     "TFMessage",
     "Time",
     "TopicSpec",
@@ -77,6 +78,7 @@ __all__ = [
     "odometry_message",
     "ros_name",
     "stamp",
+    "static_transforms_message",
     "transform_message",
     "type_hash",
     "wall_time",
@@ -687,6 +689,41 @@ def diagnostics_message(
         values=[KeyValue(key=k, value=v) for k, v in values],
     )
     return DiagnosticArray(header=Header(stamp=stamp(epoch)), status=[status])
+
+
+@dataclass(frozen=True)
+class StaticTransform:
+    """A fixed transform published on ``/tf_static`` (``parent`` → ``child``).
+
+    Attributes:
+        parent: The parent frame (``base_link``).
+        child: The child frame (``imu_link``).
+        x: Offset along the parent's x (m). ``y``, ``z`` likewise.
+        yaw: Rotation about the parent's z (rad).
+    """
+
+    parent: str
+    child: str
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    yaw: float = 0.0
+
+    def message(self, epoch: float) -> TransformStamped:
+        half = self.yaw / 2.0
+        return TransformStamped(
+            header=Header(stamp=stamp(epoch), frame_id=self.parent),
+            child_frame_id=self.child,
+            transform=Transform(
+                translation=Vector3(x=self.x, y=self.y, z=self.z),
+                rotation=Quaternion(z=math.sin(half), w=math.cos(half)),
+            ),
+        )
+
+
+def static_transforms_message(transforms: Iterable[StaticTransform], epoch: float) -> TFMessage:
+    """The ``/tf_static`` message holding ``transforms``, stamped ``epoch``."""
+    return TFMessage(transforms=[st.message(epoch) for st in transforms])
 
 
 def _all_types() -> tuple[type, ...]:
