@@ -71,6 +71,8 @@ __all__ = [
     "UInt8MultiArray",
     "Vector3",
     "battery_message",
+    "check_frame",
+    "check_namespace",
     "covariance",
     "definition",
     "diagnostics_message",
@@ -475,6 +477,43 @@ def type_hash(cls: type) -> str:
         "referenced_type_descriptions": [described(tp) for tp in referenced],
     }
     return "RIHS01_" + hashlib.sha256(json.dumps(document).encode()).hexdigest()
+
+
+def check_namespace(namespace: str) -> str:
+    """A ROS namespace, normalised (``robot1`` → ``/robot1``; ``""`` or ``/``: none).
+
+    Raises:
+        TypeError: Not a string.
+        ValueError: Not a valid ROS name (letters, digits, ``_``, ``/``; no ``//``; a
+            token must not start with a digit).
+    """
+    if not isinstance(namespace, str):
+        raise TypeError(f"namespace must be a str, got {type(namespace).__name__}")
+    text = namespace.strip()
+    if text in ("", "/"):
+        return ""
+    tokens = text.strip("/").split("/")
+    for token in tokens:
+        if not token or not token.isascii() or not all(c.isalnum() or c == "_" for c in token):
+            raise ValueError(f"namespace must be ROS name tokens (a-z, 0-9, _), got {namespace!r}")
+        if token[0].isdigit():
+            raise ValueError(f"a namespace token must not start with a digit: {namespace!r}")
+    return "/" + "/".join(tokens)
+
+
+def check_frame(value: str, name: str = "frame") -> str:
+    """A tf frame name (``odom``, ``base_link``): a non-empty string without a leading
+    ``/`` (tf2 refuses one) or white space.
+
+    Raises:
+        TypeError: Not a string.
+        ValueError: Empty, with a leading ``/`` or with white space.
+    """
+    if not isinstance(value, str):
+        raise TypeError(f"{name} must be a str, got {type(value).__name__}")
+    if not value or value.startswith("/") or any(c.isspace() for c in value):
+        raise ValueError(f"{name} must be a tf frame name (no leading '/', no spaces): {value!r}")
+    return value
 
 
 # --- the topics --------------------------------------------------------------------------------
