@@ -40,6 +40,7 @@ from . import (
     ports_command,
     record_command,
     replay_command,
+    ros2_args,
     serve_args,
     sim_command,
 )
@@ -57,6 +58,7 @@ COMMANDS = (
     monitor_command,
     drive_command,
     bridge_args,
+    ros2_args,
     record_command,
     export_command,
     serve_args,

@@ -1,0 +1,88 @@
+"""``chassis-sdk ros2``: one device on the ROS 2 graph, for as long as the service runs.
+
+The device is opened once, with ``reconnect=True`` and the motion limits; the bridge
+runs until Ctrl-C, SIGTERM or ``--seconds``, and its end stops the robot (zero first,
+then the DDS endpoints go, so peers learn at once). Options are checked before the
+device opens: a refused option moves nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+import anyio
+
+from ..core.watchdog import MotionLimits
+from ..devices import DeviceProfile
+from ..errors import ChassisError
+from .common import first_frame, out
+
+__all__ = ["ros2"]
+
+
+def _show_refusals() -> None:
+    """Refused samples are warnings of ``chassis_sdk.integrations.ros2`` (already
+    rate-limited); the CLI shows only errors unless ``-v``, so show these on stderr."""
+    log = logging.getLogger("chassis_sdk.integrations.ros2")
+    if log.getEffectiveLevel() > logging.WARNING:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("chassis-sdk ros2: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.WARNING)
+        log.propagate = False
+
+
+async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    """Bridge until Ctrl-C, SIGTERM or ``--seconds``."""
+    try:
+        from ..integrations.ros2 import Ros2Bridge
+        from ..integrations.ros2_dds import discovery_from_env
+        from ..recording.ros2_types import check_namespace
+    except ImportError as exc:
+        raise ChassisError(
+            f"ros2 needs cyclonedds: pip install 'chassis-sdk[ros2]' ({exc})"
+        ) from None
+    try:  # before the device opens
+        namespace = check_namespace(args.namespace)
+        discovery = discovery_from_env(
+            domain_id=args.domain_id,
+            localhost=args.localhost or None,
+            static_peers=args.static_peer,
+        )
+    except (TypeError, ValueError) as exc:
+        raise ChassisError(str(exc)) from None
+    _show_refusals()
+    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
+    async with device.device(
+        port,
+        baudrate=args.baudrate,
+        reconnect=True,
+        limits=limits,
+        command_timeout=args.command_timeout,
+    ) as dev:
+        await first_frame(dev, 3.0, device.recognised_by)
+        bridge = Ros2Bridge(
+            dev,
+            namespace=namespace,
+            discovery=discovery,
+            stamped=args.stamped,
+            tf=not args.no_tf,
+            read_only=args.read_only,
+            command_timeout=args.command_timeout,
+        )
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(bridge.run, name="ros2 bridge")
+            await bridge.started.wait()
+            where = namespace or "/"
+            mode = "read-only" if args.read_only else "cmd_vel and emergency_stop in"
+            out(
+                f"bridging {port} ({device.name}) onto ROS 2 domain {discovery.domain_id} "
+                f"under {where} ({discovery.range.lower()} discovery; {mode}); Ctrl-C to quit"
+            )
+            with anyio.move_on_after(args.seconds):  # None: until Ctrl-C or SIGTERM
+                await anyio.sleep_forever()
+            tg.cancel_scope.cancel()
+        stopped = "" if args.read_only else "; the robot is stopped"
+        out(f"bridge ended: {bridge.commands} commands, {bridge.refused} refused{stopped}")

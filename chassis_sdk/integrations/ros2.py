@@ -1,0 +1,479 @@
+"""The robot on the ROS 2 graph, without ROS: :class:`Ros2Bridge` puts one device on
+DDS with ROS 2's names, types and QoS, so that Nav2, teleop, RViz, robot_localization
+and ``ros2 bag`` work with it as with any ROS 2 base driver. Needs the ``ros2`` extra
+(``cyclonedds``); no ROS installation.
+
+Topics (relative names go under the namespace; types in
+:mod:`chassis_sdk.recording.ros2_types`):
+
+===================  ==========================  ===  ==========================================
+ROS name             type                        dir  what
+===================  ==========================  ===  ==========================================
+``cmd_vel``          ``geometry_msgs/Twist``     in   each sample one fresh ``set_velocity``
+                     (``TwistStamped``:          (best effort: any writer matches)
+                     ``stamped=True``)
+``emergency_stop``   ``std_msgs/Bool``           in   ``true`` engages, ``false`` releases
+``odom``             ``nav_msgs/Odometry``       out  the device's odometry, at its rate
+``/tf``              ``tf2_msgs/TFMessage``      out  odom → base_link (``tf=False``: none)
+``/tf_static``       ``tf2_msgs/TFMessage``      out  the static transforms (latched)
+``battery_state``    ``sensor_msgs/BatteryState`` out the battery voltage (1 Hz for a chassis)
+``/diagnostics``     ``DiagnosticArray``         out  the device's health, 1 Hz
+``imu/data_raw``     ``sensor_msgs/Imu``         out  a board's IMU (m/s², rad/s)
+===================  ==========================  ===  ==========================================
+
+Why it is shaped this way
+-------------------------
+It keeps the contract of every surface that can move the robot (the MQTT bridge's):
+
+- each ``cmd_vel`` sample is one fresh command under the deadman: it holds for
+  ``command_timeout`` (0.5 s, diff_drive_controller's ``cmd_vel_timeout``) and then the
+  robot stops, unless a newer sample came; a writer that stays alive and silent stops
+  the robot within the deadman, and when no ``cmd_vel`` writer is left (DDS tells the
+  reader: liveliness and matching) the robot stops at once;
+- velocity is state, not a queue: of what arrived, only the newest sample counts, and
+  at most one command per 20 ms reaches the serial line;
+- a sample that is non-finite, out of the device's range, stamped older than the
+  deadman, or that will not decode is refused, counted and reported in the log (the
+  first at once, then at most one summary a second) and in ``/diagnostics``: never
+  acted on, and nothing a sample holds can end the bridge;
+- ``emergency_stop`` never waits behind velocity, and while it is engaged velocity is
+  refused; ``read_only`` subscribes to nothing and never writes to the device;
+- the bridge ending, for any reason, stops the robot (then its DDS endpoints are
+  deleted, so peers learn at once that it is gone);
+- stamps are wall-clock time.
+
+No ROS services: between rmw_cyclonedds and rmw_fastrtps they do not interoperate
+(ros2/rmw_cyclonedds #184, #503, #577), and parameters are services. Stop and e-stop
+are topics, configuration is the CLI's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Callable, Coroutine, Sequence
+from typing import Any
+
+import anyio
+
+from ..core.device import Device
+from ..core.validation import check_real
+from ..errors import ChassisError
+from ..recording import ros2_types as msg
+from ..recording.ros2_types import (
+    TOPICS,
+    StaticTransform,
+    check_frame,
+    check_namespace,
+    static_transforms_message,
+    wall_time,
+)
+from .inbound import CommandError, Refusals, check_fresh
+from .ros2_dds import Discovery, Participant, Reader, Writer, discovery_from_env
+
+__all__ = ["Ros2Bridge", "StaticTransform"]
+
+_log = logging.getLogger("chassis_sdk.integrations.ros2")
+#: Least seconds between two velocity commands written (the newest in between counts).
+_VELOCITY_PERIOD = 0.02
+#: Least seconds between two battery messages from a chassis's 50 Hz telemetry.
+_BATTERY_PERIOD = 1.0
+#: The longest a ``diagnose()`` may take before the status says so.
+_DIAGNOSE_TIMEOUT = 2.0
+
+
+class Ros2Bridge:
+    """One device on the ROS 2 graph (see the module docstring for the topics and the
+    safety rules).
+
+    Args:
+        device: A connected (or connecting) device; the bridge never closes it.
+        namespace: Where the relative topics go (``robot1`` → ``/robot1/odom``).
+        discovery: How to find peers (default: ROS 2's variables,
+            :func:`~chassis_sdk.integrations.ros2_dds.discovery_from_env`).
+        stamped: Read ``cmd_vel`` as ``geometry_msgs/TwistStamped`` (Jazzy's
+            diff_drive_controller); a stamped sample older than ``command_timeout``
+            is refused.
+        tf: Publish odom → base_link on ``/tf`` (``False`` when an EKF publishes it).
+        read_only: Subscribe to nothing: never move the robot, never write to it.
+        command_timeout: How long one ``cmd_vel`` sample holds (s).
+        max_linear: Clamp ``linear.x`` to this (m/s; ``None``: the device's range).
+        max_angular: Clamp ``angular.z`` to this (rad/s).
+        frame_id: The odometry frame (REP 105: ``odom``).
+        child_frame_id: The robot's frame (``base_link``).
+        imu_frame_id: A board's IMU frame.
+        pose_covariance: Six variances (x, y, z, roll, pitch, yaw) for the pose;
+            default :data:`~chassis_sdk.recording.ros2_types.DEFAULT_POSE_COVARIANCE`.
+        twist_covariance: The same for the twist.
+        static_transforms: What ``/tf_static`` holds (default: a board's
+            ``base_link`` → ``imu_link``, identity; a chassis none).
+        diagnostics_period: Seconds between two ``/diagnostics`` messages.
+
+    Raises:
+        TypeError, ValueError: A bad option (before anything is created).
+    """
+
+    def __init__(
+        self,
+        device: Device[Any, Any],
+        *,
+        namespace: str = "",
+        discovery: Discovery | None = None,
+        stamped: bool = False,
+        tf: bool = True,
+        read_only: bool = False,
+        command_timeout: float = 0.5,
+        max_linear: float | None = None,
+        max_angular: float | None = None,
+        frame_id: str = "odom",
+        child_frame_id: str = "base_link",
+        imu_frame_id: str = "imu_link",
+        pose_covariance: Sequence[float] | None = None,
+        twist_covariance: Sequence[float] | None = None,
+        static_transforms: Sequence[StaticTransform] | None = None,
+        diagnostics_period: float = 1.0,
+    ) -> None:
+        self.device = device
+        self.namespace = check_namespace(namespace)
+        self.discovery = discovery if discovery is not None else discovery_from_env()
+        self.stamped = bool(stamped)
+        self.tf = bool(tf)
+        self.read_only = bool(read_only)
+        self.command_timeout = check_real(
+            command_timeout, "command_timeout", low=0, low_open=True, high=10, unit="s"
+        )
+        self.max_linear = (
+            None
+            if max_linear is None
+            else check_real(max_linear, "max_linear", low=0, low_open=True)
+        )
+        self.max_angular = (
+            None
+            if max_angular is None
+            else check_real(max_angular, "max_angular", low=0, low_open=True)
+        )
+        self.frame_id = check_frame(frame_id, "frame_id")
+        self.child_frame_id = check_frame(child_frame_id, "child_frame_id")
+        self.imu_frame_id = check_frame(imu_frame_id, "imu_frame_id")
+        self._pose_cov = msg.covariance(pose_covariance or msg.DEFAULT_POSE_COVARIANCE,
+                                        "pose_covariance")  # fmt: skip
+        self._twist_cov = msg.covariance(twist_covariance or msg.DEFAULT_TWIST_COVARIANCE,
+                                         "twist_covariance")  # fmt: skip
+        self._device_any: Any = device
+        self._has_imu = callable(getattr(device, "imu", None))
+        if static_transforms is None:
+            static_transforms = (
+                [StaticTransform(self.child_frame_id, self.imu_frame_id)] if self._has_imu else []
+            )
+        for st in static_transforms:
+            if not isinstance(st, StaticTransform):
+                raise TypeError(f"static_transforms must hold StaticTransform, got {st!r}")
+            check_frame(st.parent, "a static transform's parent")
+            check_frame(st.child, "a static transform's child")
+        self.static_transforms = tuple(static_transforms)
+        self.diagnostics_period = check_real(
+            diagnostics_period, "diagnostics_period", low=0, low_open=True, unit="s"
+        )
+        self._refusals = Refusals(1.0)
+        self._cmd: Reader[Any] | None = None
+        self._estop_engaged = False
+        self._stop_now = False
+        #: Set once the DDS endpoints exist (the bridge is on the graph).
+        self.started = anyio.Event()
+        #: Velocity commands written to the device.
+        self.commands = 0
+        #: Samples made moot by a newer one before they were written.
+        self.superseded = 0
+        #: Stops because the last ``cmd_vel`` writer went away.
+        self.writer_gone_stops = 0
+        #: Odometry messages published.
+        self.odometry_published = 0
+        self._writers: list[Writer[Any]] = []
+        self._readers: list[Reader[Any]] = []
+
+    @property
+    def refused(self) -> int:
+        """Samples refused so far (each counted and reported in the log, summarised)."""
+        return self._refusals.total + sum(r.undecodable for r in self._readers)
+
+    @property
+    def dropped_writes(self) -> int:
+        """Messages DDS did not take (a lagging reader's full history): never waited for."""
+        return sum(w.dropped for w in self._writers)
+
+    # --- lifetime --------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Bridge until cancelled. The robot is stopped (zero written) whenever this
+        returns or raises, unless ``read_only``; then the DDS endpoints are deleted.
+
+        Raises:
+            cyclonedds.core.DDSException: DDS could not start (a bad configuration).
+            ChassisError: A device stream ended for good (a link lost without
+                ``reconnect``).
+        """
+        loop = asyncio.get_running_loop()
+        participant = Participant(self.discovery, self.namespace)
+        try:
+            loops = self._setup(participant, loop)
+            self.started.set()
+            _log.info(
+                "on the ROS 2 graph: domain %d, %s discovery, namespace %r%s",
+                self.discovery.domain_id,
+                self.discovery.range.lower(),
+                self.namespace or "/",
+                " (read-only)" if self.read_only else "",
+            )
+            async with anyio.create_task_group() as tg:
+                for name, work in loops:
+                    tg.start_soon(work, name=f"ros2 {name}")
+        finally:
+            with anyio.CancelScope(shield=True):
+                await self._stop_robot()
+            participant.close()
+
+    def _setup(
+        self, participant: Participant, loop: asyncio.AbstractEventLoop
+    ) -> list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]]:
+        odom = participant.writer(TOPICS["odom"])
+        tf = participant.writer(TOPICS["tf"]) if self.tf else None
+        battery = participant.writer(TOPICS["battery_state"])
+        diagnostics = participant.writer(TOPICS["diagnostics"])
+        self._writers += [w for w in (odom, tf, battery, diagnostics) if w is not None]
+        if self.static_transforms:
+            static = participant.writer(TOPICS["tf_static"])
+            self._writers.append(static)
+            now = time.time()
+            static.write(static_transforms_message(self.static_transforms, now))
+        loops: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]] = [
+            ("odom", lambda: self._odometry(odom, tf)),
+            ("battery", lambda: self._battery(battery)),
+            ("diagnostics", lambda: self._diagnostics(diagnostics)),
+        ]
+        if self._has_imu:
+            imu = participant.writer(TOPICS["imu"])
+            self._writers.append(imu)
+            loops.append(("imu", lambda: self._imu(imu)))
+        if not self.read_only:
+            cmd = participant.reader(TOPICS["cmd_vel_stamped" if self.stamped else "cmd_vel"], loop)
+            cmd.on_no_writers = self._writer_gone
+            self._cmd = cmd
+            estop = participant.reader(TOPICS["emergency_stop"], loop)
+            self._readers += [cmd, estop]
+            loops += [
+                ("cmd_vel", lambda: self._commands(cmd)),
+                ("estop", lambda: self._estops(estop)),
+            ]
+        return loops
+
+    async def _stop_robot(self) -> None:
+        if self.read_only:
+            return  # a viewer never writes to the device, not even a zero
+        with contextlib.suppress(ChassisError):
+            await self.device.stop()
+
+    # --- what comes in ---------------------------------------------------------------------
+
+    def _refuse(self, where: str, why: str) -> None:
+        report = self._refusals.add(where, why)
+        if report is not None:
+            _log.warning("refused: %s", report.summary())
+
+    def _writer_gone(self) -> None:
+        """The last ``cmd_vel`` writer left (on the loop, from the reader's listener,
+        which then wakes the command loop)."""
+        self._stop_now = True
+
+    def _velocity_of(self, sample: Any) -> tuple[float, float]:
+        twist = sample.twist if self.stamped else sample
+        if self.stamped:
+            stamp = sample.header.stamp
+            if stamp.sec or stamp.nanosec:  # an unset stamp is no stamp
+                check_fresh(stamp.sec + stamp.nanosec * 1e-9, self.command_timeout)
+        linear, angular = float(twist.linear.x), float(twist.angular.z)
+        if not (math.isfinite(linear) and math.isfinite(angular)):
+            raise CommandError(f"linear.x and angular.z must be finite, got {linear}, {angular}")
+        if self._estop_engaged:
+            raise CommandError("the emergency stop is engaged: release it first")
+        if self.max_linear is not None:
+            linear = max(-self.max_linear, min(self.max_linear, linear))
+        if self.max_angular is not None:
+            angular = max(-self.max_angular, min(self.max_angular, angular))
+        return linear, angular
+
+    async def _commands(self, reader: Reader[Any]) -> None:
+        """Act on ``cmd_vel``: the newest valid sample, at most one per period; a stop at
+        once when the last writer leaves (the reader wakes this loop for both)."""
+        where = TOPICS["cmd_vel"].qualified(self.namespace)
+        next_write = -math.inf
+        pending: tuple[float, float] | None = None
+        while True:
+            wait = next_write - anyio.current_time()
+            if pending is None:
+                await reader.wait()
+            elif wait > 0:
+                # Its slot: a newer sample replaces it, a writer leaving or an e-stop
+                # cancels it.
+                with anyio.move_on_after(wait):
+                    await reader.wait()
+            for sample in reader.take():
+                try:
+                    velocity = self._velocity_of(sample)
+                except (CommandError, ValueError) as exc:
+                    self._refuse(where, str(exc))
+                    continue
+                if pending is not None:
+                    self.superseded += 1
+                pending = velocity
+            if self._estop_engaged and pending is not None:
+                self.superseded += 1
+                pending = None
+            if self._stop_now:
+                self._stop_now = False
+                if pending is not None:
+                    self.superseded += 1
+                pending = None
+                self.writer_gone_stops += 1
+                _log.info("%s: no writer left; the robot is stopped", where)
+                await self._stop_robot()
+                continue
+            if pending is None or next_write - anyio.current_time() > 0:
+                continue
+            linear, angular = pending
+            pending = None
+            try:
+                await self.device.set_velocity(linear, angular, duration=self.command_timeout)
+            except ValueError as exc:  # out of the device's range: refused, not written
+                self._refuse(where, str(exc))
+                continue
+            except ChassisError as exc:  # not connected: this command is lost, no more
+                self._refuse(where, f"not written: {exc}")
+                continue
+            self.commands += 1
+            next_write = anyio.current_time() + _VELOCITY_PERIOD
+
+    async def _estops(self, reader: Reader[Any]) -> None:
+        where = TOPICS["emergency_stop"].qualified(self.namespace)
+        device: Any = self.device
+        while True:
+            await reader.wait()
+            for sample in reader.take():
+                engaged = bool(sample.data)
+                self._estop_engaged = engaged
+                if engaged and self._cmd is not None:
+                    self._cmd.wake()  # a pending velocity is dropped at once
+                try:
+                    if not hasattr(device, "emergency_stop"):
+                        await self.device.stop()
+                        if engaged:
+                            raise CommandError(
+                                f"a {self.device.device_name} has no e-stop; it was stopped"
+                            )
+                    elif engaged:
+                        await device.emergency_stop()
+                    else:
+                        await device.release_emergency_stop()
+                except (CommandError, ChassisError) as exc:
+                    self._refuse(where, str(exc))
+
+    # --- what goes out ---------------------------------------------------------------------
+
+    async def _odometry(self, odom: Writer[Any], tf: Writer[Any] | None) -> None:
+        async for sample in self.device.odometry():
+            epoch = wall_time(sample.timestamp)
+            odom.write(
+                msg.odometry_message(
+                    sample,
+                    epoch,
+                    frame_id=self.frame_id,
+                    child_frame_id=self.child_frame_id,
+                    pose_covariance=self._pose_cov,
+                    twist_covariance=self._twist_cov,
+                )
+            )
+            self.odometry_published += 1
+            if tf is not None:
+                tf.write(
+                    msg.transform_message(
+                        sample, epoch, frame_id=self.frame_id, child_frame_id=self.child_frame_id
+                    )
+                )
+
+    async def _battery(self, battery: Writer[Any]) -> None:
+        device: Any = self.device
+        if callable(getattr(device, "battery", None)):
+            async for reading in device.battery():
+                epoch = wall_time(reading.timestamp)
+                battery.write(
+                    msg.battery_message(reading.voltage, epoch, frame_id=self.child_frame_id)
+                )
+            return
+        if not callable(getattr(device, "telemetry", None)):
+            return
+        last = -math.inf
+        async for telemetry in device.telemetry():
+            if telemetry.timestamp - last < _BATTERY_PERIOD:
+                continue
+            last = telemetry.timestamp
+            epoch = wall_time(telemetry.timestamp)
+            battery.write(
+                msg.battery_message(telemetry.voltage, epoch, frame_id=self.child_frame_id)
+            )
+
+    async def _imu(self, imu: Writer[Any]) -> None:
+        device: Any = self.device
+        async for sample in device.imu():
+            imu.write(
+                msg.imu_message(sample, wall_time(sample.timestamp), frame_id=self.imu_frame_id)
+            )
+
+    async def _diagnostics(self, diagnostics: Writer[Any]) -> None:
+        name = f"chassis_sdk: {self.device.device_name}"
+        while True:
+            level, message, values = await self._health()
+            pending = self._refusals.due()
+            if pending is not None:
+                _log.warning("refused: %s", pending.summary())
+            if self.refused:
+                values.append(("refused", str(self.refused)))
+            diagnostics.write(
+                msg.diagnostics_message(
+                    time.time(),
+                    name=name,
+                    hardware_id=self.device.port,
+                    level=level,
+                    message=message,
+                    values=values,
+                )
+            )
+            await anyio.sleep(self.diagnostics_period)
+
+    async def _health(self) -> tuple[int, str, list[tuple[str, str]]]:
+        """The device's health as a level, one line and key/value pairs. A read-only
+        bridge sends no request (a viewer never writes): it reports the link only."""
+        device = self.device
+        stats = device.stats
+        values = [
+            ("connection", device.connection_state.value),
+            ("frames in", str(stats.frames)),
+            ("frames out", str(stats.frames_sent)),
+            ("checksum errors", str(stats.checksum_errors)),
+            ("reconnects", str(stats.reconnects)),
+        ]
+        if not device.is_connected:
+            return msg.DIAGNOSTIC_STALE, f"not connected ({device.connection_state.value})", values
+        if self.read_only:
+            return msg.DIAGNOSTIC_OK, "connected (read-only: no health request)", values
+        try:
+            with anyio.fail_after(_DIAGNOSE_TIMEOUT):
+                report = await self._device_any.diagnose()
+        except (TimeoutError, ChassisError) as exc:
+            return msg.DIAGNOSTIC_WARN, f"diagnose failed: {exc}", values
+        values += [(f"fault {i + 1}", f) for i, f in enumerate(report.faults)]
+        values += [(f"note {i + 1}", n) for i, n in enumerate(report.notes)]
+        if report.faults:
+            return msg.DIAGNOSTIC_ERROR, "; ".join(report.faults)[:200], values
+        return msg.DIAGNOSTIC_OK, "OK", values

@@ -1,0 +1,390 @@
+"""The ROS 2 bridge's behaviour, with a Cyclone DDS participant of the test's own as
+the rest of the graph (the wire, against an independent DDS stack, is
+test_ros2_interop.py's). Every test that joins DDS runs in a network namespace of its
+own whose only interface is loopback (the ``netns`` marker)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from typing import Any
+
+import anyio
+import pytest
+
+pytest.importorskip("cyclonedds")
+
+from cyclonedds.core import Listener, Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+
+from chassis_sdk import Board, Chassis
+from chassis_sdk.devices.chassis.messages import DriveVelocity
+from chassis_sdk.integrations.ros2 import Ros2Bridge
+from chassis_sdk.integrations.ros2_dds import (
+    Discovery,
+    discovery_from_env,
+)
+from chassis_sdk.recording import ros2_types as m
+from chassis_sdk.recording.ros2_types import check_namespace
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+DOMAIN = 17
+
+
+def drives(sim: ChassisSimulator) -> list[tuple[float, DriveVelocity]]:
+    return [(t, c) for t, c in sim.firmware.received if isinstance(c, DriveVelocity)]
+
+
+async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
+    async with asyncio.timeout(timeout):
+        while not condition():
+            await asyncio.sleep(0.005)
+
+
+class Graph:
+    """The rest of the ROS 2 graph: a participant with writers and readers."""
+
+    def __init__(self, namespace: str = "") -> None:
+        self.dp = DomainParticipant(DOMAIN)
+        self.namespace = namespace
+        self._topics: dict[str, Topic[Any]] = {}
+
+    def topic(self, name: str, tp: type) -> Topic[Any]:
+        if name not in self._topics:
+            self._topics[name] = Topic(self.dp, name, tp)
+        return self._topics[name]
+
+    def writer(self, name: str, tp: type, *, reliable: bool = False) -> DataWriter[Any]:
+        qos = Qos(
+            Policy.Reliability.Reliable(0) if reliable else Policy.Reliability.BestEffort,
+            Policy.History.KeepLast(10),
+        )
+        return DataWriter(self.dp, self.topic(name, tp), qos)
+
+    def reader(
+        self, name: str, tp: type, *, transient: bool = False, depth: int = 1000
+    ) -> DataReader[Any]:
+        qos = Qos(
+            Policy.Reliability.Reliable(0),
+            Policy.Durability.TransientLocal if transient else Policy.Durability.Volatile,
+            Policy.History.KeepLast(depth),
+        )
+        return DataReader(self.dp, self.topic(name, tp), qos)
+
+
+async def matched(writer: DataWriter[Any], timeout: float = 5.0) -> None:
+    """Until the bridge's reader matched ``writer`` (discovery is done)."""
+    await until(lambda: len(writer.get_matched_subscriptions()) > 0, timeout)
+
+
+@asynccontextmanager
+async def bridged(
+    device: Any, **options: Any
+) -> AsyncIterator[tuple[Ros2Bridge, anyio.abc.TaskGroup]]:
+    options.setdefault("discovery", Discovery(domain_id=DOMAIN))
+    bridge = Ros2Bridge(device, **options)
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(bridge.run)
+        await bridge.started.wait()
+        yield bridge, tg
+        tg.cancel_scope.cancel()
+
+
+def twist(linear: float, angular: float = 0.0) -> m.Twist:
+    return m.Twist(linear=m.Vector3(x=linear), angular=m.Vector3(z=angular))
+
+
+# --- without DDS: options, names, discovery ------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("options", "error"),
+    [
+        pytest.param({"namespace": "robot one"}, ValueError, id="namespace-space"),
+        pytest.param({"namespace": "1robot"}, ValueError, id="namespace-digit"),
+        pytest.param({"namespace": 3}, TypeError, id="namespace-type"),
+        pytest.param({"command_timeout": 0}, ValueError, id="timeout-zero"),
+        pytest.param({"command_timeout": math.nan}, ValueError, id="timeout-nan"),
+        pytest.param({"max_linear": -1.0}, ValueError, id="max-linear-negative"),
+        pytest.param({"frame_id": "/odom"}, ValueError, id="frame-leading-slash"),
+        pytest.param({"child_frame_id": ""}, ValueError, id="frame-empty"),
+        pytest.param({"pose_covariance": [0.0] * 6}, ValueError, id="covariance-zero"),
+        pytest.param({"twist_covariance": [1.0] * 5}, ValueError, id="covariance-short"),
+        pytest.param({"static_transforms": ["base_link"]}, TypeError, id="static-type"),
+        pytest.param({"diagnostics_period": -1}, ValueError, id="diagnostics-period"),
+    ],
+)
+def test_bad_options_are_refused_before_anything_is_created(
+    options: dict[str, Any], error: type[Exception]
+) -> None:
+    class NoDevice:
+        device_name = "chassis"
+
+    with pytest.raises(error):
+        Ros2Bridge(NoDevice(), discovery=Discovery(), **options)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("given", "expected"),
+    [("", ""), ("/", ""), ("robot1", "/robot1"), ("/fleet/robot_1/", "/fleet/robot_1")],
+)
+def test_namespaces(given: str, expected: str) -> None:
+    assert check_namespace(given) == expected
+    spec = m.TOPICS["odom"]
+    assert spec.dds_topic(expected) == f"rt{expected}/odom"
+    assert m.TOPICS["tf"].dds_topic(expected) == "rt/tf"  # absolute names stay
+
+
+def test_discovery_follows_ros2s_variables() -> None:
+    d = discovery_from_env({})
+    assert (d.domain_id, d.range, d.static_peers, d.config()) == (0, "SUBNET", (), None)
+    d = discovery_from_env({"ROS_DOMAIN_ID": "42", "ROS_AUTOMATIC_DISCOVERY_RANGE": "localhost"})
+    assert (d.domain_id, d.range) == (42, "LOCALHOST")
+    config = d.config()
+    assert config is not None
+    assert '<NetworkInterface address="127.0.0.1"/>' in config
+    assert "<AllowMulticast>false</AllowMulticast>" in config
+    assert "<ParticipantIndex>auto</ParticipantIndex>" in config
+    assert '<Peer address="127.0.0.1"/>' in config
+    d = discovery_from_env({"ROS_STATIC_PEERS": "10.0.0.2; robot2.local"})
+    assert d.static_peers == ("10.0.0.2", "robot2.local")
+    config = d.config()
+    assert config is not None
+    assert "AllowMulticast" not in config
+    assert '<Peer address="robot2.local"/>' in config
+    assert discovery_from_env({"ROS_LOCALHOST_ONLY": "1"}).range == "LOCALHOST"
+    # Explicit options come first.
+    d = discovery_from_env({"ROS_DOMAIN_ID": "3"}, domain_id=5, localhost=True, static_peers=[])
+    assert (d.domain_id, d.range, d.static_peers) == (5, "LOCALHOST", ())
+    for env, words in [
+        ({"ROS_DOMAIN_ID": "x"}, "ROS_DOMAIN_ID"),
+        ({"ROS_DOMAIN_ID": "300"}, "0 to 232"),
+        ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "MARS"}, "ROS_AUTOMATIC_DISCOVERY_RANGE"),
+        ({"ROS_STATIC_PEERS": "<evil/>"}, "host name"),
+    ]:
+        with pytest.raises(ValueError, match=words):
+            discovery_from_env(env)
+
+
+# --- on DDS ------------------------------------------------------------------------------------
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_cmd_vel_drives_and_the_deadman_stops_a_silent_writer() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot, bridged(robot) as (b, _):
+        g = Graph()
+        w = g.writer("rt/cmd_vel", m.Twist)
+        await matched(w)
+        w.write(twist(0.3, 0.1))
+        await until(lambda: any(c.linear_mm == 300 for _, c in drives(sim)), 2.0)
+        last = time.monotonic()
+        # The writer stays alive and silent: one sample holds command_timeout, then 0.
+        await until(lambda: drives(sim)[-1][1] == DriveVelocity(0, 0.0), 2.0)
+        assert 0.4 < time.monotonic() - last < 0.5 + 0.3
+        assert b.commands == 1
+        assert b.writer_gone_stops == 0
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_the_last_writer_leaving_stops_the_robot_at_once() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, command_timeout=5.0) as (b, _),
+    ):
+        g = Graph()
+        w = g.writer("rt/cmd_vel", m.Twist)
+        await matched(w)
+        w.write(twist(0.2))
+        await until(lambda: any(c.linear_mm == 200 for _, c in drives(sim)), 2.0)
+        left = time.monotonic()
+        w.__del__()  # gone: with a 5 s deadman, only its leaving can stop the robot now
+        await until(lambda: drives(sim)[-1][1] == DriveVelocity(0, 0.0), 1.0)
+        assert time.monotonic() - left < 0.2
+        assert b.writer_gone_stops == 1
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_bad_samples_are_refused_and_never_written() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, max_linear=0.4) as (b, _),
+    ):
+        g = Graph()
+        w = g.writer("rt/cmd_vel", m.Twist, reliable=True)
+        await matched(w)
+        for bad in (twist(math.nan), twist(0.1, math.inf), twist(1e300)):
+            w.write(bad)
+        await until(lambda: b.refused >= 2, 2.0)
+        w.write(twist(5.0))  # clamped to max_linear, not refused
+        await until(lambda: any(c.linear_mm == 400 for _, c in drives(sim)), 2.0)
+        written = {c.linear_mm for _, c in drives(sim)}
+        assert written <= {0, 400}, written
+        assert b.refused >= 2  # NaN and inf (1e300 is clamped like 5.0)
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_stale_stamped_commands_are_refused() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, stamped=True) as (b, _),
+    ):
+        g = Graph()
+        w = g.writer("rt/cmd_vel", m.TwistStamped, reliable=True)
+        await matched(w)
+        old = m.TwistStamped(header=m.Header(stamp=m.stamp(time.time() - 5.0)), twist=twist(0.3))
+        w.write(old)
+        await until(lambda: b.refused == 1, 2.0)
+        fresh = m.TwistStamped(header=m.Header(stamp=m.stamp(time.time())), twist=twist(0.25))
+        w.write(fresh)
+        await until(lambda: any(c.linear_mm == 250 for _, c in drives(sim)), 2.0)
+        assert not any(c.linear_mm == 300 for _, c in drives(sim))
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_emergency_stop_engages_refuses_velocity_and_releases() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot, bridged(robot) as (b, _):
+        g = Graph()
+        stop = g.writer("rt/emergency_stop", m.Bool, reliable=True)
+        cmd = g.writer("rt/cmd_vel", m.Twist)
+        await matched(stop)
+        await matched(cmd)
+        stop.write(m.Bool(data=True))
+        await until(lambda: sim.firmware.software_estop, 2.0)
+        cmd.write(twist(0.3))
+        await until(lambda: b.refused == 1, 2.0)
+        stop.write(m.Bool(data=False))
+        await until(lambda: not sim.firmware.software_estop, 2.0)
+        cmd.write(twist(0.15))
+        await until(lambda: any(c.linear_mm == 150 for _, c in drives(sim)), 2.0)
+        assert not any(c.linear_mm == 300 for _, c in drives(sim))
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_read_only_subscribes_to_nothing_and_writes_nothing() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        async with bridged(robot, read_only=True) as (_b, tg):
+            g = Graph()
+            odom = g.reader("rt/odom", m.Odometry)
+            cmd = g.writer("rt/cmd_vel", m.Twist)
+            await until(lambda: len(odom.read(N=1000)) > 5, 5.0)  # the bridge is up and seen
+            assert len(cmd.get_matched_subscriptions()) == 0
+            tg.cancel_scope.cancel()
+        # The bridge ended: not even a zero was written (the device's own close does).
+        assert len(sim.firmware.received) == 0
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_odometry_tf_battery_and_diagnostics_from_a_chassis() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, namespace="robot1", diagnostics_period=0.2) as (_b, _),
+    ):
+        g = Graph()
+        odom = g.reader("rt/robot1/odom", m.Odometry)
+        tf = g.reader("rt/tf", m.TFMessage)
+        battery = g.reader("rt/robot1/battery_state", m.BatteryState)
+        diag = g.reader("rt/diagnostics", m.DiagnosticArray)
+        got: dict[str, list[Any]] = {"odom": [], "tf": [], "battery": [], "diag": []}
+
+        def collect() -> bool:
+            for key, reader in (("odom", odom), ("tf", tf), ("battery", battery), ("diag", diag)):
+                got[key] += [s for s in reader.take(N=1000) if hasattr(s, "__idl_typename__")]
+            return len(got["odom"]) >= 50 and got["battery"] != [] and len(got["diag"]) >= 2
+
+        started = time.monotonic()
+        await until(collect, 10.0)
+        rate = len(got["odom"]) / (time.monotonic() - started)
+        assert rate > 25  # the chassis's 50 Hz, less discovery
+        o = got["odom"][-1]
+        assert (o.header.frame_id, o.child_frame_id) == ("odom", "base_link")
+        assert abs(o.header.stamp.sec + o.header.stamp.nanosec * 1e-9 - time.time()) < 1.0
+        assert all(o.pose.covariance[i * 7] > 0 for i in range(6))
+        assert all(o.twist.covariance[i * 7] > 0 for i in range(6))
+        t = got["tf"][-1].transforms[0]
+        assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+        bat = got["battery"][-1]
+        assert bat.voltage == pytest.approx(sim.firmware.battery_voltage, abs=0.1)
+        assert math.isnan(bat.percentage)
+        assert math.isnan(bat.current)
+        status = got["diag"][-1].status[0]
+        assert status.level == m.DIAGNOSTIC_OK, status
+        assert status.hardware_id == sim.port
+        assert status.name == "chassis_sdk: chassis"
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_a_board_publishes_imu_and_a_latched_tf_static_for_late_joiners() -> None:
+    async with BoardSimulator() as sim, Board(sim.port) as board, bridged(board) as (_b, _):
+        g = Graph()
+        imu = g.reader("rt/imu/data_raw", m.Imu)
+        samples: list[Any] = []
+
+        def collect() -> bool:
+            samples.extend(s for s in imu.take(N=100) if hasattr(s, "__idl_typename__"))
+            return len(samples) >= 3
+
+        await until(collect, 10.0)
+        s = samples[-1]
+        assert s.header.frame_id == "imu_link"
+        assert s.orientation_covariance[0] == -1.0
+        assert math.sqrt(sum(v**2 for v in (s.linear_acceleration.x, s.linear_acceleration.y,
+                                             s.linear_acceleration.z))) > 1.0  # fmt: skip
+        # A reader that joins long after the bridge still gets /tf_static.
+        late = g.reader("rt/tf_static", m.TFMessage, transient=True, depth=1)
+        static: list[Any] = []
+
+        def latched() -> bool:
+            static.extend(s for s in late.take(N=10) if hasattr(s, "__idl_typename__"))
+            return bool(static)
+
+        await until(latched, 5.0)
+        (transform,) = static[-1].transforms
+        assert (transform.header.frame_id, transform.child_frame_id) == ("base_link", "imu_link")
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_the_bridge_ending_stops_the_robot_and_leaves_the_graph() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        g = Graph()
+        left = asyncio.Event()
+        loop = asyncio.get_running_loop()
+
+        def on_match(_r: Any, status: Any) -> None:
+            if status.current_count == 0 and status.total_count > 0:
+                loop.call_soon_threadsafe(left.set)
+
+        kept = DataReader(  # kept: deleting it would stop its listener
+            g.dp,
+            g.topic("rt/odom", m.Odometry),
+            Qos(Policy.Reliability.Reliable(0)),
+            Listener(on_subscription_matched=on_match),  # type: ignore[no-untyped-call]
+        )
+        async with bridged(robot, command_timeout=5.0) as (_b, tg):
+            w = g.writer("rt/cmd_vel", m.Twist)
+            await matched(w)
+            w.write(twist(0.2))
+            await until(lambda: any(c.linear_mm == 200 for _, c in drives(sim)), 2.0)
+            tg.cancel_scope.cancel()
+        assert drives(sim)[-1][1] == DriveVelocity(0, 0.0)
+        async with asyncio.timeout(2.0):
+            await left.wait()
+        assert kept.get_subscription_matched_status().current_count == 0  # type: ignore[no-untyped-call]
