@@ -1,5 +1,6 @@
 """The event loop the tests run on: asyncio's own, or uvloop with
-``CHASSIS_SDK_TEST_LOOP=uvloop`` (CI runs the integration tests on it once)."""
+``CHASSIS_SDK_TEST_LOOP=uvloop`` (CI runs the integration tests on it once); and the
+``netns`` marker's plugin."""
 
 from __future__ import annotations
 
@@ -7,6 +8,10 @@ import os
 from collections.abc import Callable, Mapping
 
 import pytest
+
+# The `netns` marker: a test in a network namespace of its own, loopback only
+# (tests/support/netns.py).
+pytest_plugins = ("tests.support.netns",)
 
 if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":
     import asyncio
