@@ -18,7 +18,7 @@ import os
 from collections.abc import Callable, Coroutine, Hashable
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVar, runtime_checkable
 
 import anyio
 import anyio.lowlevel
@@ -34,7 +34,7 @@ from .validation import check_int, check_real
 if TYPE_CHECKING:
     from .notifier import Notifier
 
-__all__ = ["Recorder", "Session", "set_recorder"]
+__all__ = ["RecordTarget", "Recorder", "Session", "set_recorder"]
 
 M = TypeVar("M")
 K = TypeVar("K", bound=Hashable)
@@ -50,6 +50,20 @@ class Recorder(Protocol):
 
     def close(self) -> None:
         """End the recording (flush and close its file)."""
+
+
+@runtime_checkable
+class RecordTarget(Protocol):
+    """A ``record`` option that names its own recorder: a file path (``os.fspath``
+    gives it) that also opens the recording, with the options it was made with, so
+    the core never knows the file's format. ``chassis_sdk.recording.ros2.rosbag(...)``
+    is one (a rosbag2 MCAP file for ROS 2 tools)."""
+
+    def __fspath__(self) -> str:
+        """The file the recording goes to."""
+
+    def open_recorder(self, device: Any) -> Recorder:
+        """Start recording ``device`` (the device being connected) to the file."""
 
 
 #: Opens the recording of the ``record`` option: ``opener(path, device)`` (the device
@@ -85,13 +99,25 @@ def _find_recorder() -> None:
             return
 
 
-def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
-    """The ``record`` option checked: ``None``, or a file path (``.mcap``: MCAP, which
-    needs foxglove-sdk; any other name: a JSON-lines capture)."""
+def _recording(
+    record: str | os.PathLike[str] | None,
+) -> tuple[Path, Callable[[Any], Recorder]] | None:
+    """The ``record`` option checked: ``None``; a :class:`RecordTarget` (it opens its own
+    recording); or a file path, opened by the installed recorder (``.mcap``: MCAP, which
+    needs foxglove-sdk; any other name: a JSON-lines capture). Returns the file and what
+    opens the recording given the device."""
     if record is None:
         return None
+    if isinstance(record, RecordTarget):
+        path = Path(os.fspath(record))
+        if path.is_dir():
+            raise ValueError(f"record must be a file path, got the directory {str(path)!r}")
+        return path, record.open_recorder
     if not isinstance(record, str | os.PathLike) or not str(record):
-        raise ValueError(f"record must be a file path, got {record!r}")
+        raise ValueError(
+            "record must be a file path (or a recording with options, such as "
+            f"chassis_sdk.recording.ros2.rosbag(...)), got {record!r}"
+        )
     path = Path(record)
     if path.is_dir():
         raise ValueError(f"record must be a file path, got the directory {str(path)!r}")
@@ -109,7 +135,8 @@ def _recording_path(record: str | os.PathLike[str] | None) -> Path | None:
                 "record= found no recorder: install chassis-sdk (it declares one in the "
                 f"entry-point group {RECORDER_GROUP!r}) or import chassis_sdk.recording"
             )
-    return path
+    opener = _open_recorder
+    return path, lambda device: opener(path, device)
 
 
 class _LinkHooks(Generic[M]):
@@ -177,7 +204,9 @@ class Session(abc.ABC, Generic[M, K]):
             raise TypeError(f"{type(self).__name__}: `kind` is now `device_name`")
         self.port = port
         self._log = logger
-        self._record_path = _recording_path(record)
+        chosen = _recording(record)
+        self._record_path = chosen[0] if chosen is not None else None
+        self._record_opener = chosen[1] if chosen is not None else None
         self._recording: Recorder | None = None
         self._decoder = self._make_decoder()
         self._streams = Streams(queue_size)
@@ -322,9 +351,8 @@ class Session(abc.ABC, Generic[M, K]):
             self._requests.table.quarantine = self._reply_quarantine()
             self._streams.reopen()
 
-        if self._record_path is not None and self._recording is None:
-            assert _open_recorder is not None  # checked with the option
-            self._recording = _open_recorder(self._record_path, self)
+        if self._record_opener is not None and self._recording is None:
+            self._recording = self._record_opener(self)
         try:
             await self._link.connect(connecting)
         except BaseException:

@@ -5,6 +5,9 @@
   recorder and the live Foxglove server share it;
 * :mod:`.mcap`: :class:`~.mcap.McapRecording`, the one MCAP recorder (compressed,
   flushed every second);
+* :mod:`.ros2`: :class:`~.ros2.Ros2Recording`, the same session as a rosbag2 MCAP file
+  (ROS 2 types in CDR, with their QoS and type hashes) for ROS 2 tools, chosen with
+  :func:`~.ros2.rosbag`; :mod:`.ros2_types`, the ROS 2 messages it and the bridge use;
 * :mod:`.jsonl`: :class:`~.jsonl.JsonlRecording` and the JSON-lines capture format,
   written and read;
 * :func:`open_recording` opens either by the file's name; the ``record=`` option of
@@ -53,17 +56,36 @@ class Recording(Protocol):
 
 
 def open_recording(
-    path: str | os.PathLike[str], device: Device[Any, Any], **mcap_options: Any
+    path: str | os.PathLike[str],
+    device: Device[Any, Any],
+    *,
+    ros2: bool = False,
+    **options: Any,
 ) -> Recording:
     """Start recording ``device``'s session to ``path``: an MCAP file for ``.mcap``
-    (needs the ``foxglove`` extra), a JSON-lines capture for any other name.
+    (needs the ``foxglove`` extra), a JSON-lines capture for any other name; with
+    ``ros2``, a rosbag2 MCAP file for ROS 2 tools (needs the ``ros2`` extra; see
+    :mod:`chassis_sdk.recording.ros2`).
+
+    Args:
+        path: The file (overwritten).
+        device: The device whose session this is.
+        ros2: Write the ROS 2 profile (``.mcap`` only) instead of Foxglove's.
+        **options: The recorder's: :class:`~.mcap.McapRecording`'s, or with ``ros2``
+            those of :func:`~.ros2.rosbag` (``namespace``, frames, ...).
 
     Raises:
-        ImportError: ``.mcap`` without foxglove-sdk installed.
+        ImportError: ``.mcap`` without foxglove-sdk installed (with ``ros2``: without
+            cyclonedds or mcap).
+        ValueError: ``ros2`` for a name that is not ``.mcap``, or a bad option.
     """
     path = Path(path)
+    if ros2:
+        from .ros2 import rosbag
+
+        return rosbag(path, **options).open_recorder(device)
     if path.suffix.lower() == ".mcap":
-        return McapRecording(path, device, **mcap_options)
+        return McapRecording(path, device, **options)
     return JsonlRecording(path, device.port, device.baudrate, device)
 
 

@@ -12,15 +12,17 @@ import itertools
 import json
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import anyio
 
 from ..core.backoff import Backoff
+from ..core.session import RecordTarget
 from ..core.supervisor import reopen
 from ..core.transport import Link, open_link
 from ..core.validation import check_real
@@ -109,7 +111,7 @@ def _setter(event: anyio.Event) -> Callable[[Exception | None], None]:
 
 async def record(
     port: str,
-    path: str | Path,
+    path: str | os.PathLike[str],
     *,
     seconds: float,
     baudrate: int = 115200,
@@ -122,7 +124,11 @@ async def record(
     The format is the file's suffix: ``.mcap`` (raw bytes with receive times, every
     stream decoded, odometry and events; see :mod:`chassis_sdk.recording.sink`; needs
     the ``foxglove`` extra and the device's protocol, heard on the port if not given),
-    or a JSON-lines capture (raw bytes with receive times) for any other name.
+    or a JSON-lines capture (raw bytes with receive times) for any other name. A
+    recording chosen with its options, such as
+    :func:`chassis_sdk.recording.ros2.rosbag` (a rosbag2 file for ROS 2 tools), is
+    made as it says, from the same decoded streams:
+    ``record(port, rosbag("run.mcap", namespace="robot1"), seconds=60)``.
 
     If the link drops (the cable is pulled), the recording goes on: the drop is written
     to the file, the port is reopened with backoff until ``seconds`` are up, and a
@@ -130,21 +136,24 @@ async def record(
 
     Args:
         port: Device path, pty path or ``socket://host:port``.
-        path: The capture file to write (``.mcap``, else JSON lines).
+        path: The capture file to write (``.mcap``, else JSON lines), or a
+            :class:`~chassis_sdk.core.session.RecordTarget` (``rosbag(...)``).
         seconds: How long to listen.
         baudrate: Serial speed.
         progress: Called about twice a second, and at once when the link drops or
             comes back, with (bytes so far, seconds so far, link up).
-        device: The device's name, for ``.mcap`` (heard on the port if not given).
+        device: The device's name, for ``.mcap`` and a target (heard on the port if
+            not given).
 
     Raises:
         PortOpenError: The port cannot be opened at the start.
         ChassisError: ``.mcap`` without a device named, and none heard on the port.
         ValueError: An unknown device.
     """
+    target = path if isinstance(path, RecordTarget) else None
     path = Path(path)
     decoding: Any = None
-    if path.suffix.lower() == ".mcap":
+    if target is not None or path.suffix.lower() == ".mcap":
         if device is None:
             device = await detect_device(port, seconds=2.0, baudrate=baudrate)
             if device is None:
@@ -161,7 +170,7 @@ async def record(
     lost = anyio.Event()
     writer: Recording
     if decoding is not None:
-        writer = McapRecording(path, decoding)
+        writer = McapRecording(path, decoding) if target is None else _opened(target, decoding)
         feed: Callable[[bytes, float], None] = decoding.feed
     else:
         writer = JsonlRecording(path, port, baudrate)
@@ -218,6 +227,15 @@ async def record(
     )
 
 
+def _opened(target: RecordTarget, device: Any) -> Recording:
+    """The target's recording of ``device``, which must take the link's states too."""
+    recording = target.open_recorder(device)
+    if not callable(getattr(recording, "link_state", None)):
+        recording.close()
+        raise TypeError(f"{type(recording).__name__} cannot record a port: no link_state()")
+    return cast("Recording", recording)
+
+
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -254,7 +272,7 @@ def _read_mcap_bytes(path: Path, suffix: str) -> Iterator[tuple[float, bytes]]:
     from mcap.records import Message
     from mcap.stream_reader import StreamReader
 
-    wanted: set[int] = set()
+    wanted: dict[int, Callable[[bytes], bytes]] = {}
     t0: int | None = None
     with path.open("rb") as f:
         records = StreamReader(f, record_size_limit=1 << 30).records
@@ -263,13 +281,37 @@ def _read_mcap_bytes(path: Path, suffix: str) -> Iterator[tuple[float, bytes]]:
                 if isinstance(record, Message):
                     if t0 is None:
                         t0 = record.log_time
-                    if record.channel_id in wanted:
-                        data = base64.b64decode(json.loads(record.data)["data"])
-                        yield (record.log_time - t0) / 1e9, data
+                    unpack = wanted.get(record.channel_id)
+                    if unpack is not None:
+                        yield (record.log_time - t0) / 1e9, unpack(record.data)
                 elif isinstance(record, McapChannel) and record.topic.endswith(suffix):
-                    wanted.add(record.id)
+                    wanted[record.id] = _raw_bytes(record.message_encoding)
         except McapError as exc:
             _log.warning("%s ends early (%s): read up to there", path, exc)
+
+
+def _from_json(data: bytes) -> bytes:
+    return base64.b64decode(json.loads(data)["data"])
+
+
+def _raw_bytes(encoding: str) -> Callable[[bytes], bytes]:
+    """How to get the bytes out of a raw-bytes message: JSON with base64 (the Foxglove
+    recording), or CDR of ``std_msgs/msg/UInt8MultiArray`` (the rosbag2 one,
+    :mod:`chassis_sdk.recording.ros2`, whose types load only for such a file)."""
+    if encoding != "cdr":
+        return _from_json
+    try:
+        from .ros2_types import UInt8MultiArray
+    except ImportError:
+        raise ImportError(
+            "reading a rosbag2 recording needs cyclonedds: pip install 'chassis-sdk[ros2]'"
+        ) from None
+
+    def from_cdr(data: bytes) -> bytes:
+        message: Any = UInt8MultiArray.deserialize(data)  # its IDL annotations are not types
+        return bytes(message.data)
+
+    return from_cdr
 
 
 def _need_mcap() -> None:
