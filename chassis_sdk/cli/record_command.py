@@ -1,10 +1,13 @@
 """``chassis-sdk record``: listen on a port (never write) and write a capture,
-``FILE.jsonl`` (the raw bytes) or ``FILE.mcap`` (decoded too, for Foxglove)."""
+``FILE.jsonl`` (the raw bytes) or ``FILE.mcap`` (decoded too, for Foxglove; with
+``--ros2``, a rosbag2 file for ROS 2 tools)."""
 
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import ChassisError
@@ -20,26 +23,52 @@ __all__ = ["add_parser", "record"]
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``record``."""
-    p = sub.add_parser("record", help="record a port: FILE.jsonl (raw bytes) or FILE.mcap")
+    p = sub.add_parser(
+        "record", help="record a port: FILE.jsonl (raw bytes) or FILE.mcap (Foxglove; --ros2)"
+    )
     port_args(p)
     p.add_argument("file", help="FILE.jsonl: raw bytes; FILE.mcap: also decoded (Foxglove)")
     p.add_argument("--seconds", type=positive("seconds"), default=10.0)
     device_arg(p, names, detected=True)
+    p.add_argument(
+        "--ros2",
+        action="store_true",
+        help="FILE.mcap as a rosbag2 file (ROS 2 types and QoS: ros2 bag, rosbags); "
+        "needs the ros2 extra",
+    )
+    p.add_argument("--namespace", metavar="NS", help="with --ros2: the topics' namespace")
     p.set_defaults(func=_start)
 
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
-    return record(port, args.file, args.seconds, args.baudrate, args.device)
+    path: str | os.PathLike[str] = args.file
+    if args.namespace is not None and not args.ros2:
+        raise ChassisError("--namespace is for --ros2 (a rosbag2 file)")
+    if args.ros2:
+        if Path(args.file).suffix.lower() != ".mcap":
+            raise ChassisError(
+                f"--ros2 writes a rosbag2 MCAP file: name it FILE.mcap, not {args.file!r}"
+            )
+        from ..recording.ros2 import rosbag
+
+        try:  # checked before the port opens
+            path = rosbag(args.file, namespace=args.namespace or "")
+        except (ImportError, TypeError) as exc:
+            raise ChassisError(str(exc)) from None
+    return record(port, path, args.seconds, args.baudrate, args.device)
 
 
-async def record(port: str, path: str, seconds: float, baudrate: int, device: str | None) -> None:
-    """Record ``port`` into ``path`` for ``seconds``, showing progress.
+async def record(
+    port: str, path: str | os.PathLike[str], seconds: float, baudrate: int, device: str | None
+) -> None:
+    """Record ``port`` into ``path`` (a file name, or a recording chosen with its
+    options: :func:`chassis_sdk.recording.ros2.rosbag`) for ``seconds``, showing progress.
 
     Raises:
         ChassisError: The link was lost and not restored before the end.
     """
-    show = progress_line(f"recording {path}")
+    show = progress_line(f"recording {os.fspath(path)}")
 
     def progress(n_bytes: int, elapsed: float, up: bool) -> None:
         link = "" if up else "  LINK LOST, reconnecting"
@@ -50,7 +79,8 @@ async def record(port: str, path: str, seconds: float, baudrate: int, device: st
     )
     show.done(
         f"recorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s "
-        f"to {path}" + (f"; the link dropped {cap.disconnects} time(s)" if cap.disconnects else "")
+        f"to {os.fspath(path)}"
+        + (f"; the link dropped {cap.disconnects} time(s)" if cap.disconnects else "")
     )
     if not cap.connected:
         raise ChassisError(f"the link to {port} was lost and not restored before the end")
