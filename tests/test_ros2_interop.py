@@ -144,9 +144,14 @@ async def test_nav2_gets_odometry_at_the_telemetry_rate_with_frames_stamps_and_c
             span = samples[-1]["t"] - first["t"]
             rate = (len(samples) - 1) / span
             assert 45 < rate < 55, rate  # the chassis's 50 Hz telemetry
-            lags = [e["t"] - (e["stamp"]["sec"] + e["stamp"]["nanosec"] * 1e-9) for e in samples]
-            assert min(lags) >= 0, lags  # stamps are the wall clock of the reading
-            assert max(lags) < 0.05, lags
+            lags = sorted(
+                e["t"] - (e["stamp"]["sec"] + e["stamp"]["nanosec"] * 1e-9)
+                for e in samples
+                if e["t"] > first["t"] + 0.5  # past the first heartbeats after matching
+            )
+            assert lags[0] >= 0, lags  # stamps are the wall clock of the reading
+            assert lags[len(lags) // 2] < 0.01, lags  # stamp to receipt: the median
+            assert lags[int(len(lags) * 0.95)] < 0.05, lags
             last = samples[-1]
             assert (last["frame_id"], last["child_frame_id"]) == ("odom", "base_link")
             diagonal = [last["pose_covariance"][i * 7] for i in range(6)]

@@ -88,6 +88,10 @@ __all__ = [
 
 # --- the types (field names and order exactly as the .msg files of ROS 2 Jazzy) --------------
 
+#: ROS's ``byte`` is an octet on the wire; cyclonedds 0.10 has no ``types.byte``, so
+#: it is a ``uint8`` there, and :data:`_ROS_BYTES` says which fields ROS calls ``byte``.
+_octet = getattr(t, "byte", t.uint8)
+
 
 @dataclass
 class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
@@ -261,7 +265,7 @@ class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
 class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
     """``diagnostic_msgs/msg/DiagnosticStatus`` (``level``: :data:`DIAGNOSTIC_OK`, ...)."""
 
-    level: t.byte = 0
+    level: _octet = 0
     name: str = ""
     message: str = ""
     hardware_id: str = ""
@@ -345,6 +349,9 @@ _CONSTANTS: dict[type, tuple[tuple[str, str, int], ...]] = {
     ),
 }
 
+#: The fields that the ``.msg`` files declare ``byte`` (see :data:`_octet`).
+_ROS_BYTES: dict[type, frozenset[str]] = {DiagnosticStatus: frozenset({"level"})}
+
 # --- names, definitions and hashes, derived from the fields ----------------------------------
 
 
@@ -426,6 +433,8 @@ def _fields(cls: type) -> list[_Field]:
             out.append(_Field(name, base, nested, length, kind == "sequence"))
         else:
             base, nested = _element(hint)
+            if name in _ROS_BYTES.get(cls, ()):
+                base = "byte"
             out.append(_Field(name, base, nested, None, False))
     return out
 

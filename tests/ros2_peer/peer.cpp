@@ -12,7 +12,8 @@
 //       --count samples (default 10) at --rate Hz (default 10), waits (up to 5 s) for a
 //       reliable writer's samples to be acknowledged, keeps the writer alive and silent
 //       for --hold seconds (default 0), then deletes the writer and the participant.
-//       Twist: linear.x = --linear, angular.z = --angular (default 0), the rest 0.
+//       Twist: linear.x = --linear, angular.z = --angular (default 0; nan and inf are
+//       taken, for the tests of refusals), the rest 0.
 //       TwistStamped: the same, header.stamp = wall clock, header.frame_id = --frame
 //       (default "base_link"). Bool: data = --data (default true).
 //       Exit 0; 3 when no reader matched in time.
@@ -329,11 +330,14 @@ struct Options
     std::exit(2);
 }
 
-static double to_number(const std::string& option, const std::string& text)
+// A value to publish may be NaN or infinite (the bridge must refuse those); a setting
+// of the peer's own must be finite.
+static double to_number(const std::string& option, const std::string& text,
+                        bool any_double = false)
 {
     char* end = nullptr;
     double v = std::strtod(text.c_str(), &end);
-    if (text.empty() || *end != '\0' || !std::isfinite(v)) {
+    if (text.empty() || *end != '\0' || (!any_double && !std::isfinite(v))) {
         usage(option + " wants a number, not '" + text + "'");
     }
     return v;
@@ -399,10 +403,10 @@ static Options parse(int argc, char** argv)
             o.hold = to_number(a, value());
         } else if (a == "--linear") {
             pub_only();
-            o.linear = to_number(a, value());
+            o.linear = to_number(a, value(), true);
         } else if (a == "--angular") {
             pub_only();
-            o.angular = to_number(a, value());
+            o.angular = to_number(a, value(), true);
         } else if (a == "--data") {
             pub_only();
             const std::string v = value();
