@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import time
@@ -60,17 +61,11 @@ from typing import Any
 import anyio
 
 from ..core.device import Device
+from ..core.notifier import Notifier
 from ..core.validation import check_real
 from ..errors import ChassisError
 from ..recording import ros2_types as msg
-from ..recording.ros2_types import (
-    TOPICS,
-    StaticTransform,
-    check_frame,
-    check_namespace,
-    static_transforms_message,
-    wall_time,
-)
+from ..recording.ros2_types import TOPICS, Ros2Options, StaticTransform, Translator
 from .inbound import CommandError, Refusals, check_fresh
 from .ros2_dds import Discovery, Participant, Reader, Writer, discovery_from_env
 
@@ -79,8 +74,6 @@ __all__ = ["Ros2Bridge", "StaticTransform"]
 _log = logging.getLogger("chassis_sdk.integrations.ros2")
 #: Least seconds between two velocity commands written (the newest in between counts).
 _VELOCITY_PERIOD = 0.02
-#: Least seconds between two battery messages from a chassis's 50 Hz telemetry.
-_BATTERY_PERIOD = 1.0
 #: The longest a ``diagnose()`` may take before the status says so.
 _DIAGNOSE_TIMEOUT = 2.0
 
@@ -137,10 +130,20 @@ class Ros2Bridge:
         diagnostics_period: float = 1.0,
     ) -> None:
         self.device = device
-        self.namespace = check_namespace(namespace)
+        #: The names, frames and covariances (the rosbag2 recorder takes the same).
+        self.options = Ros2Options(
+            namespace=namespace,
+            frame_id=frame_id,
+            child_frame_id=child_frame_id,
+            imu_frame_id=imu_frame_id,
+            static_transforms=static_transforms,
+            pose_covariance=pose_covariance,
+            twist_covariance=twist_covariance,
+            tf=tf,
+        )
+        self.namespace = self.options.namespace
         self.discovery = discovery if discovery is not None else discovery_from_env()
         self.stamped = bool(stamped)
-        self.tf = bool(tf)
         self.read_only = bool(read_only)
         self.command_timeout = check_real(
             command_timeout, "command_timeout", low=0, low_open=True, high=10, unit="s"
@@ -155,28 +158,14 @@ class Ros2Bridge:
             if max_angular is None
             else check_real(max_angular, "max_angular", low=0, low_open=True)
         )
-        self.frame_id = check_frame(frame_id, "frame_id")
-        self.child_frame_id = check_frame(child_frame_id, "child_frame_id")
-        self.imu_frame_id = check_frame(imu_frame_id, "imu_frame_id")
-        self._pose_cov = msg.covariance(pose_covariance or msg.DEFAULT_POSE_COVARIANCE,
-                                        "pose_covariance")  # fmt: skip
-        self._twist_cov = msg.covariance(twist_covariance or msg.DEFAULT_TWIST_COVARIANCE,
-                                         "twist_covariance")  # fmt: skip
         self._device_any: Any = device
-        self._has_imu = callable(getattr(device, "imu", None))
-        if static_transforms is None:
-            static_transforms = (
-                [StaticTransform(self.child_frame_id, self.imu_frame_id)] if self._has_imu else []
-            )
-        for st in static_transforms:
-            if not isinstance(st, StaticTransform):
-                raise TypeError(f"static_transforms must hold StaticTransform, got {st!r}")
-            check_frame(st.parent, "a static transform's parent")
-            check_frame(st.child, "a static transform's child")
-        self.static_transforms = tuple(static_transforms)
         self.diagnostics_period = check_real(
             diagnostics_period, "diagnostics_period", low=0, low_open=True, unit="s"
         )
+        with Notifier(device) as notifier:
+            streams = notifier.stream_names
+        #: What the device's readings give: the topics and each reading's messages.
+        self.translator = Translator(self.options, streams)
         self._refusals = Refusals(1.0)
         self._cmd: Reader[Any] | None = None
         self._estop_engaged = False
@@ -238,25 +227,18 @@ class Ros2Bridge:
     def _setup(
         self, participant: Participant, loop: asyncio.AbstractEventLoop
     ) -> list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]]:
-        odom = participant.writer(TOPICS["odom"])
-        tf = participant.writer(TOPICS["tf"]) if self.tf else None
-        battery = participant.writer(TOPICS["battery_state"])
+        translator = self.translator
+        out = {key: participant.writer(TOPICS[key]) for key in translator.topics}
         diagnostics = participant.writer(TOPICS["diagnostics"])
-        self._writers += [w for w in (odom, tf, battery, diagnostics) if w is not None]
-        if self.static_transforms:
+        self._writers += [*out.values(), diagnostics]
+        if translator.static:
             static = participant.writer(TOPICS["tf_static"])
             self._writers.append(static)
-            now = time.time()
-            static.write(static_transforms_message(self.static_transforms, now))
+            static.write(translator.static_message(time.time()))
         loops: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]] = [
-            ("odom", lambda: self._odometry(odom, tf)),
-            ("battery", lambda: self._battery(battery)),
-            ("diagnostics", lambda: self._diagnostics(diagnostics)),
+            (stream, functools.partial(self._publish, stream, out)) for stream in translator.streams
         ]
-        if self._has_imu:
-            imu = participant.writer(TOPICS["imu"])
-            self._writers.append(imu)
-            loops.append(("imu", lambda: self._imu(imu)))
+        loops.append(("diagnostics", lambda: self._diagnostics(diagnostics)))
         if not self.read_only:
             cmd = participant.reader(TOPICS["cmd_vel_stamped" if self.stamped else "cmd_vel"], loop)
             cmd.on_no_writers = self._writer_gone
@@ -381,54 +363,15 @@ class Ros2Bridge:
 
     # --- what goes out ---------------------------------------------------------------------
 
-    async def _odometry(self, odom: Writer[Any], tf: Writer[Any] | None) -> None:
-        async for sample in self.device.odometry():
-            epoch = wall_time(sample.timestamp)
-            odom.write(
-                msg.odometry_message(
-                    sample,
-                    epoch,
-                    frame_id=self.frame_id,
-                    child_frame_id=self.child_frame_id,
-                    pose_covariance=self._pose_cov,
-                    twist_covariance=self._twist_cov,
-                )
-            )
-            self.odometry_published += 1
-            if tf is not None:
-                tf.write(
-                    msg.transform_message(
-                        sample, epoch, frame_id=self.frame_id, child_frame_id=self.child_frame_id
-                    )
-                )
-
-    async def _battery(self, battery: Writer[Any]) -> None:
-        device: Any = self.device
-        if callable(getattr(device, "battery", None)):
-            async for reading in device.battery():
-                epoch = wall_time(reading.timestamp)
-                battery.write(
-                    msg.battery_message(reading.voltage, epoch, frame_id=self.child_frame_id)
-                )
-            return
-        if not callable(getattr(device, "telemetry", None)):
-            return
-        last = -math.inf
-        async for telemetry in device.telemetry():
-            if telemetry.timestamp - last < _BATTERY_PERIOD:
-                continue
-            last = telemetry.timestamp
-            epoch = wall_time(telemetry.timestamp)
-            battery.write(
-                msg.battery_message(telemetry.voltage, epoch, frame_id=self.child_frame_id)
-            )
-
-    async def _imu(self, imu: Writer[Any]) -> None:
-        device: Any = self.device
-        async for sample in device.imu():
-            imu.write(
-                msg.imu_message(sample, wall_time(sample.timestamp), frame_id=self.imu_frame_id)
-            )
+    async def _publish(self, stream: str, out: dict[str, Writer[Any]]) -> None:
+        """Every reading of ``stream``, as the messages the translator makes of it."""
+        translator = self.translator
+        subscribe = getattr(self.device, stream)  # a stream's name is its method's
+        async for reading in subscribe():
+            for key, message in translator.messages(stream, reading):
+                out[key].write(message)
+                if key == "odom":
+                    self.odometry_published += 1
 
     async def _diagnostics(self, diagnostics: Writer[Any]) -> None:
         name = f"chassis_sdk: {self.device.device_name}"

@@ -44,7 +44,6 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import logging
-import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -59,14 +58,12 @@ from .sink import session_metadata
 
 if TYPE_CHECKING:
     from ..core.device import Device
-    from .ros2_types import StaticTransform, TopicSpec
+    from .ros2_types import Ros2Options, StaticTransform, TopicSpec
 
-__all__ = ["BATTERY_PERIOD", "Ros2Recording", "Rosbag", "offered_qos_profiles", "rosbag"]
+__all__ = ["Ros2Recording", "Rosbag", "offered_qos_profiles", "rosbag"]
 
 _log = logging.getLogger("chassis_sdk.recording")
 _NS = 1_000_000_000
-#: Least seconds between two ``battery_state`` messages from a chassis's 50 Hz telemetry.
-BATTERY_PERIOD = 1.0
 #: rmw's "infinite" duration, as rosbag2 writes a default publisher's deadline, lifespan
 #: and lease (``RMW_DURATION_INFINITE``: INT64_MAX nanoseconds).
 _INFINITE = (9223372036, 854775807)
@@ -134,6 +131,8 @@ class Rosbag:
     twist_covariance: tuple[float, ...] | None = None
     flush_interval: float = FLUSH_INTERVAL
     metadata: Mapping[str, str] = field(default_factory=dict)
+    #: The options as the ROS 2 messages take them (made from the fields above).
+    ros: Ros2Options = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.path, Path):
@@ -147,35 +146,27 @@ class Rosbag:
         for package in ("cyclonedds", "mcap"):
             if importlib.util.find_spec(package) is None:
                 raise _needs_ros2("recording a rosbag2 file")
-        from . import ros2_types as msg
+        from .ros2_types import Ros2Options
 
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
-        put("namespace", msg.check_namespace(self.namespace))
-        for name in ("frame_id", "child_frame_id", "imu_frame_id"):
-            msg.check_frame(getattr(self, name), name)
-        if self.static_transforms is not None:
-            if isinstance(self.static_transforms, str | bytes) or not isinstance(
-                self.static_transforms, Sequence
-            ):
-                raise TypeError(
-                    "static_transforms must be a sequence of StaticTransform, "
-                    f"got {type(self.static_transforms).__name__}"
-                )
-            for st in self.static_transforms:
-                if not isinstance(st, msg.StaticTransform):
-                    raise TypeError(f"static_transforms must hold StaticTransform, got {st!r}")
-                msg.check_frame(st.parent, "a static transform's parent")
-                msg.check_frame(st.child, "a static transform's child")
-                for axis in ("x", "y", "z", "yaw"):
-                    check_real(getattr(st, axis), f"a static transform's {axis}")
-            put("static_transforms", tuple(self.static_transforms))
-        for name in ("pose_covariance", "twist_covariance"):
-            value = getattr(self, name)
-            if value is not None:
-                msg.covariance(value, name)  # raises on a bad one
-                put(name, tuple(float(v) for v in value))
+        # The names, frames and covariances are checked (and normalised) as the live
+        # bridge's are: one Ros2Options serves both.
+        ros = Ros2Options(
+            namespace=self.namespace,
+            frame_id=self.frame_id,
+            child_frame_id=self.child_frame_id,
+            imu_frame_id=self.imu_frame_id,
+            static_transforms=self.static_transforms,
+            pose_covariance=self.pose_covariance,
+            twist_covariance=self.twist_covariance,
+        )
+        put("ros", ros)
+        put("namespace", ros.namespace)
+        put("static_transforms", ros.static_transforms)
+        put("pose_covariance", ros.pose_covariance)
+        put("twist_covariance", ros.twist_covariance)
         put(
             "flush_interval",
             check_real(self.flush_interval, "flush_interval", low=0, low_open=True, unit="s"),
@@ -302,12 +293,9 @@ class Ros2Recording:
         #: Messages written so far.
         self.messages = 0
         self._closed = False
-        self._pose_cov = msg.covariance(options.pose_covariance or msg.DEFAULT_POSE_COVARIANCE)
-        self._twist_cov = msg.covariance(options.twist_covariance or msg.DEFAULT_TWIST_COVARIANCE)
         # Monotonic seconds -> epoch nanoseconds, fixed once per session (as the sink).
         self._epoch_offset = time.time_ns() - int(time.monotonic() * _NS)
         self._last_flush = time.monotonic()
-        self._last_battery = -math.inf
         self._pending: list[tuple[Callable[..., None], tuple[Any, ...]]] = []
         try:
             self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
@@ -354,38 +342,20 @@ class Ros2Recording:
         )
 
     def _attach(self) -> None:
-        msg, options = self._msg, self.options
+        msg = self._msg
         notifier = self._notifier = Notifier(self.device)  # closed with the recording
-        streams = set(notifier.stream_names)
         raw = f"chassis_sdk/{self.device.device_name}/raw"
         self._rx = self._channel(msg.TopicSpec(f"{raw}/rx", msg.UInt8MultiArray, "out",
                                                depth=_RAW_DEPTH))  # fmt: skip
         self._tx = self._channel(msg.TopicSpec(f"{raw}/tx", msg.UInt8MultiArray, "out",
                                                depth=_RAW_DEPTH))  # fmt: skip
-        if "odometry" in streams:
-            self._odom = self._channel(msg.TOPICS["odom"])
-            self._tf = self._channel(msg.TOPICS["tf"])
-            notifier.listen("odometry", self._queued(self._odometry))
-        if "imu" in streams:
-            self._imu = self._channel(msg.TOPICS["imu"])
-            notifier.listen("imu", self._queued(self._imu_sample))
-        if "battery" in streams:
-            self._battery = self._channel(msg.TOPICS["battery_state"])
-            notifier.listen("battery", self._queued(self._battery_reading))
-        elif "telemetry" in streams:
-            self._battery = self._channel(msg.TOPICS["battery_state"])
-            notifier.listen("telemetry", self._telemetry)
-        static = options.static_transforms
-        if static is None:
-            static = (
-                (msg.StaticTransform(options.child_frame_id, options.imu_frame_id),)
-                if "imu" in streams
-                else ()
-            )
-        if static:
+        translator = self._translator = msg.Translator(self.options.ros, notifier.stream_names)
+        self._channels = {key: self._channel(msg.TOPICS[key]) for key in translator.topics}
+        for stream in translator.streams:
+            notifier.listen(stream, self._queued(stream))
+        if translator.static:
             channel = self._channel(msg.TOPICS["tf_static"])
-            self._write(channel, msg.static_transforms_message(static, time.time()),
-                        time.monotonic())  # fmt: skip
+            self._write(channel, translator.static_message(time.time()), time.monotonic())
         notifier.add_tap(self)
 
     # --- what is written -------------------------------------------------------------------------
@@ -402,62 +372,18 @@ class Ros2Recording:
         """The link went to ``state``: not written (ROS 2 has no message for it; the
         Foxglove and JSON-lines recordings keep it)."""
 
-    def _queued(self, work: Callable[[Any, float], None]) -> Callable[[Any], None]:
-        def listener(message: Any) -> None:
-            self._later(work, message, time.monotonic())
+    def _queued(self, stream: str) -> Callable[[Any], None]:
+        def listener(reading: Any) -> None:
+            self._later(self._reading, stream, reading, time.monotonic())
 
         return listener
 
-    def _telemetry(self, telemetry: Any) -> None:
-        voltage = getattr(telemetry, "voltage", None)
-        now = time.monotonic()
-        at = getattr(telemetry, "timestamp", 0.0) or now
-        if not isinstance(voltage, float) or at - self._last_battery < BATTERY_PERIOD:
-            return  # decided here, so the 49 of 50 not written cost nothing more
-        self._last_battery = at
-        self._later(self._battery_voltage, voltage, at, now)
+    def _reading(self, stream: str, reading: Any, now: float) -> None:
+        for key, message in self._translator.messages(stream, reading):
+            self._write(self._channels[key], message, now)
 
     def _raw(self, channel: _Channel, data: bytes, now: float) -> None:
         self._write(channel, self._raw_type(data=bytes(data)), now)
-
-    def _odometry(self, sample: Any, now: float) -> None:
-        msg, options = self._msg, self.options
-        epoch = msg.wall_time(sample.timestamp)
-        frame, child = options.frame_id, options.child_frame_id
-        self._write(
-            self._odom,
-            msg.odometry_message(
-                sample,
-                epoch,
-                frame_id=frame,
-                child_frame_id=child,
-                pose_covariance=self._pose_cov,
-                twist_covariance=self._twist_cov,
-            ),
-            now,
-        )
-        self._write(
-            self._tf,
-            msg.transform_message(sample, epoch, frame_id=frame, child_frame_id=child),
-            now,
-        )
-
-    def _imu_sample(self, sample: Any, now: float) -> None:
-        msg = self._msg
-        epoch = msg.wall_time(sample.timestamp)
-        self._write(
-            self._imu, msg.imu_message(sample, epoch, frame_id=self.options.imu_frame_id), now
-        )
-
-    def _battery_reading(self, reading: Any, now: float) -> None:
-        self._battery_voltage(reading.voltage, reading.timestamp, now)
-
-    def _battery_voltage(self, voltage: float, at: float, now: float) -> None:
-        msg = self._msg
-        message = msg.battery_message(
-            voltage, msg.wall_time(at), frame_id=self.options.child_frame_id
-        )
-        self._write(self._battery, message, now)
 
     def _write(self, channel: _Channel, message: Any, now: float) -> None:
         log_time = int(now * _NS) + self._epoch_offset

@@ -37,6 +37,7 @@ from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
 
 __all__ = [
+    "BATTERY_PERIOD",
     "BATTERY_STATUS_UNKNOWN",
     "DEFAULT_POSE_COVARIANCE",
     "DEFAULT_TWIST_COVARIANCE",
@@ -59,12 +60,14 @@ __all__ = [
     "Pose",
     "PoseWithCovariance",
     "Quaternion",
+    "Ros2Options",
     "StaticTransform",
     "TFMessage",
     "Time",
     "TopicSpec",
     "Transform",
     "TransformStamped",
+    "Translator",
     "Twist",
     "TwistStamped",
     "TwistWithCovariance",
@@ -772,6 +775,175 @@ class StaticTransform:
 def static_transforms_message(transforms: Iterable[StaticTransform], epoch: float) -> TFMessage:
     """The ``/tf_static`` message holding ``transforms``, stamped ``epoch``."""
     return TFMessage(transforms=[st.message(epoch) for st in transforms])
+
+
+# --- a device's readings as messages: one piece for the bridge and the recorder --------------
+
+#: Least seconds between two ``battery_state`` messages from a 50 Hz telemetry stream.
+BATTERY_PERIOD: Final = 1.0
+
+
+@dataclass(frozen=True)
+class Ros2Options:
+    """How a device appears in ROS 2: names, frames and covariances, checked when made.
+    The live bridge and the rosbag2 recorder take the same options.
+
+    Attributes:
+        namespace: Where the relative topics go, normalised (``robot1`` → ``/robot1``;
+            ``""``: none).
+        frame_id: The odometry frame (REP 105: ``odom``).
+        child_frame_id: The robot's frame (``base_link``); also the battery's.
+        imu_frame_id: A board's IMU frame (``imu_link``).
+        static_transforms: What ``/tf_static`` holds; ``None``: a device with an IMU
+            gets ``child_frame_id`` → ``imu_frame_id`` (identity), others none.
+        pose_covariance: Six variances (x, y, z, roll, pitch, yaw) for the odometry's
+            pose; ``None``: :data:`DEFAULT_POSE_COVARIANCE`.
+        twist_covariance: The same for its twist (``None``: :data:`DEFAULT_TWIST_COVARIANCE`).
+        tf: Publish odom → base_link on ``/tf`` too (``False`` when an EKF does).
+
+    Raises:
+        TypeError: An option of the wrong type.
+        ValueError: A bad namespace, frame, static transform or covariance.
+    """
+
+    namespace: str = ""
+    frame_id: str = "odom"
+    child_frame_id: str = "base_link"
+    imu_frame_id: str = "imu_link"
+    static_transforms: Sequence[StaticTransform] | None = None
+    pose_covariance: Sequence[float] | None = None
+    twist_covariance: Sequence[float] | None = None
+    tf: bool = True
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        put("namespace", check_namespace(self.namespace))
+        for name in ("frame_id", "child_frame_id", "imu_frame_id"):
+            check_frame(getattr(self, name), name)
+        if self.static_transforms is not None:
+            if isinstance(self.static_transforms, str | bytes) or not isinstance(
+                self.static_transforms, Sequence
+            ):
+                raise TypeError(
+                    "static_transforms must be a sequence of StaticTransform, "
+                    f"got {type(self.static_transforms).__name__}"
+                )
+            for st in self.static_transforms:
+                if not isinstance(st, StaticTransform):
+                    raise TypeError(f"static_transforms must hold StaticTransform, got {st!r}")
+                check_frame(st.parent, "a static transform's parent")
+                check_frame(st.child, "a static transform's child")
+                for axis in ("x", "y", "z", "yaw"):
+                    value = getattr(st, axis)
+                    if isinstance(value, bool) or not isinstance(value, int | float):
+                        raise TypeError(f"a static transform's {axis} must be a number")
+                    if not math.isfinite(value):
+                        raise ValueError(f"a static transform's {axis} must be finite: {value}")
+            put("static_transforms", tuple(self.static_transforms))
+        for name in ("pose_covariance", "twist_covariance"):
+            value = getattr(self, name)
+            if value is not None:
+                covariance(value, name)  # raises on a bad one
+                put(name, tuple(float(v) for v in value))
+        put("tf", bool(self.tf))
+
+    def static_for(self, streams: Iterable[str]) -> tuple[StaticTransform, ...]:
+        """What ``/tf_static`` holds for a device with these streams."""
+        if self.static_transforms is not None:
+            return tuple(self.static_transforms)
+        if "imu" in streams:
+            return (StaticTransform(self.child_frame_id, self.imu_frame_id),)
+        return ()
+
+
+class Translator:
+    """A device's readings as ROS 2 messages, for the streams it has: which topics (keys
+    of :data:`TOPICS`) they give, and the messages of each reading.
+
+    ``odometry`` gives ``odom`` (and ``/tf``), ``imu`` ``imu/data_raw``, ``battery``
+    ``battery_state``; without a ``battery`` stream, ``telemetry`` that carries a
+    ``voltage`` gives ``battery_state`` at most once per :data:`BATTERY_PERIOD`.
+
+    Args:
+        options: The names, frames and covariances.
+        streams: The device's stream names (``Notifier.stream_names``).
+    """
+
+    def __init__(self, options: Ros2Options, streams: Iterable[str]) -> None:
+        self.options = options
+        names = set(streams)
+        self._pose_cov = covariance(options.pose_covariance or DEFAULT_POSE_COVARIANCE)
+        self._twist_cov = covariance(options.twist_covariance or DEFAULT_TWIST_COVARIANCE)
+        self._last_battery = -math.inf
+        table: dict[str, tuple[tuple[str, ...], Any]] = {}
+        if "odometry" in names:
+            table["odometry"] = (("odom", "tf") if options.tf else ("odom",), self._odometry)
+        if "imu" in names:
+            table["imu"] = (("imu",), self._imu)
+        if "battery" in names:
+            table["battery"] = (("battery_state",), self._battery)
+        elif "telemetry" in names:
+            table["telemetry"] = (("battery_state",), self._telemetry)
+        self._table = table
+        #: The streams to listen to.
+        self.streams: tuple[str, ...] = tuple(table)
+        #: The topics (keys of :data:`TOPICS`) the readings give.
+        self.topics: tuple[str, ...] = tuple(k for keys, _ in table.values() for k in keys)
+        #: What ``/tf_static`` holds (nothing: no such topic).
+        self.static: tuple[StaticTransform, ...] = options.static_for(names)
+
+    def messages(self, stream: str, reading: Any) -> list[tuple[str, Any]]:
+        """The ``(topic key, message)`` pairs of one reading of ``stream`` (none for a
+        stream not in :attr:`streams`, or a telemetry frame between two batteries)."""
+        entry = self._table.get(stream)
+        if entry is None:
+            return []
+        convert: Any = entry[1]
+        out: list[tuple[str, Any]] = convert(reading, wall_time(reading.timestamp))
+        return out
+
+    def static_message(self, epoch: float) -> TFMessage:
+        """The ``/tf_static`` message, stamped ``epoch``."""
+        return static_transforms_message(self.static, epoch)
+
+    def _odometry(self, sample: Any, epoch: float) -> list[tuple[str, Any]]:
+        o = self.options
+        out: list[tuple[str, Any]] = [
+            (
+                "odom",
+                odometry_message(
+                    sample,
+                    epoch,
+                    frame_id=o.frame_id,
+                    child_frame_id=o.child_frame_id,
+                    pose_covariance=self._pose_cov,
+                    twist_covariance=self._twist_cov,
+                ),
+            )
+        ]
+        if o.tf:
+            tf = transform_message(
+                sample, epoch, frame_id=o.frame_id, child_frame_id=o.child_frame_id
+            )
+            out.append(("tf", tf))
+        return out
+
+    def _imu(self, sample: Any, epoch: float) -> list[tuple[str, Any]]:
+        return [("imu", imu_message(sample, epoch, frame_id=self.options.imu_frame_id))]
+
+    def _battery(self, reading: Any, epoch: float) -> list[tuple[str, Any]]:
+        message = battery_message(reading.voltage, epoch, frame_id=self.options.child_frame_id)
+        return [("battery_state", message)]
+
+    def _telemetry(self, telemetry: Any, epoch: float) -> list[tuple[str, Any]]:
+        voltage = getattr(telemetry, "voltage", None)
+        at = telemetry.timestamp or time.monotonic()
+        if not isinstance(voltage, float) or at - self._last_battery < BATTERY_PERIOD:
+            return []
+        self._last_battery = at
+        return self._battery(telemetry, epoch)
 
 
 def _all_types() -> tuple[type, ...]:
