@@ -497,7 +497,7 @@ async def test_the_application_runs_before_the_recorder_logs_its_frame(tmp_path:
         queued = []
         n = 0
         async for t in robot.telemetry():
-            queued.append(any(args and args[0] is t for _, args in sink._pending))
+            queued.append(any(args and args[0] is t for _, args in sink._after._pending))
             n += 1
             if n == 20:
                 break

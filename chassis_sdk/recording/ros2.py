@@ -41,7 +41,6 @@ The recorder is chosen with :func:`rosbag` (``record=rosbag("run.mcap")`` on a d
 
 from __future__ import annotations
 
-import asyncio
 import importlib.util
 import logging
 import os
@@ -53,6 +52,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from ..core.notifier import Notifier
 from ..core.validation import check_real
+from .batch import AfterFrame
 from .mcap import FLUSH_INTERVAL
 from .sink import session_metadata
 
@@ -296,11 +296,8 @@ class Ros2Recording:
         # Monotonic seconds -> epoch nanoseconds, fixed once per session (as the sink).
         self._epoch_offset = time.time_ns() - int(time.monotonic() * _NS)
         self._last_flush = time.monotonic()
-        self._pending: list[tuple[Callable[..., None], tuple[Any, ...]]] = []
-        try:
-            self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
-        except RuntimeError:  # converting a file: no loop, nothing to wait for
-            self._loop = None
+        self._after = AfterFrame(str(self.path))
+        self._later = self._after.later
         self._notifier: Notifier | None = None
         self._file: IO[bytes] = self.path.open("wb")
         try:
@@ -397,34 +394,12 @@ class Ros2Recording:
             self._last_flush = now
             self._flush()
 
-    # --- the batch after the frame's own work ---------------------------------------------
-
-    def _later(self, work: Callable[..., None], *args: Any) -> None:
-        if self._closed:
-            return
-        pending = self._pending
-        pending.append((work, args))
-        if self._loop is None:
-            self._drain()
-        elif len(pending) == 1:
-            # Two hops: the tasks this frame wakes are queued behind the first, so
-            # they run before the drain.
-            self._loop.call_soon(self._loop.call_soon, self._drain)
-
-    def _drain(self) -> None:
-        batch, self._pending = self._pending, []
-        for work, args in batch:
-            try:
-                work(*args)
-            except Exception:  # a recording must never take the device down
-                _log.exception("recording %s: cannot write a message", self.path)
-
     def close(self) -> None:
         """Write what is queued, stop watching the device and finish the file (its
         summary: the index that ``ros2 bag`` reads); safe to call twice."""
         if self._closed:
             return
-        self._drain()
+        self._after.close()
         self._closed = True
         if self._notifier is not None:
             self._notifier.close()

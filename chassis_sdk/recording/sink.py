@@ -22,7 +22,6 @@ Topics, for a device named ``chassis``::
 
 from __future__ import annotations
 
-import asyncio
 import base64
 import dataclasses
 import datetime
@@ -40,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.notifier import Notifier
 from ..core.plain import plain
+from .batch import AfterFrame
 
 if TYPE_CHECKING:
     import foxglove
@@ -196,8 +196,8 @@ class FoxgloveSink:
         self.messages = 0
         # Work is queued and done in one batch after the loop's current callbacks, so
         # the application's task woken by a frame runs before the frame is recorded.
-        self._pending: list[tuple[Callable[..., None], tuple[Any, ...]]] = []
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self._after = AfterFrame(device.port)
+        self._later = self._after.later
 
     # --- attaching ---------------------------------------------------------------------------
 
@@ -205,10 +205,8 @@ class FoxgloveSink:
         """Start: see every byte of the device's links, every message of its named
         streams and every change of its link state."""
         device = self.device
-        try:
-            self._loop = asyncio.get_running_loop()
-        except RuntimeError:  # converting a file: no loop, nothing to wait for
-            self._loop = None
+        self._after = AfterFrame(device.port)  # the loop it is attached on
+        self._later = self._after.later
         notifier = self._notifier = Notifier(device)
         for stream_name in notifier.stream_names:
             notifier.listen(stream_name, self._stream_logger(stream_name))
@@ -218,7 +216,7 @@ class FoxgloveSink:
 
     def detach(self) -> None:
         """Stop (the device goes on, unrecorded); what is queued is logged first."""
-        self._drain()
+        self._after.drain()
         if self._notifier is not None:
             self._notifier.close()
             self._notifier = None
@@ -236,24 +234,6 @@ class FoxgloveSink:
     def link_state(self, state: str, now: float) -> None:
         """The link went to ``state`` (also for a recorder that opens links itself)."""
         self._later(self._json, self._link, {"state": state}, now)
-
-    def _later(self, work: Callable[..., None], *args: Any) -> None:
-        pending = self._pending
-        pending.append((work, args))
-        if self._loop is None:
-            self._drain()
-        elif len(pending) == 1:
-            # Two hops: the tasks this frame wakes are queued behind the first, so
-            # they run before the drain.
-            self._loop.call_soon(self._loop.call_soon, self._drain)
-
-    def _drain(self) -> None:
-        batch, self._pending = self._pending, []
-        for work, args in batch:
-            try:
-                work(*args)
-            except Exception:  # a recording must never take the device down
-                _log.exception("recording %s: cannot log a message", self.device.port)
 
     def _sent(self, data: bytes, now: float) -> None:
         self._bytes(self._tx, data, now)
