@@ -35,6 +35,7 @@ SCRIPTS = [
     "stalled_port.py",
     "recording.py",
     "scaling.py",
+    "ros2.py",
 ]
 #: How each script that can writes its figures to a file.
 JSON_FLAG = {
@@ -42,6 +43,7 @@ JSON_FLAG = {
     "latency.py": "--json-file",
     "recording.py": "--json",
     "scaling.py": "--json",
+    "ros2.py": "--json",
 }
 
 
@@ -56,6 +58,7 @@ PACKAGES = [
     "mcap",
     "serialx",
     "uvloop",
+    "cyclonedds",
 ]
 
 
