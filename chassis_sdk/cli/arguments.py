@@ -32,9 +32,11 @@ __all__ = [
     "Job",
     "UsageError",
     "arg_type",
+    "deadman_args",
     "device_arg",
     "device_from_env",
     "finite",
+    "limit_args",
     "port_args",
     "positive",
     "require_port",
@@ -95,6 +97,36 @@ def port_args(p: argparse.ArgumentParser, *, required: bool = True) -> None:
         help_text = f"the port (default: ${ENV_PORT}, else every serial port)"
     p.add_argument("port", nargs="?", default=os.environ.get(ENV_PORT) or None, help=help_text)
     p.add_argument("-b", "--baudrate", type=BAUD, default=115200, help="serial speed")
+
+
+def limit_args(p: argparse.ArgumentParser, clamps: str = "") -> None:
+    """``--max-linear`` and ``--max-angular`` (defaults :data:`DRIVE_MAX_LINEAR`,
+    :data:`DRIVE_MAX_ANGULAR`): what they clamp is named in the help (``clamps``)."""
+    what = f" (clamps {clamps})" if clamps else ""
+    p.add_argument(
+        "--max-linear",
+        type=positive("max_linear"),
+        default=DRIVE_MAX_LINEAR,
+        help=f"m/s{what}; default %(default)s",
+    )
+    p.add_argument(
+        "--max-angular",
+        type=positive("max_angular"),
+        default=DRIVE_MAX_ANGULAR,
+        help=f"rad/s{what}; default %(default)s",
+    )
+
+
+def deadman_args(p: argparse.ArgumentParser, sender: str) -> None:
+    """``--command-timeout`` (0.5 s after ``sender``'s last message the robot stops) and
+    ``--seconds`` (stop the command after this long)."""
+    p.add_argument(
+        "--command-timeout",
+        type=positive("command_timeout"),
+        default=0.5,
+        help=f"stop this long after {sender}'s last message (s)",
+    )
+    p.add_argument("--seconds", type=positive("seconds"), help="stop after this long")
 
 
 def device_from_env() -> tuple[str, str] | None:

@@ -14,15 +14,7 @@ from ..core.supervisor import ConnectionState
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile, profile
 from ..errors import ChassisError
-from .arguments import (
-    DRIVE_MAX_ANGULAR,
-    DRIVE_MAX_LINEAR,
-    device_arg,
-    finite,
-    port_args,
-    positive,
-    require_port,
-)
+from .arguments import device_arg, finite, limit_args, port_args, positive, require_port
 from .common import first_frame, out
 
 if TYPE_CHECKING:
@@ -39,18 +31,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument("--linear", type=finite("linear"), default=0.0, help="m/s")
     p.add_argument("--angular", type=finite("angular"), default=0.0, help="rad/s")
     p.add_argument("--duration", type=positive("duration"), default=1.0, help="seconds")
-    p.add_argument(
-        "--max-linear",
-        type=positive("max_linear"),
-        default=DRIVE_MAX_LINEAR,
-        help="m/s (clamps --linear)",
-    )
-    p.add_argument(
-        "--max-angular",
-        type=positive("max_angular"),
-        default=DRIVE_MAX_ANGULAR,
-        help="rad/s (clamps --angular)",
-    )
+    limit_args(p, "--linear and --angular")
     p.add_argument(
         "--timeout", type=positive("timeout"), default=2.0, help="seconds to hear the device"
     )

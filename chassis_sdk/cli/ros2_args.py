@@ -9,15 +9,7 @@ from typing import TYPE_CHECKING
 
 from ..core.validation import check_int
 from ..devices import DeviceProfile, profile
-from .arguments import (
-    DRIVE_MAX_ANGULAR,
-    DRIVE_MAX_LINEAR,
-    arg_type,
-    device_arg,
-    port_args,
-    positive,
-    require_port,
-)
+from .arguments import arg_type, deadman_args, device_arg, limit_args, port_args, require_port
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -67,25 +59,8 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         metavar="HOST",
         help="a host always contacted by unicast (repeatable; default $ROS_STATIC_PEERS)",
     )
-    p.add_argument(
-        "--max-linear",
-        type=positive("max_linear"),
-        default=DRIVE_MAX_LINEAR,
-        help="clamp linear.x (m/s; default %(default)s)",
-    )
-    p.add_argument(
-        "--max-angular",
-        type=positive("max_angular"),
-        default=DRIVE_MAX_ANGULAR,
-        help="clamp angular.z (rad/s; default %(default)s)",
-    )
-    p.add_argument(
-        "--command-timeout",
-        type=positive("command_timeout"),
-        default=0.5,
-        help="how long one cmd_vel sample holds before the robot stops (s)",
-    )
-    p.add_argument("--seconds", type=positive("seconds"), help="stop after this long")
+    limit_args(p, "cmd_vel's linear.x and angular.z")
+    deadman_args(p, "a cmd_vel writer")
     p.set_defaults(func=_start)
 
 

@@ -8,14 +8,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from ..devices import DeviceProfile, profile
-from .arguments import (
-    DRIVE_MAX_ANGULAR,
-    DRIVE_MAX_LINEAR,
-    device_arg,
-    port_args,
-    positive,
-    require_port,
-)
+from .arguments import deadman_args, device_arg, limit_args, port_args, require_port
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -45,19 +38,8 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         "--no-token", action="store_true", help="allow --host beyond loopback without a token"
     )
     p.add_argument("--record", metavar="FILE.mcap", help="also record the session")
-    p.add_argument(
-        "--max-linear", type=positive("max_linear"), default=DRIVE_MAX_LINEAR, help="m/s"
-    )
-    p.add_argument(
-        "--max-angular", type=positive("max_angular"), default=DRIVE_MAX_ANGULAR, help="rad/s"
-    )
-    p.add_argument(
-        "--command-timeout",
-        type=positive("command_timeout"),
-        default=0.5,
-        help="stop this long after Teleop's last message (s)",
-    )
-    p.add_argument("--seconds", type=positive("seconds"), help="stop after this long")
+    limit_args(p, "Teleop's velocity")
+    deadman_args(p, "Teleop")
     p.set_defaults(func=_start)
 
 
