@@ -69,11 +69,9 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
-
-import anyio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from all import machine  # this directory's all.py
@@ -82,9 +80,10 @@ from chassis_sdk import Chassis
 from chassis_sdk.devices.chassis.messages import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 from tests.support.dds_peer import Peer, build_peer, start_peer
+from tests.support.ros2 import bridged, drives
 
 if TYPE_CHECKING:
-    from chassis_sdk.integrations.ros2 import Ros2Bridge
+    pass
 
 T = TypeVar("T")
 SELF = str(Path(__file__).resolve())
@@ -201,11 +200,6 @@ def summary(values: list[float], scale: float = 1.0) -> dict[str, float]:
     }
 
 
-def drives(sim: ChassisSimulator, since: float = -math.inf) -> list[tuple[float, DriveVelocity]]:
-    """The velocity frames the simulator read from ``since`` (monotonic), with their time."""
-    return [(t, c) for t, c in sim.firmware.received if isinstance(c, DriveVelocity) and t >= since]
-
-
 async def poll(get: Callable[[], T | None], timeout: float, what: str) -> T:
     """``get()``'s first value that is not ``None``, polled every millisecond (the
     simulator's log of frames and the telemetry log have nothing to wait on)."""
@@ -239,18 +233,6 @@ async def frame(
         return next((t for t, c in drives(sim, since) if test(c)), None)
 
     return await poll(first, timeout, what)
-
-
-@contextlib.asynccontextmanager
-async def bridged(device: Chassis, **options: Any) -> AsyncIterator[Ros2Bridge]:
-    from chassis_sdk.integrations.ros2 import Ros2Bridge
-
-    bridge = Ros2Bridge(device, **options)
-    async with anyio.create_task_group() as tg:
-        tg.start_soon(bridge.run)
-        await bridge.started.wait()
-        yield bridge
-        tg.cancel_scope.cancel()
 
 
 class TelemetryLog:

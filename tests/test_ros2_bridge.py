@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -34,17 +34,10 @@ from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.recording.ros2_types import check_namespace
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.ros2 import bridged as running
+from .support.ros2 import drives, until
+
 DOMAIN = 17
-
-
-def drives(sim: ChassisSimulator) -> list[tuple[float, DriveVelocity]]:
-    return [(t, c) for t, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-
-
-async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.005)
 
 
 class Graph:
@@ -98,11 +91,9 @@ async def matched(g: Graph, name: str, timeout: float = 5.0) -> None:
 async def bridged(
     device: Any, **options: Any
 ) -> AsyncIterator[tuple[Ros2Bridge, anyio.abc.TaskGroup]]:
+    """The bridge running for the block, and a task group the block may cancel to end it."""
     options.setdefault("discovery", Discovery(domain_id=DOMAIN))
-    bridge = Ros2Bridge(device, **options)
-    async with anyio.create_task_group() as tg:
-        tg.start_soon(bridge.run)
-        await bridge.started.wait()
+    async with anyio.create_task_group() as tg, running(device, **options) as bridge:
         yield bridge, tg
         tg.cancel_scope.cancel()
 

@@ -12,10 +12,9 @@ Every test runs in a network namespace of its own whose only interface is loopba
 
 from __future__ import annotations
 
-import asyncio
+import contextlib
 import math
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
+from collections.abc import AsyncIterator
 from typing import Any
 
 import anyio
@@ -31,6 +30,8 @@ from chassis_sdk.recording.ros2_types import DEFAULT_POSE_COVARIANCE, wall_time
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.dds_peer import Event, start_peer
+from .support.ros2 import bridged as running
+from .support.ros2 import drives, until
 
 pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
 
@@ -38,26 +39,11 @@ pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
 TIMEOUT = 0.5
 
 
-def drives(sim: ChassisSimulator) -> list[tuple[float, DriveVelocity]]:
-    """The velocity frames the simulated chassis received, with their (monotonic) time."""
-    return [(t, c) for t, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-
-
-async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.002)
-
-
-@asynccontextmanager
+@contextlib.asynccontextmanager
 async def bridged(device: Any, **options: Any) -> AsyncIterator[Ros2Bridge]:
     options.setdefault("discovery", Discovery(domain_id=0))
-    bridge = Ros2Bridge(device, **options)
-    async with anyio.create_task_group() as tg:
-        tg.start_soon(bridge.run)
-        await bridge.started.wait()
+    async with running(device, **options) as bridge:
         yield bridge
-        tg.cancel_scope.cancel()
 
 
 def _sample(e: Event) -> bool:
