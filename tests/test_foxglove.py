@@ -9,7 +9,6 @@ import csv
 import itertools
 import json
 import signal
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,6 +24,7 @@ from chassis_sdk.recording.sink import json_schema
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.foxglove_client import FoxgloveClient
+from .support.helpers import kill_while_recording
 from .test_cli_operator import ROOT, cli, running
 
 pytestmark = pytest.mark.timeout(60)
@@ -183,35 +183,11 @@ def test_a_bad_record_option_is_refused_before_anything_opens(tmp_path: Path) ->
     assert not list(tmp_path.iterdir())
 
 
-# A program that records while driving, for the hard-kill test.
-_KILLED = """
-import asyncio, sys
-from chassis_sdk import Chassis
-async def main():
-    async with Chassis(sys.argv[1], record=sys.argv[2]) as robot:
-        n = 0
-        async for t in robot.telemetry():
-            await robot.set_velocity(0.1, 0.0)
-            n += 1
-            if n == 100:
-                print("recorded", flush=True)
-asyncio.run(main())
-"""
-
-
 async def test_a_hard_kill_leaves_a_file_readable_up_to_the_last_second(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     async with ChassisSimulator() as sim:
-        proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-c", _KILLED, sim.port, str(path),
-            stdout=asyncio.subprocess.PIPE, cwd=ROOT,
-        )  # fmt: skip
-        assert proc.stdout is not None
-        async with asyncio.timeout(20):
-            assert (await proc.stdout.readline()).startswith(b"recorded")
+        await kill_while_recording(sim.port, str(path), "sys.argv[2]", ROOT)
         killed_at = len(sim.firmware.received)
-        proc.send_signal(signal.SIGKILL)
-        await proc.wait()
     # 100 frames took 2 s; chunks are flushed every second: at least one is whole.
     frames = [m for _, m in capture.decode_capture(path, "chassis") if isinstance(m, Telemetry)]
     assert len(frames) >= 40

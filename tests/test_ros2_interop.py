@@ -12,6 +12,7 @@ Every test runs in a network namespace of its own whose only interface is loopba
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import math
 from collections.abc import AsyncIterator
@@ -32,6 +33,7 @@ from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 from .support.dds_peer import Event, start_peer
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
+from .test_cli_operator import CLI, ROOT, cli, one_line
 
 pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
 
@@ -212,3 +214,49 @@ async def test_a_non_finite_command_from_the_peer_is_refused() -> None:
             await teleop.wait_for("writer_deleted", 15.0)
         await until(lambda: bridge.refused >= 1, 2.0)
         assert all(c.linear_mm == 0 for _, c in drives(sim))
+
+
+async def test_chassis_sdk_ros2_puts_a_simulated_chassis_on_the_graph_and_stops_it_at_the_end() -> (
+    None
+):
+    async with ChassisSimulator() as sim:
+        args = ("ros2", sim.port, "--namespace", "robot1", "--seconds", "8")
+        bridge = await asyncio.create_subprocess_exec(
+            *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=ROOT
+        )  # fmt: skip
+        try:
+            assert bridge.stdout is not None
+            async with asyncio.timeout(20):
+                line = (await bridge.stdout.readline()).decode()
+            assert "onto ROS 2 domain 0 under /robot1" in line, line
+            teleop_args = ("pub", "twist", "rt/robot1/cmd_vel", "--rate", "20", "--count", "10")
+            async with (
+                await start_peer("sub", "odometry", "rt/robot1/odom", "--count", "5") as nav2,
+                await start_peer(*teleop_args, "--linear", "0.3", "--hold", "10") as teleop,
+            ):
+                await nav2.wait_for("done", 15.0)
+                assert nav2.samples[-1]["frame_id"] == "odom"
+                await teleop.wait_for(lambda e: e.get("i") == 9, 10.0)
+                assert any(c.linear_mm == 300 for _, c in drives(sim))
+                async with asyncio.timeout(15):
+                    out, err = await bridge.communicate()  # --seconds ran out
+            assert bridge.returncode == 0, err.decode()
+            assert "bridge ended: " in out.decode()
+            assert drives(sim)[-1][1] == DriveVelocity(0, 0.0)
+        finally:
+            if bridge.returncode is None:
+                bridge.kill()
+                await bridge.wait()
+
+
+async def test_chassis_sdk_ros2_refuses_bad_options_in_one_line_before_the_port_opens() -> None:
+    for args, says in [
+        (("--namespace", "robot one"), "namespace"),
+        (("--static-peer", "<x>"), "static peer"),
+    ]:
+        code, _out, err = await cli("ros2", "/dev/null/none", *args)
+        assert code != 0
+        assert says in one_line(err), err
+    code, _out, err = await cli("ros2", "/dev/null/none", "--domain-id", "300")
+    assert code == 2  # argparse's usage error
+    assert "domain_id=300 is out of range" in err

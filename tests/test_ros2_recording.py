@@ -13,12 +13,9 @@ real ptys, the files read back by two independent bag readers and by the SDK's o
 
 from __future__ import annotations
 
-import asyncio
 import csv
 import json
 import math
-import signal
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +34,7 @@ from chassis_sdk.recording.ros2 import Ros2Recording, rosbag
 from chassis_sdk.recording.ros2_types import StaticTransform
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.helpers import kill_while_recording
 from .test_cli_operator import ROOT, cli, one_line
 
 pytestmark = pytest.mark.timeout(60)
@@ -396,34 +394,11 @@ async def test_cli_refuses_a_bad_ros2_choice_in_one_line_before_the_port_opens(
 
 # --- a hard kill loses at most the flush interval ------------------------------------------
 
-_KILLED = """
-import asyncio, sys
-from chassis_sdk import Chassis
-from chassis_sdk.recording.ros2 import rosbag
-async def main():
-    async with Chassis(sys.argv[1], record=rosbag(sys.argv[2])) as robot:
-        n = 0
-        async for t in robot.telemetry():
-            await robot.set_velocity(0.1, 0.0)
-            n += 1
-            if n == 100:
-                print("recorded", flush=True)
-asyncio.run(main())
-"""
-
 
 async def test_a_hard_kill_leaves_a_bag_readable_up_to_the_last_second(tmp_path: Path) -> None:
     bag = tmp_path / "killed.mcap"
     async with ChassisSimulator() as sim:
-        proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-c", _KILLED, sim.port, str(bag),
-            stdout=asyncio.subprocess.PIPE, cwd=ROOT,
-        )  # fmt: skip
-        assert proc.stdout is not None
-        async with asyncio.timeout(20):
-            assert (await proc.stdout.readline()).startswith(b"recorded")
-        proc.send_signal(signal.SIGKILL)
-        await proc.wait()
+        await kill_while_recording(sim.port, str(bag), "rosbag(sys.argv[2])", ROOT)
     # 100 frames took 2 s; chunks are flushed every second: at least one is whole.
     frames = [m for _, m in capture.decode_capture(bag, "chassis") if isinstance(m, Telemetry)]
     assert len(frames) >= 40

@@ -4,6 +4,7 @@ a velocity command alive, explaining silence, and turning messages into JSON."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import stat
 import sys
 import time
@@ -30,6 +31,7 @@ __all__ = [
     "out",
     "progress_line",
     "read_secret_file",
+    "show_warnings",
     "simulated",
 ]
 
@@ -206,3 +208,16 @@ def read_secret_file(path: str, option: str) -> str:
     if not secret:
         raise ChassisError(f"{option} {path} is empty")
     return secret
+
+
+def show_warnings(logger: str, command: str) -> None:
+    """Print ``logger``'s warnings (refused connections or messages: already
+    rate-limited) on stderr as ``chassis-sdk COMMAND: ...``: the CLI shows only errors
+    unless ``-v``, and a refusal is what an operator must see."""
+    log = logging.getLogger(logger)
+    if log.getEffectiveLevel() > logging.WARNING:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter(f"chassis-sdk {command}: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.WARNING)
+        log.propagate = False

@@ -9,29 +9,15 @@ device opens: a refused option moves nothing.
 from __future__ import annotations
 
 import argparse
-import logging
-import sys
 
 import anyio
 
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import first_frame, out
+from .common import first_frame, out, show_warnings
 
 __all__ = ["ros2"]
-
-
-def _show_refusals() -> None:
-    """Refused samples are warnings of ``chassis_sdk.integrations.ros2`` (already
-    rate-limited); the CLI shows only errors unless ``-v``, so show these on stderr."""
-    log = logging.getLogger("chassis_sdk.integrations.ros2")
-    if log.getEffectiveLevel() > logging.WARNING:
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter("chassis-sdk ros2: %(message)s"))
-        log.addHandler(handler)
-        log.setLevel(logging.WARNING)
-        log.propagate = False
 
 
 async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
@@ -53,7 +39,7 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
         )
     except (TypeError, ValueError) as exc:
         raise ChassisError(str(exc)) from None
-    _show_refusals()
+    show_warnings("chassis_sdk.integrations.ros2", "ros2")  # the refusals
     limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
     async with device.device(
         port,

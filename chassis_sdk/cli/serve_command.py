@@ -13,7 +13,6 @@ values must be origins. The token is never printed.
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import sys
 
@@ -22,22 +21,9 @@ import anyio
 from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import first_frame, out, read_secret_file
+from .common import first_frame, out, read_secret_file, show_warnings
 
 __all__ = ["serve"]
-
-
-def _show_refusals() -> None:
-    """Refused connections and messages are warnings of
-    ``chassis_sdk.integrations.foxglove`` (already rate-limited); the CLI shows only
-    errors unless ``-v``, so show these on stderr."""
-    log = logging.getLogger("chassis_sdk.integrations.foxglove")
-    if log.getEffectiveLevel() > logging.WARNING:
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter("chassis-sdk serve: %(message)s"))
-        log.addHandler(handler)
-        log.setLevel(logging.WARNING)
-        log.propagate = False
 
 
 async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
@@ -61,7 +47,7 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
     except ValueError as exc:
         hint = " (--token-file FILE, or --no-token)" if "needs a token" in str(exc) else ""
         raise ChassisError(f"{exc}{hint}") from None
-    _show_refusals()
+    show_warnings("chassis_sdk.integrations.foxglove", "serve")  # the refusals
     limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
     async with device.device(
         port,

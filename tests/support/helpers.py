@@ -10,7 +10,9 @@ import asyncio
 import contextlib
 import os
 import select
+import signal
 import struct
+import sys
 import threading
 import time
 import tty
@@ -20,7 +22,14 @@ import pytest
 
 from .standin import ChassisStandIn, Received, frame_a
 
-__all__ = ["TRANSPORTS", "Heartbeat", "ThreadedPeer", "open_fds_on", "until"]
+__all__ = [
+    "TRANSPORTS",
+    "Heartbeat",
+    "ThreadedPeer",
+    "kill_while_recording",
+    "open_fds_on",
+    "until",
+]
 
 TRANSPORTS = [pytest.param(False, id="pty"), pytest.param(True, id="tcp")]
 
@@ -117,3 +126,37 @@ class ThreadedPeer:
         self._thread.join()
         os.close(self._master)
         os.close(self._slave)
+
+
+# A program that records while driving, killed with SIGKILL by kill_while_recording.
+_RECORDING_KILLED = """
+import asyncio, sys
+from chassis_sdk import Chassis
+from chassis_sdk.recording.ros2 import rosbag
+async def main():
+    async with Chassis(sys.argv[1], record=RECORD) as robot:
+        n = 0
+        async for t in robot.telemetry():
+            await robot.set_velocity(0.1, 0.0)
+            n += 1
+            if n == 100:
+                print("recorded", flush=True)
+asyncio.run(main())
+"""
+
+
+async def kill_while_recording(
+    port: str, path: str, record: str, cwd: str | os.PathLike[str]
+) -> None:
+    """Run a program that drives the device on ``port`` while recording with
+    ``record=<record>`` (an expression of ``sys.argv[2]``, the file ``path``), and
+    ``kill -9`` it after 100 telemetry frames (2 s)."""
+    program = _RECORDING_KILLED.replace("RECORD", record)
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-c", program, port, path, stdout=asyncio.subprocess.PIPE, cwd=cwd
+    )
+    assert proc.stdout is not None
+    async with asyncio.timeout(20):
+        assert (await proc.stdout.readline()).startswith(b"recorded")
+    proc.send_signal(signal.SIGKILL)
+    await proc.wait()
