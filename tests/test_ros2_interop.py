@@ -260,3 +260,29 @@ async def test_chassis_sdk_ros2_refuses_bad_options_in_one_line_before_the_port_
     code, _out, err = await cli("ros2", "/dev/null/none", "--domain-id", "300")
     assert code == 2  # argparse's usage error
     assert "domain_id=300 is out of range" in err
+
+
+async def test_chassis_sdk_ros2_read_only_writes_nothing_to_the_device() -> None:
+    async with ChassisSimulator() as sim:
+        args = ("ros2", sim.port, "--read-only", "--seconds", "4")
+        bridge = await asyncio.create_subprocess_exec(
+            *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=ROOT
+        )  # fmt: skip
+        try:
+            assert bridge.stdout is not None
+            async with asyncio.timeout(20):
+                assert "read-only" in (await bridge.stdout.readline()).decode()
+            async with (
+                await start_peer("sub", "odometry", "rt/odom", "--count", "3") as viewer,
+                await start_peer("pub", "twist", "rt/cmd_vel", "--wait-match", "2") as teleop,
+            ):
+                await viewer.wait_for("done", 15.0)  # it publishes
+                assert await teleop.wait(15.0) == 3  # nothing reads cmd_vel
+            async with asyncio.timeout(15):
+                _out, err = await bridge.communicate()
+            assert bridge.returncode == 0, err.decode()
+        finally:
+            if bridge.returncode is None:
+                bridge.kill()
+                await bridge.wait()
+    assert len(sim.firmware.received) == 0  # not even the zero at the end

@@ -408,3 +408,36 @@ async def test_sigterm_stops_the_robot_even_when_a_library_loses_the_cancellatio
         _, err = await asyncio.wait_for(proc.communicate(), 10)
         assert proc.returncode == 128 + signal.SIGTERM, err.decode()
         await dev.wait_for(last_drive_is_zero, timeout=2)
+
+
+@pytest.mark.parametrize("tcp", TRANSPORTS)
+async def test_a_read_only_device_never_writes_not_even_the_zero_at_close(tcp: bool) -> None:
+    """A viewer (``read_only=True``) writes no frame: commands and requests are refused
+    before anything is written, and close() writes no zero."""
+    from chassis_sdk import Board, ChassisError
+    from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+    async with ChassisSimulator(tcp_port=0 if tcp else None) as sim:
+        async with Chassis(sim.port, read_only=True) as robot:
+            assert robot.read_only
+            async for _ in robot.telemetry():
+                break  # it reads
+            for call in (
+                lambda: robot.set_velocity(0.3, 0.0),
+                robot.stop,
+                robot.get_firmware_version,
+                robot.emergency_stop,
+            ):
+                with pytest.raises(ChassisError, match="read-only"):
+                    await call()
+        assert len(sim.firmware.received) == 0
+        assert robot.stats.frames_sent == 0
+    async with BoardSimulator() as board_sim:
+        async with Board(board_sim.port, read_only=True) as board:
+            async for _ in board.imu():
+                break
+            with pytest.raises(ChassisError, match="read-only"):
+                await board.set_led(True)
+        assert len(board_sim.firmware.received) == 0
+    with pytest.raises(TypeError, match="read_only"):
+        Chassis("/dev/null", read_only=1)  # type: ignore[arg-type]

@@ -47,6 +47,7 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
         reconnect=True,
         limits=limits,
         command_timeout=args.command_timeout,
+        read_only=args.read_only,  # a viewer writes nothing, not even the zero at close
     ) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         bridge = Ros2Bridge(

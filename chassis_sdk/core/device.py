@@ -90,6 +90,7 @@ class Device(Session[M, K]):
         close_linger: float = 5.0,
         logger: logging.Logger | None = None,
         record: str | os.PathLike[str] | None = None,
+        read_only: bool = False,
     ) -> None:
         if not isinstance(port, str) or not port:
             raise ValueError(f"port must be a device path or URL string, got {port!r}")
@@ -125,6 +126,7 @@ class Device(Session[M, K]):
             logger=log,
             record=record,
             background=[("watchdog", self._watchdog.run)],
+            read_only=read_only,
         )
         self.limits = limits
         odometry = self._stream("odometry")  # the first named streams, in this order

@@ -199,6 +199,7 @@ class Session(abc.ABC, Generic[M, K]):
         logger: logging.Logger,
         record: str | os.PathLike[str] | None,
         background: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]],
+        read_only: bool = False,
     ) -> None:
         if any("kind" in vars(c) for c in type(self).__mro__):  # the old name: not "device"
             raise TypeError(f"{type(self).__name__}: `kind` is now `device_name`")
@@ -223,6 +224,9 @@ class Session(abc.ABC, Generic[M, K]):
             log=logger,
             background=background,
         )
+        if not isinstance(read_only, bool):
+            raise TypeError(f"read_only must be True or False, got {read_only!r}")
+        self._link.writer.read_only = read_only
         self._requests: Requester[K] = Requester(
             port,
             self._link.writer.write,
@@ -278,6 +282,13 @@ class Session(abc.ABC, Generic[M, K]):
     def connection_state(self) -> ConnectionState:
         """The current :class:`ConnectionState`."""
         return self._link.state
+
+    @property
+    def read_only(self) -> bool:
+        """True for a viewer (``read_only=True``): nothing is ever written to the
+        device, not even the zero at close; commands and requests raise
+        :class:`~chassis_sdk.errors.ChassisError`."""
+        return self._link.writer.read_only
 
     @property
     def is_connected(self) -> bool:

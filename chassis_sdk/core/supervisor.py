@@ -218,6 +218,9 @@ class Writer(Generic[M]):
         # Set the moment close() starts (and by a failed runner): from then on nothing
         # is written but the zero frame, and every call gets NotConnectedError.
         self.is_fenced = False
+        #: Set for a viewer (``read_only=True``): every write is refused and close
+        #: writes no zero either (viewers never write).
+        self.read_only = False
         self.bytes_sent = 0
         self.frames_sent = 0
 
@@ -226,8 +229,15 @@ class Writer(Generic[M]):
         state = "closing" if self.is_fenced else self._states.state.value
         return NotConnectedError(f"{self.port} is {state}, not connected")
 
+    def read_only_error(self) -> ChassisError:
+        """The error of a call that would write to a read-only device."""
+        return ChassisError(f"{self.port} was opened read-only: nothing is written to it")
+
     def ensure_open(self) -> None:
-        """Raise :class:`NotConnectedError` unless a call may write now."""
+        """Raise :class:`NotConnectedError` unless a call may write now (a
+        :class:`ChassisError` on a read-only device)."""
+        if self.read_only:
+            raise self.read_only_error()
         if self.link is None or self.is_fenced or self._states.state not in OPEN:
             raise self.not_connected()
 
@@ -252,6 +262,8 @@ class Writer(Generic[M]):
 
     def write_velocity(self, frame: bytes, expires: float) -> None:
         """Write a velocity frame (the watchdog's writer): state, not a queue."""
+        if self.read_only:
+            raise self.read_only_error()
         link = self.link
         if link is None or self.is_fenced or not link.write_velocity(frame, expires):
             raise self.not_connected()
@@ -265,7 +277,7 @@ class Writer(Generic[M]):
         self.is_fenced = True
         self._owner.fenced()
         link = self.link
-        if link is not None:
+        if link is not None and not self.read_only:
             zero = self._owner.zero_frame()
             if link.close_velocity(zero):
                 self._count_sent(len(zero))

@@ -144,7 +144,8 @@ class Ros2Bridge:
         self.namespace = self.options.namespace
         self.discovery = discovery if discovery is not None else discovery_from_env()
         self.stamped = bool(stamped)
-        self.read_only = bool(read_only)
+        # A read-only device makes a read-only bridge: it could write nothing anyway.
+        self.read_only = bool(read_only) or bool(getattr(device, "read_only", False))
         self.command_timeout = check_real(
             command_timeout, "command_timeout", low=0, low_open=True, high=10, unit="s"
         )

@@ -86,8 +86,12 @@ class Chassis(ChassisCommands):
             JSON-lines capture (raw bytes both ways). Everything the application and
             the watchdog write is in it, up to the zero frame of :meth:`close`, so a
             bug report is one file.
+        read_only: A viewer: nothing is ever written to the device, not even the
+            zero of :meth:`close`; commands and requests raise ``ChassisError``. For a
+            monitor, a recorder or a read-only bridge of a robot someone else drives.
 
     Raises:
+        TypeError: ``read_only`` is not a bool.
         ValueError: An option is out of range.
     """
 
