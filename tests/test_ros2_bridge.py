@@ -394,3 +394,39 @@ async def test_the_bridge_ending_stops_the_robot_and_leaves_the_graph() -> None:
             await left.wait()
         assert counts[-1] == 0
         assert kept is not None
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_a_static_peer_that_does_not_resolve_is_left_out_not_fatal() -> None:
+    # Cyclone aborts the process on a peer it cannot resolve: the bridge resolves them
+    # first (in a thread) and leaves such a one out, with a warning.
+    discovery = Discovery(domain_id=DOMAIN, static_peers=("robot2.invalid", "localhost"))
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, discovery=discovery) as (b, _),
+    ):
+        assert b.discovery.static_peers == ("127.0.0.1",)
+        g = Graph()
+        w = g.writer("rt/cmd_vel", m.Twist)
+        await matched(g, "rt/cmd_vel")
+        w.write(twist(0.1))
+        await until(lambda: any(c.linear_mm == 100 for _, c in drives(sim)), 2.0)
+
+
+@pytest.mark.parametrize(
+    "peers",
+    [
+        pytest.param("10.0.0.2", id="a-string"),
+        pytest.param(("::1",), id="ipv6"),
+        pytest.param(("0",), id="zero"),
+        pytest.param(("0.0.0.0",), id="unspecified"),
+        pytest.param(("239.255.0.1",), id="multicast"),
+        pytest.param(("a..b",), id="empty-label"),
+        pytest.param((3,), id="not-a-str"),
+    ],
+)
+def test_static_peers_cyclone_would_crash_on_are_refused(peers: Any) -> None:
+    with pytest.raises((TypeError, ValueError)):
+        Discovery(static_peers=peers)

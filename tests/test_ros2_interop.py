@@ -253,6 +253,8 @@ async def test_chassis_sdk_ros2_refuses_bad_options_in_one_line_before_the_port_
     for args, says in [
         (("--namespace", "robot one"), "namespace"),
         (("--static-peer", "<x>"), "static peer"),
+        (("--static-peer", "0"), "static peer"),  # Cyclone would segfault on it
+        (("--static-peer", "::1"), "IPv6"),
     ]:
         code, _out, err = await cli("ros2", "/dev/null/none", *args)
         assert code != 0

@@ -206,6 +206,7 @@ class Ros2Bridge:
                 ``reconnect``).
         """
         loop = asyncio.get_running_loop()
+        self.discovery = await self.discovery.resolved()  # a name Cyclone cannot use aborts it
         participant = Participant(self.discovery, self.namespace)
         try:
             loops = self._setup(participant, loop)

@@ -29,13 +29,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import logging
 import os
+import re
+import socket
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeVar
 from xml.sax.saxutils import quoteattr
 
+import anyio
 from cyclonedds.core import DDSException, Listener, Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
@@ -44,7 +48,14 @@ from cyclonedds.topic import Topic
 
 from ..recording.ros2_types import TopicSpec, check_namespace, type_hash
 
-__all__ = ["Discovery", "Participant", "Reader", "Writer", "discovery_from_env"]
+__all__ = [
+    "Discovery",
+    "Participant",
+    "Reader",
+    "Writer",
+    "check_peer",
+    "discovery_from_env",
+]
 
 _log = logging.getLogger("chassis_sdk.integrations.ros2")
 T = TypeVar("T")
@@ -84,9 +95,26 @@ class Discovery:
             raise ValueError(f"domain_id must be 0 to 232, got {self.domain_id}")
         if self.range not in _RANGES:
             raise ValueError(f"discovery range must be one of {', '.join(_RANGES)}: {self.range!r}")
+        if isinstance(self.static_peers, str) or not isinstance(self.static_peers, tuple | list):
+            kind = type(self.static_peers).__name__
+            raise TypeError(f"static_peers must be a tuple of host names, got {kind}")
+        object.__setattr__(self, "static_peers", tuple(self.static_peers))
         for peer in self.static_peers:
-            if not peer or any(c.isspace() or c in "<>\"'&;" for c in peer):
-                raise ValueError(f"a static peer must be a host name or address, got {peer!r}")
+            check_peer(peer)
+
+    async def resolved(self) -> Discovery:
+        """This discovery with every static peer a resolved IPv4 address (looked up in a
+        thread: the loop never waits on DNS). A name that does not resolve is left out
+        with a warning: Cyclone would abort the process on it."""
+        if not self.static_peers:
+            return self
+        found: list[str] = []
+        for peer in self.static_peers:
+            try:
+                found.append(await anyio.to_thread.run_sync(_resolve, peer))
+            except OSError as exc:
+                _log.warning("static peer %r left out: it does not resolve (%s)", peer, exc)
+        return Discovery(self.domain_id, self.range, tuple(dict.fromkeys(found)))
 
     def config(self) -> str | None:
         """The Cyclone DDS configuration for this discovery, or ``None`` to leave
@@ -110,6 +138,48 @@ class Discovery:
             f"<Peers>{entries}</Peers></Discovery>"
         )
         return f'<CycloneDDS><Domain Id="any">{general}{discovery}</Domain></CycloneDDS>'
+
+
+_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+
+
+def check_peer(peer: object) -> str:
+    """A static peer: an IPv4 address (not unspecified, multicast or broadcast) or a host
+    name (RFC 1123 labels).
+
+    Raises:
+        TypeError: Not a string.
+        ValueError: Anything else (an IPv6 address among them: not supported here).
+    """
+    if not isinstance(peer, str):
+        raise TypeError(f"a static peer must be a str, got {type(peer).__name__}")
+    if ":" in peer:
+        raise ValueError(f"static peer {peer!r}: IPv6 peers are not supported (give IPv4)")
+    try:
+        address = ipaddress.IPv4Address(peer)
+    except ValueError:
+        labels = peer.rstrip(".").split(".")
+        if len(peer) > 253 or not all(_LABEL.fullmatch(label) for label in labels):
+            raise ValueError(
+                f"a static peer must be an IPv4 address or a host name, got {peer!r}"
+            ) from None
+        if labels[-1].isdigit():
+            raise ValueError(
+                f"static peer {peer!r} is neither an IPv4 address nor a name"
+            ) from None
+        return peer
+    if address.is_unspecified or address.is_multicast or address == _BROADCAST:
+        raise ValueError(f"static peer {peer!r} is not a host's address")
+    return peer
+
+
+_BROADCAST = ipaddress.IPv4Address("255.255.255.255")
+
+
+def _resolve(peer: str) -> str:
+    """``peer``'s first IPv4 address (blocking: run in a thread)."""
+    infos = socket.getaddrinfo(peer, None, socket.AF_INET, socket.SOCK_DGRAM)
+    return str(infos[0][4][0])
 
 
 def discovery_from_env(
