@@ -25,9 +25,8 @@ machine; the simulator's receive times (``time.monotonic()``) are converted to i
    zero. Floor: the deadman (``command_timeout`` 0.5 s), and the same deadman given in
    process (``set_velocity(duration=0.5)``).
 3. **writer gone -> zero** (``command_timeout=5``, so that only the leaving can stop the
-   robot this soon): the peer's ``writer_deleted`` -> the simulator's zero frame. The
-   peer prints ``writer_deleted`` once its participant is gone, after its endpoints were
-   deleted: a negative figure is a stop that came before the peer finished. Floor:
+   robot this soon): the peer's ``deleting_writer`` (printed just before it deletes its
+   writer) -> the simulator's zero frame. Floor:
    ``robot.stop()`` in process -> the zero frame.
 4. **odometry**: the rate a Fast DDS reader of ``odom`` receives over a few seconds,
    beside the device's telemetry rate counted in process over the same window; and the
@@ -373,7 +372,7 @@ async def teleop_leaves(sim: ChassisSimulator, robot: Chassis, repeats: int) -> 
                 first.append(to_wall(moved) - published["t"])
                 final = await teleop.wait_for(lambda e: e.get("i") == 4, 5.0)
                 hop.append(acted_on(teleop, to_wall(moved)))
-                deleted = await teleop.wait_for("writer_deleted", 10.0)
+                deleted = await teleop.wait_for("deleting_writer", 10.0)
                 after = to_monotonic(final["t"])
                 stopped = await frame(sim, after, is_zero, "writer gone -> zero", 6.0)
                 gone.append(to_wall(stopped) - deleted["t"])
@@ -661,7 +660,7 @@ def report(r: dict[str, Any], quick: bool) -> None:
             _floor(f["deadman_measured"], deadman),
         ),
         (
-            "writer_deleted -> zero frame (deadman 5 s)",
+            "deleting_writer -> zero frame (deadman 5 s)",
             leaves["gone"],
             _floor(f["stop"], "stop() -> zero frame, in process"),
         ),

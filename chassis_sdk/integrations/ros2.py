@@ -187,7 +187,7 @@ class Ros2Bridge:
     @property
     def refused(self) -> int:
         """Samples refused so far (each counted and reported in the log, summarised)."""
-        return self._refusals.total + sum(r.undecodable for r in self._readers)
+        return self._refusals.total
 
     @property
     def dropped_writes(self) -> int:
@@ -247,6 +247,8 @@ class Ros2Bridge:
             self._cmd = cmd
             estop = participant.reader(TOPICS["emergency_stop"], loop)
             self._readers += [cmd, estop]
+            for reader in (cmd, estop):  # counted and reported with the other refusals
+                reader.on_undecodable = functools.partial(self._refuse, reader.name)
             loops += [
                 ("cmd_vel", lambda: self._commands(cmd)),
                 ("estop", lambda: self._estops(estop)),
@@ -303,6 +305,7 @@ class Ros2Bridge:
                 # cancels it.
                 with anyio.move_on_after(wait):
                     await reader.wait()
+            await anyio.lowlevel.checkpoint()  # a flood of refusals still lets others run
             for sample in reader.take():
                 try:
                     velocity = self._velocity_of(sample)

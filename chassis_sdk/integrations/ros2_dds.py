@@ -352,11 +352,14 @@ class Reader(Generic[T]):
         self.undecodable = 0
         #: Called on the loop when the last writer went away.
         self.on_no_writers: Callable[[], None] | None = None
+        #: Called on the loop with the reason when a sample did not decode.
+        self.on_undecodable: Callable[[str], None] | None = None
+        self._data_pending = False
 
     def listener(self) -> Listener:
         """The Cyclone listener: on its threads, it only wakes the loop."""
         return Listener(  # type: ignore[no-untyped-call]
-            on_data_available=lambda _reader: self._wake(None),
+            on_data_available=lambda _reader: self._data(),
             on_liveliness_changed=lambda _reader, status: self._wake(int(status.alive_count)),
             on_subscription_matched=lambda _reader, status: self._wake(
                 int(status.current_count), matched=True
@@ -366,21 +369,33 @@ class Reader(Generic[T]):
     def attach(self, reader: DataReader[T]) -> None:
         self._reader = reader
 
+    def _data(self) -> None:
+        # On Cyclone's thread: one wake-up for however many samples arrive before the
+        # loop takes them (a flood costs the loop one callback, not one a sample). The
+        # loop clears the flag before it sets the event, so a sample that comes after
+        # the clear schedules a wake of its own.
+        if not self._data_pending:
+            self._data_pending = True
+            self._wake(None)
+
     def _wake(self, writers: int | None, *, matched: bool = False) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed: nobody listens
             self._loop.call_soon_threadsafe(self._on_loop, writers, matched)
 
     def _on_loop(self, writers: int | None, matched: bool) -> None:
-        if writers is not None:
-            before = self.writers
+        if writers is None:
+            self._data_pending = False
+        else:
+            # Matched counts every writer, liveliness the live ones: either falling to
+            # zero means nobody is left to command (each is watched on its own, so one
+            # status that never comes cannot hide the other).
+            before = self._matched if matched else self._alive
             if matched:
                 self._matched = writers
             else:
                 self._alive = writers
-            # Matched counts every writer, liveliness the live ones: either at zero
-            # means nobody is left to command.
             self.writers = min(self._alive, self._matched)
-            if before > 0 and self.writers == 0 and self.on_no_writers is not None:
+            if before > 0 and writers == 0 and self.on_no_writers is not None:
                 self.on_no_writers()
         self._event.set()
 
@@ -405,7 +420,10 @@ class Reader(Generic[T]):
                 got = reader.take(N=1)
             except Exception as exc:  # bytes that are not this type: refused
                 self.undecodable += 1
-                _log.warning("%s: a sample did not decode (%s)", self.name, exc)
+                if self.on_undecodable is not None:
+                    self.on_undecodable(f"a sample did not decode ({type(exc).__name__})")
+                else:
+                    _log.debug("%s: a sample did not decode (%r)", self.name, exc)
                 continue
             if not got:
                 return

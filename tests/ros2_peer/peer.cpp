@@ -7,7 +7,8 @@
 //   peer pub <kind> <dds_topic> [--rate HZ] [--count N] [--hold S] [--linear X]
 //            [--angular Z] [--data true|false] [--frame ID] [--best-effort]
 //            [--transient-local] [--domain N] [--unicast] [--wait-match S]
-//       kind: twist | twist_stamped | bool
+//       kind: twist | twist_stamped | bool | junk_twist (a Vector3_ sent under Twist_'s
+//       type name: samples a reader cannot decode)
 //       Waits up to --wait-match seconds (default 10) for a reader to match, publishes
 //       --count samples (default 10) at --rate Hz (default 10), waits (up to 5 s) for a
 //       reliable writer's samples to be acknowledged, keeps the writer alive and silent
@@ -42,6 +43,7 @@
 //   {"event":"published","i":k,"t":..}            pub: sample k (0-based) written
 //   {"event":"no_match","t":..}                   pub: nobody matched in time (exit 3)
 //   {"event":"acked","t":..,"ok":true|false}      pub: reliable samples acknowledged
+//   {"event":"deleting_writer","t":..}            pub: just before the writer is deleted
 //   {"event":"writer_deleted","t":..}             pub: writer and participant deleted
 //   {"event":"sample","t":..,<fields>}            sub: one sample (fields per kind)
 //   {"event":"done","t":..,"samples":N}           sub: finished
@@ -319,7 +321,7 @@ struct Options
 {
     std::fprintf(stderr,
                  "peer: %s\n"
-                 "usage: peer pub twist|twist_stamped|bool TOPIC [--rate HZ] [--count N] "
+                 "usage: peer pub twist|twist_stamped|bool|junk_twist TOPIC [--rate HZ] [--count N] "
                  "[--hold S] [--linear X] [--angular Z] [--data true|false] [--frame ID] "
                  "[--best-effort] [--transient-local] [--domain N] [--unicast] "
                  "[--wait-match S]\n"
@@ -602,13 +604,20 @@ static void fill(gm::TwistStamped_& m, const Options& o)
 
 static void fill(stdm::Bool_& m, const Options& o) { m.data(o.data); }
 
+// junk_twist: a Vector3_ (24 bytes) under Twist_'s type name (48 bytes), which a reader
+// that matches by name cannot decode: a hostile writer's samples.
+static void fill(gm::Vector3_& m, const Options& o) { m.x(o.linear); }
+
 template <class T, class PubSubType>
-static int run_pub(const Options& o)
+static int run_pub(const Options& o, const char* type_name = nullptr)
 {
     using Clock = std::chrono::steady_clock;
     ParticipantWatcher pw;
     DomainParticipant* p = make_participant(o, &pw);
     TypeSupport type(new PubSubType());
+    if (type_name != nullptr) {
+        type->setName(type_name);
+    }
     type.register_type(p);
     Topic* topic = p->create_topic(o.topic, type.get_type_name(), TOPIC_QOS_DEFAULT);
     Publisher* publisher = p->create_publisher(PUBLISHER_QOS_DEFAULT);
@@ -676,6 +685,7 @@ static int run_pub(const Options& o)
         teardown(p);
         return interrupted();
     }
+    emit(event("deleting_writer"));  // the moment it starts to go: what a stop is timed from
     publisher->delete_datawriter(writer);
     teardown(p);
     emit(event("writer_deleted"));
@@ -791,7 +801,10 @@ int main(int argc, char** argv)
         if (o.kind == "twist") return run_pub<gm::Twist_, gm::Twist_PubSubType>(o);
         if (o.kind == "twist_stamped") return run_pub<gm::TwistStamped_, gm::TwistStamped_PubSubType>(o);
         if (o.kind == "bool") return run_pub<stdm::Bool_, stdm::Bool_PubSubType>(o);
-        usage("pub kind is twist, twist_stamped or bool, not '" + o.kind + "'");
+        if (o.kind == "junk_twist") {
+            return run_pub<gm::Vector3_, gm::Vector3_PubSubType>(o, "geometry_msgs::msg::dds_::Twist_");
+        }
+        usage("pub kind is twist, twist_stamped, bool or junk_twist, not '" + o.kind + "'");
     }
     if (o.kind == "twist") return run_sub<gm::Twist_, gm::Twist_PubSubType>(o);
     if (o.kind == "twist_stamped") return run_sub<gm::TwistStamped_, gm::TwistStamped_PubSubType>(o);

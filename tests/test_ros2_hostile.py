@@ -1,0 +1,139 @@
+"""The ROS 2 bridge under hostile writers: samples that do not decode (from Fast DDS, a
+stack of its own), floods of refused and of valid commands from another process, and
+the e-stop through it all. Nothing a writer sends may end the bridge, stall the loop,
+delay a stop, or reach the serial line faster than one command per 20 ms.
+
+Every test runs in a network namespace of its own whose only interface is loopback.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+import pytest
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.topic import Topic
+
+from chassis_sdk import Chassis
+from chassis_sdk.integrations.ros2_dds import Discovery
+from chassis_sdk.recording import ros2_types as m
+from chassis_sdk.sim import ChassisSimulator
+
+from .support.dds_peer import start_peer
+from .support.helpers import Heartbeat
+from .support.ros2 import bridged, drives, until
+from .test_cli_operator import ROOT
+
+pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
+
+DOMAIN = 0
+
+# Another process that writes cmd_vel as fast as it can for a while: Twists of
+# linear.x = LINEAR (nan, or a value that changes each sample), best effort.
+_FLOODER = """
+import math, sys, time
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.topic import Topic
+from chassis_sdk.recording import ros2_types as m
+seconds, mode = float(sys.argv[1]), sys.argv[2]
+dp = DomainParticipant(0)
+w = DataWriter(dp, Topic(dp, "rt/cmd_vel", m.Twist), Qos(Policy.Reliability.BestEffort))
+time.sleep(0.5)  # discovery
+print("flooding", flush=True)
+end, n = time.monotonic() + seconds, 0
+while time.monotonic() < end:
+    linear = math.nan if mode == "nan" else 0.1 + (n % 2) * 0.1
+    w.write(m.Twist(linear=m.Vector3(x=linear)))
+    n += 1
+print("sent", n, flush=True)
+"""
+
+
+@asynccontextmanager
+async def flooding(seconds: float, mode: str) -> AsyncIterator[asyncio.subprocess.Process]:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-c", _FLOODER, str(seconds), mode,
+        stdout=asyncio.subprocess.PIPE, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        async with asyncio.timeout(15):
+            assert (await proc.stdout.readline()).startswith(b"flooding")
+        yield proc
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+        await proc.wait()
+
+
+async def test_samples_that_do_not_decode_are_dropped_and_the_bridge_goes_on() -> None:
+    # Cyclone checks each sample against the type before the binding sees it: these
+    # are dropped in the C layer (with one warning line each on stderr, its own), so
+    # they never reach the bridge, let alone the serial line.
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, discovery=Discovery(domain_id=DOMAIN)) as bridge,
+    ):
+        args = ("pub", "junk_twist", "rt/cmd_vel", "--rate", "100", "--count", "50")
+        async with await start_peer(*args, "--linear", "0.3", "--best-effort") as junk:
+            await junk.wait_for("writer_deleted", 20.0)
+            assert junk.named("matched")  # it matched by name: its samples were sent
+        assert not any(c.linear_mm for _, c in drives(sim))  # none acted on
+        assert bridge.commands == 0
+        # The bridge goes on: a good writer drives.
+        good = ("pub", "twist", "rt/cmd_vel", "--rate", "20", "--count", "5", "--linear", "0.2")
+        async with await start_peer(*good) as teleop:
+            await teleop.wait_for("writer_deleted", 20.0)
+        await until(lambda: any(c.linear_mm == 200 for _, c in drives(sim)), 2.0)
+
+
+async def test_a_flood_of_refused_samples_neither_stalls_the_loop_nor_delays_the_e_stop() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, discovery=Discovery(domain_id=DOMAIN)) as bridge,
+        Heartbeat() as heart,
+        flooding(3.0, "nan"),
+    ):
+        await until(lambda: bridge.refused > 1000, 5.0)
+        dp = DomainParticipant(DOMAIN)
+        qos = Qos(Policy.Reliability.Reliable(0))
+        estop = DataWriter(dp, Topic(dp, "rt/emergency_stop", m.Bool), qos)
+        await asyncio.sleep(0.3)  # discovery of the e-stop writer
+        sent = time.monotonic()
+        estop.write(m.Bool(data=True))
+        await until(lambda: sim.firmware.software_estop, 1.0)
+        engaged = time.monotonic() - sent
+        assert engaged < 0.1, engaged
+        assert heart.max_gap < 0.1, heart.max_gap
+        assert not any(c.linear_mm for _, c in drives(sim))  # not one NaN written
+
+
+async def test_a_flood_of_valid_commands_reaches_the_line_at_most_once_per_20_ms() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, discovery=Discovery(domain_id=DOMAIN)) as bridge,
+        Heartbeat() as heart,
+    ):
+        async with flooding(2.0, "alternate") as flooder:
+            started = time.monotonic()
+            assert flooder.stdout is not None
+            async with asyncio.timeout(15):
+                line = await flooder.stdout.readline()
+            took = time.monotonic() - started
+        sent = int(line.split()[1])
+        assert sent > 1000, line  # a flood
+        assert bridge.commands <= took / 0.02 + 5, (bridge.commands, took)
+        assert bridge.superseded > 0
+        assert heart.max_gap < 0.1, heart.max_gap
+        assert {c.linear_mm for _, c in drives(sim)} <= {0, 100, 200}
