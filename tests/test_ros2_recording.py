@@ -13,9 +13,11 @@ real ptys, the files read back by two independent bag readers and by the SDK's o
 
 from __future__ import annotations
 
+import asyncio
 import csv
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -224,6 +226,18 @@ async def test_a_chassis_session_is_a_rosbag2_file_both_readers_open(tmp_path: P
     assert code == 0, err
     with (tmp_path / "csv" / "telemetry.csv").open() as f:
         assert len(list(csv.DictReader(f))) == len(telemetry)
+    # Reading it back needs no cyclonedds (a laptop, an aarch64 box without the extra).
+    without = (
+        "import sys; sys.modules['cyclonedds'] = None\n"
+        "from chassis_sdk.recording import capture\n"
+        f"print(sum(len(d) for _, d in capture.read_capture({str(bag)!r})))"
+    )
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-c", without, stdout=asyncio.subprocess.PIPE, cwd=ROOT
+    )
+    out_bytes, _ = await proc.communicate()
+    assert proc.returncode == 0
+    assert int(out_bytes) == sum(len(d) for _, d in capture.read_capture(fox))
 
 
 # --- a board: its IMU, and the static transform to it -------------------------------------

@@ -411,3 +411,46 @@ def test_wall_time_of_a_monotonic_reading() -> None:
     assert r.wall_time(0.0, now=1234.5) == 1234.5
     assert r.wall_time(-1.0, now=1234.5) == 1234.5
     assert abs(r.wall_time(0.0) - time.time()) < 0.05
+
+
+# --- reading the raw bytes back without cyclonedds ---------------------------------------
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    data=st.binary(max_size=300),
+    labels=st.lists(st.text(max_size=12), max_size=3),
+    offset=st.integers(0, 2**32 - 1),
+    big_endian=st.booleans(),
+)
+def test_the_struct_reader_of_uint8multiarray_agrees_with_rosbags(
+    data: bytes, labels: list[str], offset: int, big_endian: bool
+) -> None:
+    """``capture.uint8_multiarray_data`` (what replay, export and plot read a rosbag2
+    file with, no cyclonedds needed) against rosbags' serialiser, any layout."""
+    from chassis_sdk.recording.capture import uint8_multiarray_data
+
+    dims = [
+        rb("std_msgs/msg/MultiArrayDimension")(label=label, size=i, stride=2 * i)
+        for i, label in enumerate(labels)
+    ]
+    layout = rb("std_msgs/msg/MultiArrayLayout")(dim=dims, data_offset=offset)
+    message = rb("std_msgs/msg/UInt8MultiArray")(
+        layout=layout, data=np.frombuffer(data, dtype=np.uint8)
+    )
+    name = "std_msgs/msg/UInt8MultiArray"
+    encoded = bytes(STORE.serialize_cdr(message, name, little_endian=not big_endian))
+    assert uint8_multiarray_data(encoded) == data
+    if not big_endian:  # and what the recorder writes (cyclonedds, little-endian)
+        assert uint8_multiarray_data(raw(data).serialize()) == data
+    for cut in range(4, len(encoded)):  # every proper prefix is refused, not misread
+        with pytest.raises(ValueError, match="cut short"):
+            uint8_multiarray_data(encoded[:cut])
+
+
+def test_the_struct_reader_refuses_what_is_not_cdr() -> None:
+    from chassis_sdk.recording.capture import uint8_multiarray_data
+
+    for bad in (b"", b"\x00", b"\x01\x00\x00\x00" + bytes(8), b"\x00\x07\x00\x00" + bytes(8)):
+        with pytest.raises(ValueError, match="encapsulation"):
+            uint8_multiarray_data(bad)

@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import os
+import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -297,21 +298,50 @@ def _from_json(data: bytes) -> bytes:
 def _raw_bytes(encoding: str) -> Callable[[bytes], bytes]:
     """How to get the bytes out of a raw-bytes message: JSON with base64 (the Foxglove
     recording), or CDR of ``std_msgs/msg/UInt8MultiArray`` (the rosbag2 one,
-    :mod:`chassis_sdk.recording.ros2`, whose types load only for such a file)."""
-    if encoding != "cdr":
-        return _from_json
-    try:
-        from .ros2_types import UInt8MultiArray
-    except ImportError:
-        raise ImportError(
-            "reading a rosbag2 recording needs cyclonedds: pip install 'chassis-sdk[ros2]'"
-        ) from None
+    :mod:`chassis_sdk.recording.ros2`)."""
+    return uint8_multiarray_data if encoding == "cdr" else _from_json
 
-    def from_cdr(data: bytes) -> bytes:
-        message: Any = UInt8MultiArray.deserialize(data)  # its IDL annotations are not types
-        return bytes(message.data)
 
-    return from_cdr
+def uint8_multiarray_data(data: bytes) -> bytes:
+    """The ``data`` of a CDR-serialised ``std_msgs/msg/UInt8MultiArray`` (after its
+    4-byte encapsulation header, either byte order). Parsed here with ``struct``, so
+    that reading a rosbag2 recording back (``replay``, ``export``, ``plot``) needs no
+    cyclonedds: the layout is fixed (``tests/test_ros2_types.py`` checks it against
+    rosbags' serialiser).
+
+    Raises:
+        ValueError: Not such a message (short, a bad header, lengths past the end).
+    """
+    if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
+        raise ValueError("not a CDR message (bad encapsulation header)")
+    order = "<" if data[1] == 1 else ">"
+    body = memoryview(data)[4:]
+    pos = 0
+
+    def uint32() -> int:
+        nonlocal pos
+        pos = (pos + 3) & ~3  # CDR aligns a uint32 to 4, from after the header
+        if pos + 4 > len(body):
+            raise ValueError("a UInt8MultiArray cut short")
+        (value,) = struct.unpack_from(order + "I", body, pos)
+        pos += 4
+        return int(value)
+
+    def skip(n: int) -> None:
+        nonlocal pos
+        if pos + n > len(body):
+            raise ValueError("a UInt8MultiArray cut short")
+        pos += n
+
+    for _ in range(uint32()):  # layout.dim: label (string), size, stride
+        skip(uint32())
+        uint32()
+        uint32()
+    uint32()  # layout.data_offset
+    n = uint32()
+    start = pos
+    skip(n)
+    return bytes(body[start : start + n])
 
 
 def _need_mcap() -> None:

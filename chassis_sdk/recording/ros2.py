@@ -77,7 +77,7 @@ def _needs_ros2(what: str) -> ImportError:
 
 def offered_qos_profiles(spec: TopicSpec) -> str:
     """The ``offered_qos_profiles`` of a topic as rosbag2 writes it in a channel's
-    metadata (metadata version 9, Iron and newer): a YAML list with one profile, the
+    metadata (metadata version 9, as Jazzy writes it): a YAML list with one profile, the
     policies by name, the durations as ``{sec, nsec}`` (unset ones: rmw's infinite)."""
     sec, nsec = _INFINITE
     duration = f"\n    sec: {sec}\n    nsec: {nsec}"
