@@ -25,6 +25,7 @@ from chassis_sdk.devices.chassis.messages import DriveVelocity
 from chassis_sdk.integrations.ros2 import Ros2Bridge
 from chassis_sdk.integrations.ros2_dds import (
     Discovery,
+    Participant,
     discovery_from_env,
 )
 from chassis_sdk.recording import ros2_types as m
@@ -428,3 +429,29 @@ async def test_a_static_peer_that_does_not_resolve_is_left_out_not_fatal() -> No
 def test_static_peers_cyclone_would_crash_on_are_refused(peers: Any) -> None:
     with pytest.raises((TypeError, ValueError)):
         Discovery(static_peers=peers)
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_two_bridges_in_one_process_share_a_domain_and_a_different_one_is_refused() -> None:
+    localhost = Discovery(domain_id=DOMAIN, range="LOCALHOST")
+    async with (
+        ChassisSimulator() as sim1,
+        ChassisSimulator() as sim2,
+        Chassis(sim1.port) as robot1,
+        Chassis(sim2.port) as robot2,
+        bridged(robot1, namespace="r1", discovery=localhost) as (_b1, _),
+        bridged(robot2, namespace="r2", discovery=localhost) as (_b2, _),
+    ):
+        g = Graph()
+        w1 = g.writer("rt/r1/cmd_vel", m.Twist)
+        w2 = g.writer("rt/r2/cmd_vel", m.Twist)
+        await matched(g, "rt/r1/cmd_vel")
+        await matched(g, "rt/r2/cmd_vel")
+        w1.write(twist(0.1))
+        w2.write(twist(0.2))
+        await until(lambda: any(c.linear_mm == 100 for _, c in drives(sim1)), 2.0)
+        await until(lambda: any(c.linear_mm == 200 for _, c in drives(sim2)), 2.0)
+        other = Discovery(domain_id=DOMAIN, static_peers=("127.0.0.1",))
+        with pytest.raises(ValueError, match="configured otherwise"):
+            Participant(other, "r3")  # what the third bridge's run() would make first

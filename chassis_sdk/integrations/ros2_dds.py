@@ -245,6 +245,42 @@ def _qos(spec: TopicSpec, *, writer: bool) -> Qos:
     return Qos(*policies)
 
 
+#: The domains this process configured: id -> (configuration, the Domain, its users).
+#: Cyclone has one configuration per domain and process, so participants (two bridges
+#: for two robots) share one, counted, and a second, different one is refused.
+_DOMAINS: dict[int, tuple[str, Domain, int]] = {}
+
+
+def _acquire_domain(domain_id: int, config: str) -> None:
+    held = _DOMAINS.get(domain_id)
+    if held is not None:
+        if held[0] != config:
+            raise ValueError(
+                f"DDS domain {domain_id} is already configured otherwise in this process "
+                "(one discovery setting per domain: give both bridges the same, or other "
+                "domain ids)"
+            )
+        _DOMAINS[domain_id] = (held[0], held[1], held[2] + 1)
+        return
+    try:
+        domain = Domain(domain_id, config)
+    except DDSException as exc:
+        raise ValueError(
+            f"DDS domain {domain_id} already exists in this process with Cyclone's own "
+            "settings (a participant made before the bridge): make the bridge's first, or "
+            f"give it Discovery(range='SYSTEM_DEFAULT') and CYCLONEDDS_URI ({exc})"
+        ) from None
+    _DOMAINS[domain_id] = (config, domain, 1)
+
+
+def _release_domain(domain_id: int) -> None:
+    config, domain, users = _DOMAINS[domain_id]
+    if users > 1:
+        _DOMAINS[domain_id] = (config, domain, users - 1)
+    else:
+        del _DOMAINS[domain_id]  # the Domain goes with its last reference
+
+
 class Participant:
     """One DDS participant: the bridge's node on the graph.
 
@@ -253,20 +289,29 @@ class Participant:
         namespace: Where relative topic names go (``/robot1``).
 
     Raises:
-        ValueError: A bad namespace.
-        DDSException: Cyclone could not create the domain (a bad configuration).
+        ValueError: A bad namespace; or the domain is configured otherwise in this
+            process already (one discovery setting per domain and process).
+        DDSException: Cyclone could not create the participant.
     """
 
     def __init__(self, discovery: Discovery, namespace: str = "") -> None:
         self.namespace = check_namespace(namespace)
         self.discovery = discovery
         config = discovery.config()
-        # A Domain of our own only when the configuration is ours; it must live as
-        # long as the participant.
-        self._domain = Domain(discovery.domain_id, config) if config is not None else None
-        self._participant = DomainParticipant(
-            discovery.domain_id, qos=Qos(Policy.Userdata(data=b"enclave=/;"))
-        )
+        # A Domain of our own only when the configuration is ours (shared by the
+        # participants of this process that ask for the same); it lives as long as they.
+        self._domain_id = discovery.domain_id
+        self._has_domain = config is not None
+        if config is not None:
+            _acquire_domain(discovery.domain_id, config)
+        try:
+            self._participant = DomainParticipant(
+                discovery.domain_id, qos=Qos(Policy.Userdata(data=b"enclave=/;"))
+            )
+        except BaseException:
+            if config is not None:
+                _release_domain(discovery.domain_id)
+            raise
         self._topics: dict[str, Topic[Any]] = {}
         self._entities: list[Any] = []
         self._closed = False
@@ -305,7 +350,9 @@ class Participant:
                 entity.__del__()  # the binding's own delete; garbage collection is late
         self._entities.clear()
         self._topics.clear()
-        self._domain = None
+        if self._has_domain:
+            self._has_domain = False
+            _release_domain(self._domain_id)
 
 
 class Writer(Generic[T]):
