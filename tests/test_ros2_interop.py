@@ -240,6 +240,7 @@ async def test_chassis_sdk_ros2_puts_a_simulated_chassis_on_the_graph_and_stops_
                     out, err = await bridge.communicate()  # --seconds ran out
             assert bridge.returncode == 0, err.decode()
             assert "bridge ended: " in out.decode()
+            assert "no authentication" in err.decode()  # subnet discovery: it says so
             assert drives(sim)[-1][1] == DriveVelocity(0, 0.0)
         finally:
             if bridge.returncode is None:
@@ -281,6 +282,7 @@ async def test_chassis_sdk_ros2_read_only_writes_nothing_to_the_device() -> None
             async with asyncio.timeout(15):
                 _out, err = await bridge.communicate()
             assert bridge.returncode == 0, err.decode()
+            assert "no authentication" not in err.decode()  # a viewer cannot drive
         finally:
             if bridge.returncode is None:
                 bridge.kill()

@@ -9,6 +9,7 @@ device opens: a refused option moves nothing.
 from __future__ import annotations
 
 import argparse
+import sys
 
 import anyio
 
@@ -68,6 +69,13 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
                 f"bridging {port} ({device.name}) onto ROS 2 domain {discovery.domain_id} "
                 f"under {where} ({discovery.range.lower()} discovery; {mode}); Ctrl-C to quit"
             )
+            if not args.read_only and discovery.range != "LOCALHOST":
+                print(
+                    "chassis-sdk ros2: WARNING: DDS has no authentication here: any computer "
+                    f"that reaches this one in domain {discovery.domain_id} can drive the "
+                    "robot (--localhost keeps the graph on this computer)",
+                    file=sys.stderr,
+                )
             with anyio.move_on_after(args.seconds):  # None: until Ctrl-C or SIGTERM
                 await anyio.sleep_forever()
             tg.cancel_scope.cancel()

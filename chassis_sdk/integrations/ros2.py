@@ -59,6 +59,7 @@ from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
 import anyio
+from cyclonedds.core import DDSException
 
 from ..core.device import Device
 from ..core.notifier import Notifier
@@ -201,13 +202,18 @@ class Ros2Bridge:
         returns or raises, unless ``read_only``; then the DDS endpoints are deleted.
 
         Raises:
-            cyclonedds.core.DDSException: DDS could not start (a bad configuration).
-            ChassisError: A device stream ended for good (a link lost without
-                ``reconnect``).
+            ChassisError: DDS could not start (a bad configuration), or a device
+                stream ended for good (a link lost without ``reconnect``).
+            ValueError: This process has the domain configured otherwise already.
         """
         loop = asyncio.get_running_loop()
         self.discovery = await self.discovery.resolved()  # a name Cyclone cannot use aborts it
-        participant = Participant(self.discovery, self.namespace)
+        try:
+            participant = Participant(self.discovery, self.namespace)
+        except DDSException as exc:
+            raise ChassisError(
+                f"cannot join DDS domain {self.discovery.domain_id}: {exc}"
+            ) from None
         try:
             loops = self._setup(participant, loop)
             self.started.set()
