@@ -107,32 +107,16 @@ class Rosbag:
 
     Attributes:
         path: The ``.mcap`` file (overwritten).
-        namespace: Where the relative topics go, normalised (``/robot1``; ``""``: none).
-        frame_id: The odometry frame (REP 105: ``odom``).
-        child_frame_id: The robot's frame (``base_link``); also the battery's.
-        imu_frame_id: A board's IMU frame (``imu_link``).
-        static_transforms: What ``/tf_static`` holds, written once at the start;
-            ``None``: a board's ``child_frame_id`` → ``imu_frame_id`` (identity), a
-            chassis none (and then no ``/tf_static`` topic).
-        pose_covariance: Six variances (x, y, z, roll, pitch, yaw) for the odometry's
-            pose; ``None``: :data:`~chassis_sdk.recording.ros2_types.DEFAULT_POSE_COVARIANCE`.
-        twist_covariance: The same for its twist.
+        ros: The names, frames, static transforms and covariances, as the live ROS 2
+            bridge takes them (:class:`~chassis_sdk.recording.ros2_types.Ros2Options`).
         flush_interval: Seconds between two flushes of the file (what a kill can lose).
         metadata: Added to the session's ``chassis_sdk`` metadata record.
     """
 
     path: Path
-    namespace: str = ""
-    frame_id: str = "odom"
-    child_frame_id: str = "base_link"
-    imu_frame_id: str = "imu_link"
-    static_transforms: tuple[StaticTransform, ...] | None = None
-    pose_covariance: tuple[float, ...] | None = None
-    twist_covariance: tuple[float, ...] | None = None
+    ros: Ros2Options
     flush_interval: float = FLUSH_INTERVAL
     metadata: Mapping[str, str] = field(default_factory=dict)
-    #: The options as the ROS 2 messages take them (made from the fields above).
-    ros: Ros2Options = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.path, Path):
@@ -143,39 +127,18 @@ class Rosbag:
             )
         if self.path.is_dir():
             raise ValueError(f"the recording must be a file, got the directory {str(self.path)!r}")
-        for package in ("cyclonedds", "mcap"):
-            if importlib.util.find_spec(package) is None:
-                raise _needs_ros2("recording a rosbag2 file")
-        from .ros2_types import Ros2Options
-
-        def put(name: str, value: Any) -> None:
-            object.__setattr__(self, name, value)
-
-        # The names, frames and covariances are checked (and normalised) as the live
-        # bridge's are: one Ros2Options serves both.
-        ros = Ros2Options(
-            namespace=self.namespace,
-            frame_id=self.frame_id,
-            child_frame_id=self.child_frame_id,
-            imu_frame_id=self.imu_frame_id,
-            static_transforms=self.static_transforms,
-            pose_covariance=self.pose_covariance,
-            twist_covariance=self.twist_covariance,
-        )
-        put("ros", ros)
-        put("namespace", ros.namespace)
-        put("static_transforms", ros.static_transforms)
-        put("pose_covariance", ros.pose_covariance)
-        put("twist_covariance", ros.twist_covariance)
-        put(
-            "flush_interval",
-            check_real(self.flush_interval, "flush_interval", low=0, low_open=True, unit="s"),
-        )
+        interval = check_real(self.flush_interval, "flush_interval", low=0, low_open=True, unit="s")
+        object.__setattr__(self, "flush_interval", interval)
         if not isinstance(self.metadata, Mapping) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in self.metadata.items()
         ):
             raise TypeError(f"metadata must map str to str, got {self.metadata!r}")
-        put("metadata", dict(self.metadata))
+        object.__setattr__(self, "metadata", dict(self.metadata))
+
+    @property
+    def namespace(self) -> str:
+        """Where the relative topics go, normalised (``/robot1``; ``""``: none)."""
+        return self.ros.namespace
 
     def __fspath__(self) -> str:
         """The file."""
@@ -215,7 +178,10 @@ def rosbag(
         path: The ``.mcap`` file (overwritten when the recording starts).
         namespace: Where the relative topics go (``robot1`` → ``/robot1/odom``).
         frame_id, child_frame_id, imu_frame_id, static_transforms, pose_covariance,
-            twist_covariance, flush_interval, metadata: See :class:`Rosbag`.
+            twist_covariance: See
+            :class:`~chassis_sdk.recording.ros2_types.Ros2Options` (``/tf_static``
+            is written once at the start, and only when it holds something).
+        flush_interval, metadata: See :class:`Rosbag`.
 
     Raises:
         TypeError: An option of the wrong type.
@@ -227,15 +193,23 @@ def rosbag(
         raise TypeError(f"path must be a file path, got {type(path).__name__}")
     if not str(path):
         raise ValueError("path must be a file path, got ''")
-    return Rosbag(
-        Path(path),
+    for package in ("cyclonedds", "mcap"):
+        if importlib.util.find_spec(package) is None:
+            raise _needs_ros2("recording a rosbag2 file")
+    from .ros2_types import Ros2Options
+
+    ros = Ros2Options(
         namespace=namespace,
         frame_id=frame_id,
         child_frame_id=child_frame_id,
         imu_frame_id=imu_frame_id,
-        static_transforms=None if static_transforms is None else tuple(static_transforms),
-        pose_covariance=None if pose_covariance is None else tuple(pose_covariance),
-        twist_covariance=None if twist_covariance is None else tuple(twist_covariance),
+        static_transforms=static_transforms,
+        pose_covariance=pose_covariance,
+        twist_covariance=twist_covariance,
+    )
+    return Rosbag(
+        Path(path),
+        ros,
         flush_interval=flush_interval,
         metadata={} if metadata is None else metadata,
     )
