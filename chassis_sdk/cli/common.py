@@ -10,13 +10,19 @@ import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import anyio
 
 from ..core.device import Device
 from ..core.plain import jsonable
+from ..core.watchdog import MotionLimits
 from ..errors import ChassisError, ProtocolError, RequestTimeoutError
+
+if TYPE_CHECKING:
+    import argparse
+
+    from ..devices import DeviceProfile
 
 D = TypeVar("D", bound=Device[Any, Any])
 
@@ -24,6 +30,7 @@ __all__ = [
     "DEMO_PATTERN",
     "WrongProtocolError",
     "drive_for",
+    "driven",
     "explain_silence",
     "first",
     "first_frame",
@@ -221,3 +228,25 @@ def show_warnings(logger: str, command: str) -> None:
         log.addHandler(handler)
         log.setLevel(logging.WARNING)
         log.propagate = False
+
+
+@contextlib.asynccontextmanager
+async def driven(
+    device: DeviceProfile, port: str, args: argparse.Namespace, *, read_only: bool = False
+) -> AsyncIterator[Device[Any, Any]]:
+    """The device a surface that moves the robot (``serve``, ``ros2``) drives, for the
+    block: reconnecting through unplugs, within ``--max-linear``/``--max-angular``, under
+    ``--command-timeout`` (``arguments.limit_args``, ``deadman_args``), and proven to be
+    this device (:func:`first_frame`) before anything is done to it. ``read_only``: a
+    viewer's, which writes nothing."""
+    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
+    async with device.device(
+        port,
+        baudrate=args.baudrate,
+        reconnect=True,
+        limits=limits,
+        command_timeout=args.command_timeout,
+        read_only=read_only,
+    ) as dev:
+        await first_frame(dev, 3.0, device.recognised_by)
+        yield dev

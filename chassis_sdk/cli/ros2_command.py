@@ -13,10 +13,9 @@ import sys
 
 import anyio
 
-from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import first_frame, out, show_warnings
+from .common import driven, out, show_warnings
 
 __all__ = ["ros2"]
 
@@ -41,16 +40,8 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
     except (TypeError, ValueError) as exc:
         raise ChassisError(str(exc)) from None
     show_warnings("chassis_sdk.integrations.ros2", "ros2")  # the refusals
-    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
-    async with device.device(
-        port,
-        baudrate=args.baudrate,
-        reconnect=True,
-        limits=limits,
-        command_timeout=args.command_timeout,
-        read_only=args.read_only,  # a viewer writes nothing, not even the zero at close
-    ) as dev:
-        await first_frame(dev, 3.0, device.recognised_by)
+    # A viewer writes nothing, not even the zero at close.
+    async with driven(device, port, args, read_only=args.read_only) as dev:
         bridge = Ros2Bridge(
             dev,
             namespace=namespace,

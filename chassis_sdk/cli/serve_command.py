@@ -18,10 +18,9 @@ import sys
 
 import anyio
 
-from ..core.watchdog import MotionLimits
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import first_frame, out, read_secret_file, show_warnings
+from .common import driven, out, read_secret_file, show_warnings
 
 __all__ = ["serve"]
 
@@ -48,15 +47,7 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
         hint = " (--token-file FILE, or --no-token)" if "needs a token" in str(exc) else ""
         raise ChassisError(f"{exc}{hint}") from None
     show_warnings("chassis_sdk.integrations.foxglove", "serve")  # the refusals
-    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
-    async with device.device(
-        port,
-        baudrate=args.baudrate,
-        reconnect=True,
-        limits=limits,
-        command_timeout=args.command_timeout,
-    ) as dev:
-        await first_frame(dev, 3.0, device.recognised_by)
+    async with driven(device, port, args) as dev:
         try:
             server = FoxgloveServer(
                 dev,
