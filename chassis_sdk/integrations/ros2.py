@@ -183,7 +183,6 @@ class Ros2Bridge:
         #: Odometry messages published.
         self.odometry_published = 0
         self._writers: list[Writer[Any]] = []
-        self._readers: list[Reader[Any]] = []
 
     @property
     def refused(self) -> int:
@@ -252,7 +251,6 @@ class Ros2Bridge:
             cmd.on_no_writers = self._writer_gone
             self._cmd = cmd
             estop = participant.reader(TOPICS["emergency_stop"], loop)
-            self._readers += [cmd, estop]
             for reader in (cmd, estop):  # counted and reported with the other refusals
                 reader.on_undecodable = functools.partial(self._refuse, reader.name)
             loops += [

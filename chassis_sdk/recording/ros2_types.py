@@ -692,6 +692,7 @@ def battery_message(
         header=Header(stamp=stamp(epoch), frame_id=frame_id),
         voltage=float(voltage),
         percentage=math.nan if percentage is None else float(percentage),
+        power_supply_status=BATTERY_STATUS_UNKNOWN,
         present=True,
     )
 
