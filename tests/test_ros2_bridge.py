@@ -455,3 +455,31 @@ async def test_two_bridges_in_one_process_share_a_domain_and_a_different_one_is_
         other = Discovery(domain_id=DOMAIN, static_peers=("127.0.0.1",))
         with pytest.raises(ValueError, match="configured otherwise"):
             Participant(other, "r3")  # what the third bridge's run() would make first
+
+
+@pytest.mark.parametrize(
+    ("statuses", "told"),
+    [
+        # (count, from matching?) as Cyclone reports them, and "no writer left" told
+        pytest.param([(1, True), (1, False), (0, False), (0, True)], 1, id="both-fall-once"),
+        pytest.param([(1, True), (1, False), (0, True), (0, False)], 1, id="matching-first"),
+        pytest.param([(1, True), (0, True)], 1, id="liveliness-never-came"),
+        pytest.param([(2, True), (2, False), (1, True), (1, False)], 0, id="one-of-two-left"),
+        pytest.param(
+            [(1, True), (1, False), (0, False), (0, True), (1, True), (1, False), (0, False)],
+            2,
+            id="gone-back-gone",
+        ),
+    ],
+)
+async def test_no_writer_left_is_told_once_per_leaving(
+    statuses: list[tuple[int, bool]], told: int
+) -> None:
+    from chassis_sdk.integrations.ros2_dds import Reader
+
+    reader: Reader[Any] = Reader("/cmd_vel", asyncio.get_running_loop())
+    calls: list[int] = []
+    reader.on_no_writers = lambda: calls.append(1)
+    for count, matched in statuses:
+        reader._on_loop(count, matched)  # what the listener schedules on the loop
+    assert len(calls) == told

@@ -395,6 +395,7 @@ class Reader(Generic[T]):
         #: Live writers matched now (the liveliness and the subscription-matched status).
         self.writers = 0
         self._alive = self._matched = 0
+        self._armed = False  # a writer came since the last "no writer left"
         #: Samples that did not decode (refused, never acted on).
         self.undecodable = 0
         #: Called on the loop when the last writer went away.
@@ -435,15 +436,20 @@ class Reader(Generic[T]):
         else:
             # Matched counts every writer, liveliness the live ones: either falling to
             # zero means nobody is left to command (each is watched on its own, so one
-            # status that never comes cannot hide the other).
+            # status that never comes cannot hide the other), and it is told once: the
+            # other falling after it is the same leaving. A count that rises arms it.
             before = self._matched if matched else self._alive
             if matched:
                 self._matched = writers
             else:
                 self._alive = writers
             self.writers = min(self._alive, self._matched)
-            if before > 0 and writers == 0 and self.on_no_writers is not None:
-                self.on_no_writers()
+            if writers > before:
+                self._armed = True
+            elif before > 0 and writers == 0 and self._armed:
+                self._armed = False
+                if self.on_no_writers is not None:
+                    self.on_no_writers()
         self._event.set()
 
     def wake(self) -> None:
