@@ -223,6 +223,7 @@ async def test_wheel_mode_frames_are_exact() -> None:
     async with ChassisStandIn(noise=False) as dev, Chassis(dev.port) as robot:
         await robot.set_wheel_speeds(0.2, 0.193)
         await robot.stop()
+        await dev.wait_for(last_drive_is_zero)
     first, zero = drive_frames(dev.frames)[0], drive_frames(dev.frames)[-1]
     assert first.payload == bytes.fromhex("01 00 C8 00 C1 00 00 00")
     assert first.raw == bytes.fromhex("ED DE 00 00 02 12 01 00 C8 00 C1 00 00 00 69 03 BD BC")

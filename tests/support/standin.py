@@ -18,6 +18,7 @@ import asyncio
 import contextlib
 import os
 import random
+import select
 import socket
 import struct
 import time
@@ -99,7 +100,26 @@ class PtyPeer:
         for t in self._tasks:
             t.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._read_what_is_left()
         self.unplug()
+
+    def _read_what_is_left(self) -> None:
+        """Take in what the host wrote before it closed and the loop had not yet
+        handed over (a device reads its line to the end before it is unplugged). The
+        kernel hands a pty's bytes across a moment after the write, so this waits
+        until the line has been quiet for 10 ms."""
+        if self._master < 0 or not self._reading:
+            return
+        while True:
+            if not select.select([self._master], [], [], 0.01)[0]:
+                return
+            try:
+                data = os.read(self._master, 4096)
+            except OSError:  # BlockingIOError: nothing more; EIO: all was read
+                return
+            if not data:
+                return
+            self._on_bytes(data)
 
     def stop_reading(self) -> None:
         """Stop reading what the host sends, like a hung MCU. Over TCP the kernel's
