@@ -20,7 +20,6 @@ import contextlib
 import functools
 import hmac
 import http
-import ipaddress
 import json
 import logging
 import re
@@ -30,10 +29,17 @@ import sys
 import threading
 from collections.abc import Callable, Coroutine, Iterable
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
 
 import anyio
 
+from .access import (
+    MIN_TOKEN_LENGTH,
+    check_allowed_origin,
+    check_token,
+    given_tokens,
+    is_loopback,
+    origin_key,
+)
 from .foxglove_reports import REPORT_INTERVAL, Reports, shown
 
 __all__ = [
@@ -79,8 +85,6 @@ _front_log.addFilter(_Redact())
 APP_ORIGINS = ("https://app.foxglove.dev", "https://studio.foxglove.dev", "file://")
 #: The subprotocol spoken (the only one foxglove-sdk's server accepts).
 SUBPROTOCOL = "foxglove.sdk.v1"
-#: The shortest token taken (a shorter one can be guessed over the network).
-MIN_TOKEN_LENGTH = 16
 #: The client channel id the front uses for its proof; clients may not use it.
 HELLO_ID = 0xFFFFFFFF
 HELLO_TOPIC = "/_chassis_sdk/front/"
@@ -95,23 +99,6 @@ MAX_CLIENT_CHANNELS = 256
 #: connection whose peer does not read, or a handshake that never completes, can hold
 #: the front's shutdown.
 FRONT_TIMEOUT = 1.0
-
-
-def is_loopback(host: str) -> bool:
-    """Whether ``host`` names this computer only (``localhost``, 127.0.0.0/8, ``::1``)."""
-    if host.lower() == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False  # a host name: it may resolve to anything
-
-
-def _origin_key(origin: str) -> str:
-    """An origin as compared: lowercase, no trailing slash (browsers send none, but a
-    user may type one)."""
-    key = origin.strip().lower()
-    return key if key == "file://" else key.rstrip("/")
 
 
 def check_access(
@@ -130,11 +117,11 @@ def check_access(
     """
     if isinstance(allow_origins, str):
         raise ValueError("allow_origins is a list of origins, not one string")
-    allowed = {_origin_key(o) for o in APP_ORIGINS} | {
-        _check_allowed_origin(o) for o in allow_origins
+    allowed = {origin_key(o) for o in APP_ORIGINS} | {
+        check_allowed_origin(o) for o in allow_origins
     }
     if token is not None:
-        _check_token(token)
+        check_token(token)
     elif not is_loopback(host) and not allow_no_token:
         raise ValueError(
             f"serving on {host!r} (beyond this computer) needs a token: anyone who "
@@ -142,46 +129,6 @@ def check_access(
             "network whose every machine is trusted)"
         )
     return frozenset(allowed)
-
-
-def _check_allowed_origin(origin: object) -> str:
-    if not isinstance(origin, str) or not origin.strip():
-        raise ValueError(f"an allowed origin must be a non-empty string, got {origin!r}")
-    key = _origin_key(origin)
-    if key == "null":
-        # Sandboxed iframes and data: URLs of any site send "null": allowing it would
-        # allow every page on the web.
-        raise ValueError("the origin 'null' cannot be allowed: any page can send it")
-    if key == "*":
-        raise ValueError("'*' is not an origin; to allow any page, there is no option")
-    parts = urlsplit(key)
-    # Any scheme: a desktop app may send its own (app://..., as Electron apps can); the
-    # refusal's log line shows what a refused app sent.
-    if not parts.scheme or not parts.netloc or parts.path or parts.query or parts.fragment:
-        raise ValueError(
-            f"an allowed origin is scheme://host[:port] (as a browser sends it), got {origin!r}"
-        )
-    return key
-
-
-def _check_token(token: object) -> str:
-    if not isinstance(token, str):
-        raise ValueError("token must be a string")
-    if len(token) < MIN_TOKEN_LENGTH:
-        raise ValueError(f"token must be at least {MIN_TOKEN_LENGTH} characters")
-    if not all(33 <= ord(c) <= 126 for c in token):
-        raise ValueError("token must be printable ASCII without spaces")
-    return token
-
-
-def _given_tokens(headers: Any, path: str) -> list[str]:
-    """The tokens a handshake carries: ``?token=`` and ``Authorization: Bearer``."""
-    given = parse_qs(urlsplit(path).query, keep_blank_values=True).get("token", [])
-    for value in headers.get_all("Authorization"):
-        scheme, _, credentials = value.partition(" ")
-        if scheme.lower() == "bearer":
-            given.append(credentials.strip())
-    return given
 
 
 def private_loopback() -> str:
@@ -210,11 +157,11 @@ class Gate:
         origins = headers.get_all("Origin")
         if len(origins) > 1:
             return http.HTTPStatus.FORBIDDEN, "more than one Origin header"
-        if origins and _origin_key(origins[0]) not in self.allowed:
+        if origins and origin_key(origins[0]) not in self.allowed:
             shown = origins[0][:100]  # the peer's text: bounded, and shown as a repr
             return http.HTTPStatus.FORBIDDEN, f"Origin {shown!r} is not allowed"
         if self.token is not None:
-            given = _given_tokens(headers, path)
+            given = given_tokens(path, headers.get_all("Authorization"))
             if len(given) != 1:
                 why = "no token" if not given else "more than one token"
                 return http.HTTPStatus.UNAUTHORIZED, why
