@@ -1,0 +1,100 @@
+"""``chassis-sdk web``'s arguments; the command itself is
+:mod:`chassis_sdk.cli.web_command`, imported only when it runs (it needs aiohttp)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from ..core.validation import check_int
+from ..devices import DeviceProfile, profile
+from .arguments import arg_type, deadman_args, device_arg, limit_args, port_args, require_port
+
+if TYPE_CHECKING:
+    from .arguments import Job, Subparsers
+
+__all__ = ["add_parser"]
+
+#: A TCP port to serve on (0: any free one).
+TCP_PORT = arg_type(int, lambda v: check_int(v, "port", low=0, high=65535))
+#: A gamepad's axis or button index.
+INDEX = arg_type(int, lambda v: check_int(v, "index", low=0, high=63))
+
+
+def _fraction(text: str) -> float:
+    value = float(text)
+    if not 0 < value <= 1:
+        raise ValueError(f"must be in (0, 1], got {value:g}")
+    return value
+
+
+FRACTION = arg_type(float, _fraction)
+
+
+def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
+    """Register ``web``."""
+    p = sub.add_parser(
+        "web",
+        help="a dashboard in the browser: watch and drive by hand (pip install '.[web]')",
+        description=(
+            "Serve one page that shows the device live and drives it from an on-screen "
+            "joystick, the keyboard or a gamepad, every command under the deadman. "
+            "Loopback by default; beyond it a random token is required (the address to "
+            "open is printed once)."
+        ),
+    )
+    port_args(p)
+    device_arg(p, names)
+    p.add_argument(
+        "--host", default="127.0.0.1", help="address to bind (default: this computer only)"
+    )
+    p.add_argument(
+        "--port",
+        dest="http_port",
+        type=TCP_PORT,
+        default=8080,
+        help="TCP port of the page (default 8080; 0: any free one)",
+    )
+    p.add_argument(
+        "--read-only", action="store_true", help="show everything; offer only STOP and E-STOP"
+    )
+    p.add_argument(
+        "--token-file",
+        metavar="FILE",
+        help="the token to require, from FILE (mode 600), instead of a random one",
+    )
+    p.add_argument(
+        "--allow-origin",
+        action="append",
+        metavar="ORIGIN",
+        help="also let pages of this origin open the WebSocket (scheme://host[:port])",
+    )
+    pad = p.add_argument_group("gamepad (the browser's Gamepad API, standard mapping)")
+    pad.add_argument("--enable-button", type=INDEX, default=4, help="held to drive (default 4: LB)")
+    pad.add_argument(
+        "--linear-axis", type=INDEX, default=1, help="forward and back (default 1: left stick)"
+    )
+    pad.add_argument(
+        "--angular-axis", type=INDEX, default=0, help="turning (default 0: left stick)"
+    )
+    pad.add_argument(
+        "--pad-scale",
+        type=FRACTION,
+        default=1.0,
+        help="full deflection as a fraction of --max-linear/--max-angular (default 1)",
+    )
+    limit_args(p, "what the page may ask for")
+    deadman_args(p, "the page")
+    p.set_defaults(func=_start)
+
+
+def _start(args: argparse.Namespace) -> Job:
+    port = require_port(args)
+    return _web(profile(args.device), port, args)
+
+
+async def _web(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    from .web_command import web
+
+    await web(device, port, args)

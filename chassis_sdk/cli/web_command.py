@@ -1,0 +1,77 @@
+"""``chassis-sdk web``: one device in a browser dashboard, for as long as it runs.
+
+The device is opened once, with ``reconnect=True`` and the motion limits; the page is
+served until Ctrl-C, SIGTERM or ``--seconds``, and the end stops the robot if a page was
+driving it (zero first), then closes every page. Options are checked before the device
+opens: a refused option moves nothing. The token, when one is required, is printed
+once, inside the address to open.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import anyio
+
+from ..devices import DeviceProfile
+from ..errors import ChassisError
+from .common import driven, out, read_secret_file, show_warnings
+
+__all__ = ["web"]
+
+
+async def web(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
+    """Serve the dashboard until Ctrl-C, SIGTERM or ``--seconds``."""
+    try:
+        from ..integrations.access import check_allowed_origin, check_token, is_loopback
+        from ..integrations.web import GamepadMapping, WebDashboard
+    except ImportError as exc:
+        raise ChassisError(f"web needs aiohttp: pip install 'chassis-sdk[web]' ({exc})") from None
+    token = None
+    if args.token_file is not None:
+        token = read_secret_file(args.token_file, "--token-file")
+    origins = args.allow_origin or []
+    try:  # before the device opens
+        if token is not None:
+            check_token(token)
+        for origin in origins:
+            check_allowed_origin(origin)
+        gamepad = GamepadMapping(
+            linear_axis=args.linear_axis,
+            angular_axis=args.angular_axis,
+            enable_button=args.enable_button,
+            scale_linear=args.pad_scale,
+            scale_angular=args.pad_scale,
+        )
+    except ValueError as exc:
+        raise ChassisError(str(exc)) from None
+    show_warnings("chassis_sdk.integrations.web", "web")  # the refusals
+    # Writable even read-only: STOP and E-STOP stay offered.
+    async with driven(device, port, args) as dev:
+        dashboard = WebDashboard(
+            dev,
+            host=args.host,
+            port=args.http_port,
+            read_only=args.read_only,
+            token=token,
+            allow_origins=origins,
+            command_timeout=args.command_timeout,
+            gamepad=gamepad,
+        )
+        async with dashboard:
+            mode = "read-only" if args.read_only else "drive by hand"
+            out(f"dashboard of {port} ({device.name}) at {dashboard.url} ({mode}); Ctrl-C to quit")
+            if dashboard.token is not None:
+                # Printed once, as Jupyter does: the page swaps it for a cookie.
+                print(f"open {dashboard.login_url}", file=sys.stderr)
+                if not is_loopback(args.host):
+                    print(
+                        "chassis-sdk web: the page is plain HTTP: on a network you do not "
+                        "trust, reach it over SSH instead (ssh -L 8080:127.0.0.1:8080 robot)",
+                        file=sys.stderr,
+                    )
+            with anyio.move_on_after(args.seconds):  # None: until Ctrl-C or SIGTERM
+                await anyio.sleep_forever()
+        stopped = "" if args.read_only else "; the robot is stopped"
+        out(f"dashboard ended: {dashboard.commands} commands, {dashboard.refused} refused{stopped}")

@@ -1,0 +1,833 @@
+"""The web dashboard: one device, watched and driven by hand from a browser.
+
+:class:`WebDashboard` serves one page (``web_static/``: HTML, JavaScript, CSS and the
+uPlot charting library, all in the package; nothing is built or fetched) and a
+WebSocket at ``/ws`` on an aiohttp server. The page shows the device live (speeds
+commanded beside measured, wheels, battery, status and faults, events, the link and the
+age of its last frame, the odometry path; a board's IMU, LED and buzzer) and drives it
+from an on-screen joystick, the keyboard or a gamepad.
+
+Driving: one contract with every other surface
+----------------------------------------------
+* Each ``drive`` message is one fresh ``set_velocity(linear, angular,
+  duration=command_timeout)``: the page sends the current command at 20 Hz while a
+  control is held, so a frozen tab, a lost network or a closed laptop stops the robot
+  within ``command_timeout``. Releasing a control sends ``stop`` at once; the page
+  hidden sends ``stop``; a socket that closes (or misses its heartbeat) while its
+  client was driving stops the robot at once.
+* Velocity is state, not a queue: of the drive messages that arrive, only the newest
+  counts, and at most one is written per :data:`VELOCITY_PERIOD`. ``stop`` and
+  ``estop`` are acted on as they arrive, never behind a velocity or a request, and a
+  velocity taken before a stop is never written after it.
+* A drive message carries the page's clock (``t``, milliseconds of
+  ``performance.now()``). The server keeps, per connection, the least difference
+  between its own clock and the page's (the fastest a message has come); a message
+  that arrives later than that by more than ``command_timeout`` was held up (a stalled
+  network delivering a backlog) and is refused. No clock needs to agree with another.
+* A message that is not a well-formed command (not JSON, UTF-8 only, duplicate keys,
+  unknown type or keys, wrong types, non-finite, beyond ``max_linear``/``max_angular``)
+  is refused, counted, logged (the first at once, then at most one summary a second,
+  by :class:`~chassis_sdk.integrations.inbound.Refusals`) and shown on the page; it
+  never moves the robot and never ends the server.
+* ``read_only``: the page offers only STOP and E-STOP, and the server takes nothing
+  else.
+
+Who may connect
+---------------
+Loopback by default. Then only requests whose ``Host`` names this computer are served
+(a page elsewhere that rebinds its own name to 127.0.0.1 gets HTTP 403). Beyond
+loopback a token is required (a random one unless given): the URL to open carries it
+once (``/?token=...``, as Jupyter does), the server answers with a cookie for this
+port (``HttpOnly``, ``SameSite=Strict``) and sends the browser on to ``/``. Every
+request but the static files needs the token (the cookie, ``?token=`` or
+``Authorization: Bearer``), compared in constant time. The WebSocket handshake's
+``Origin`` must be the page's own (``http://`` + the ``Host`` asked for) or one of
+``allow_origins``: another page in the operator's browser cannot drive. The page
+cannot be framed (``frame-ancestors 'none'``) and loads nothing from elsewhere.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import json
+import logging
+import math
+import secrets
+import time
+from collections import deque
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from importlib import resources
+from types import TracebackType
+from typing import Any, Self
+from urllib.parse import urlsplit
+
+import anyio
+
+from ..core.device import Device
+from ..core.plain import jsonable
+from ..devices import profile
+from ..errors import ChassisError
+from .access import check_allowed_origin, check_token, given_tokens, is_loopback, origin_key
+from .inbound import CommandError, Refusals, command_object
+
+__all__ = [
+    "DEFAULT_MAX_ANGULAR",
+    "DEFAULT_MAX_LINEAR",
+    "MAX_CLIENTS",
+    "VELOCITY_PERIOD",
+    "GamepadMapping",
+    "WebDashboard",
+]
+
+_log = logging.getLogger("chassis_sdk.integrations.web")
+
+#: Least seconds between two velocity commands written (the newest in between counts).
+VELOCITY_PERIOD = 0.02
+#: What a page may ask for when neither the dashboard nor the device sets a limit
+#: (m/s, rad/s): ``chassis-sdk drive``'s defaults, slow enough to walk beside.
+DEFAULT_MAX_LINEAR = 0.5
+DEFAULT_MAX_ANGULAR = 1.0
+#: The most WebSocket clients served at once (more are refused with HTTP 503).
+MAX_CLIENTS = 8
+#: The largest WebSocket message taken (a drive message is about 60 bytes).
+_MAX_MESSAGE = 4096
+#: Seconds between WebSocket pings: a client that does not answer within half of it is
+#: closed (and, if it was driving, the robot stops).
+_HEARTBEAT = 4.0
+#: Events kept for a page that opens later, and odometry path points.
+_EVENTS_KEPT = 50
+_PATH_POINTS = 2000
+#: Least distance (m) between two points of the path kept.
+_PATH_STEP = 0.02
+#: Seconds a request (release, clear faults, LED, buzzer) may take.
+_REQUEST_TIMEOUT = 5.0
+_STATIC = {
+    "app.js": "text/javascript",
+    "app.css": "text/css",
+    "uPlot.iife.min.js": "text/javascript",
+    "uPlot.min.css": "text/css",
+}
+_SECURITY_HEADERS = {
+    "Content-Security-Policy": (
+        "default-src 'self'; connect-src 'self'; img-src 'self' data:; "
+        "style-src 'self'; script-src 'self'; frame-ancestors 'none'; base-uri 'none'; "
+        "form-action 'none'"
+    ),
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Cache-Control": "no-store",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class GamepadMapping:
+    """How the page reads a gamepad (the browser's Gamepad API, standard mapping), as
+    teleop_twist_joy's parameters.
+
+    Attributes:
+        linear_axis: The axis for linear speed (``axes[1]``: the left stick's vertical;
+            up is negative in the API, so it is inverted).
+        angular_axis: The axis for turning (``axes[0]``: the left stick's horizontal;
+            left turns counter-clockwise).
+        enable_button: The button held to drive (``buttons[4]``: LB); released, the
+            robot stops at once.
+        scale_linear: Full deflection, as a fraction of ``max_linear``.
+        scale_angular: Full deflection, as a fraction of ``max_angular``.
+        deadzone: Deflections below it count as none.
+        stale_after: Seconds without a new reading from the pad (its ``timestamp``
+            unchanged) after which, while enabled, it counts as gone: the robot stops.
+    """
+
+    linear_axis: int = 1
+    angular_axis: int = 0
+    enable_button: int = 4
+    scale_linear: float = 1.0
+    scale_angular: float = 1.0
+    deadzone: float = 0.1
+    stale_after: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("linear_axis", "angular_axis", "enable_button"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 64:
+                raise ValueError(f"{name} must be an index 0..63, got {value!r}")
+        for name in ("scale_linear", "scale_angular"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or not 0 < value <= 1:
+                raise ValueError(f"{name} must be in (0, 1], got {value!r}")
+        if not isinstance(self.deadzone, int | float) or not 0 <= self.deadzone < 1:
+            raise ValueError(f"deadzone must be in [0, 1), got {self.deadzone!r}")
+        if not isinstance(self.stale_after, int | float) or not 0 < self.stale_after <= 10:
+            raise ValueError(f"stale_after must be in (0, 10] seconds, got {self.stale_after!r}")
+
+
+def _limit(name: str, given: float | None, device: float | None, default: float) -> float:
+    if given is None:
+        return device if device is not None else default
+    if isinstance(given, bool) or not isinstance(given, int | float) or not 0 < given < math.inf:
+        raise ValueError(f"{name} must be a positive number, got {given!r}")
+    return float(given) if device is None else min(float(given), device)
+
+
+def _finite(body: Mapping[str, Any], key: str) -> float:
+    value = body.get(key)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise CommandError(f"{key} must be a number, got {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise CommandError(f"{key} must be finite, got {value}")
+    return value
+
+
+def _keys(body: Mapping[str, Any], allowed: Iterable[str]) -> None:
+    extra = set(body) - {"type", *allowed}
+    if extra:
+        raise CommandError(f"unknown keys {sorted(extra)!r} for {body['type']!r}")
+
+
+class _Client:
+    """One WebSocket connection: its socket, its clock and what it is doing."""
+
+    def __init__(self, ws: Any, number: int) -> None:
+        self.ws = ws
+        self.name = f"client {number}"
+        #: The least (server clock - page clock) seen: the fastest delivery.
+        self.offset = math.inf
+        self.last_t = -math.inf
+        #: Whether its last velocity command was not a stop (its close stops the robot).
+        self.driving = False
+        #: The newest state not yet sent, and whether the sender is waiting for one.
+        self.state: str | None = None
+        self.wake = asyncio.Event()
+        self.events: deque[dict[str, Any]] = deque(maxlen=_EVENTS_KEPT)
+        self.notes: deque[dict[str, Any]] = deque(maxlen=32)
+        self.busy = False
+
+
+class WebDashboard:
+    """One connected device, served to browsers (see the module docstring).
+
+    Use ``async with WebDashboard(robot) as web:`` inside ``async with robot:``; the
+    address to open is :attr:`login_url`.
+
+    Args:
+        device: A device (connected, or about to be: the page follows its link).
+        host: Address to bind; ``127.0.0.1`` (default) serves this computer only.
+        port: TCP port; 0 picks a free one (:attr:`port` says which).
+        read_only: Take no velocity and no request: the page offers STOP and E-STOP only.
+        token: The secret every request must carry (at least 16 printable ASCII
+            characters). Beyond loopback a random one is made if none is given; on
+            loopback none is needed unless given.
+        allow_origins: WebSocket ``Origin`` values let in besides the page's own
+            (``scheme://host[:port]``: a page of yours that embeds the dashboard's data).
+        command_timeout: The deadman of each drive message (default: the device's,
+            else 0.5 s).
+        max_linear: The fastest a page may ask for (m/s): the joystick's full
+            deflection; more is refused. Default: the device's limit, else
+            :data:`DEFAULT_MAX_LINEAR` (slow enough to walk beside).
+        max_angular: The same for turning (rad/s); default the device's limit, else
+            :data:`DEFAULT_MAX_ANGULAR`.
+        rate: State updates a second sent to each page (1 to 50).
+        gamepad: How the page reads a gamepad.
+        max_clients: The most pages served at once.
+
+    Raises:
+        ValueError: A bad option (before anything opens).
+    """
+
+    def __init__(
+        self,
+        device: Device[Any, Any],
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        read_only: bool = False,
+        token: str | None = None,
+        allow_origins: Iterable[str] = (),
+        command_timeout: float | None = None,
+        rate: float = 20.0,
+        gamepad: GamepadMapping | None = None,
+        max_clients: int = MAX_CLIENTS,
+        max_linear: float | None = None,
+        max_angular: float | None = None,
+    ) -> None:
+        try:
+            from aiohttp import web
+        except ImportError:
+            raise ImportError(
+                "the web dashboard needs aiohttp: pip install 'chassis-sdk[web]'"
+            ) from None
+        self._web = web
+        if not isinstance(host, str) or not host:
+            raise ValueError(f"host must be an address, got {host!r}")
+        if not isinstance(port, int) or isinstance(port, bool) or not 0 <= port <= 65535:
+            raise ValueError(f"port must be 0..65535, got {port!r}")
+        if isinstance(allow_origins, str):
+            raise ValueError("allow_origins is a list of origins, not one string")
+        self._origins = frozenset(check_allowed_origin(o) for o in allow_origins)
+        if token is not None:
+            check_token(token)
+        elif not is_loopback(host):
+            token = secrets.token_urlsafe(24)
+        self._token = token
+        timeout = command_timeout if command_timeout is not None else device.command_timeout
+        timeout = 0.5 if timeout is None else timeout
+        if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not timeout > 0:
+            raise ValueError(f"command_timeout must be > 0 seconds, got {command_timeout!r}")
+        if isinstance(rate, bool) or not isinstance(rate, int | float) or not 1 <= rate <= 50:
+            raise ValueError(f"rate must be 1..50 updates a second, got {rate!r}")
+        if not isinstance(max_clients, int) or isinstance(max_clients, bool) or max_clients < 1:
+            raise ValueError(f"max_clients must be >= 1, got {max_clients!r}")
+        limits = device.limits
+        self.max_linear = _limit("max_linear", max_linear, limits.max_linear, DEFAULT_MAX_LINEAR)
+        self.max_angular = _limit(
+            "max_angular", max_angular, limits.max_angular, DEFAULT_MAX_ANGULAR
+        )
+        self.device = device
+        self.host = host
+        self._port = port
+        self.read_only = bool(read_only)
+        self.command_timeout = float(timeout)
+        self.rate = float(rate)
+        self.gamepad = gamepad if gamepad is not None else GamepadMapping()
+        self.max_clients = max_clients
+        self._profile = profile(device.device_name)
+        self._actions = self._offered()
+        #: Velocity commands written; commands refused; drive messages replaced by a
+        #: newer one before they were written; connections refused at the door.
+        self.commands = 0
+        self.superseded = 0
+        self.refused_connections = 0
+        self.refusals = Refusals()
+        self._clients: set[_Client] = set()
+        self._numbered = 0
+        self._pending: tuple[float, float] | None = None
+        self._velocity = asyncio.Event()
+        self._stop_epoch = 0
+        self._estop_engaged = False
+        self._events: deque[dict[str, Any]] = deque(maxlen=_EVENTS_KEPT)
+        self._path: deque[tuple[float, float]] = deque(maxlen=_PATH_POINTS)
+        self._latest: dict[str, Any] = {}
+        self._runner: Any = None
+        self._bound = 0
+        self._tasks: anyio.abc.TaskGroup | None = None
+        self._exit: contextlib.AsyncExitStack | None = None
+        self._closed = False
+
+    # --- what it is --------------------------------------------------------------------
+
+    @property
+    def refused(self) -> int:
+        """Messages refused since the start."""
+        return self.refusals.total
+
+    @property
+    def clients(self) -> int:
+        """Pages connected now."""
+        return len(self._clients)
+
+    @property
+    def token(self) -> str | None:
+        """The token required (the one made, beyond loopback), or ``None``."""
+        return self._token
+
+    @property
+    def port(self) -> int:
+        """The TCP port served (the one picked, for 0)."""
+        return self._bound or self._port
+
+    @property
+    def url(self) -> str:
+        """The page's address, without the token."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        if host in ("0.0.0.0", "[::]"):
+            host = "127.0.0.1" if host == "0.0.0.0" else "[::1]"
+        return f"http://{host}:{self.port}/"
+
+    @property
+    def login_url(self) -> str:
+        """The address to open once: :attr:`url` with the token, when one is required."""
+        return self.url if self._token is None else f"{self.url}?token={self._token}"
+
+    def _offered(self) -> list[str]:
+        """The actions the page offers, by what the device has and the mode."""
+        device: Any = self.device
+        actions = ["stop", "estop"]  # without an e-stop, E-STOP stops
+        if self.read_only:
+            return actions
+        actions.append("drive")
+        if hasattr(device, "release_emergency_stop"):
+            actions.append("release")
+        if hasattr(device, "clear_faults"):
+            actions.append("clear_faults")
+        features = self._profile.remote.features
+        for name in ("led", "buzzer"):
+            if features.get(name) and hasattr(device, f"set_{name}"):
+                actions.append(name)
+        return actions
+
+    # --- lifetime ----------------------------------------------------------------------
+
+    async def __aenter__(self) -> Self:
+        await self.start()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.aclose()
+
+    async def start(self) -> None:
+        """Bind and start serving (and watching the device).
+
+        Raises:
+            ChassisError: The address cannot be bound (in use, not this computer's).
+        """
+        web = self._web
+        app = web.Application(client_max_size=_MAX_MESSAGE, handler_args={"max_field_size": 8190})
+        app.router.add_get("/", self._index)
+        app.router.add_get("/ws", self._socket)
+        app.router.add_get("/static/{name}", self._static)
+        app.on_response_prepare.append(self._secure)
+        runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)
+        await runner.setup()
+        site = web.TCPSite(runner, self.host, self._port, reuse_address=True)
+        try:
+            await site.start()
+        except OSError as exc:
+            await runner.cleanup()
+            raise ChassisError(
+                f"cannot serve on {self.host}:{self._port}: {exc.strerror or exc}"
+            ) from None
+        self._runner = runner
+        if runner.addresses:
+            self._bound = runner.addresses[0][1]
+        stack = contextlib.AsyncExitStack()
+        self._tasks = await stack.enter_async_context(anyio.create_task_group())
+        self._exit = stack
+        tg = self._tasks
+        tg.start_soon(self._write_velocity, name="web velocity")
+        tg.start_soon(self._broadcast, name="web state")
+        tg.start_soon(self._watch_events, name="web events")
+        for stream in self._profile.remote.streams:
+            tg.start_soon(self._watch, stream, name=f"web {stream}")
+
+    async def aclose(self) -> None:
+        """Stop the robot if a page was driving it, close every page, stop serving."""
+        if self._closed:
+            return
+        self._closed = True
+        driving = any(c.driving for c in self._clients)
+        self._pending = None
+        self._stop_epoch += 1
+        if driving and not self.read_only:
+            with contextlib.suppress(ChassisError):
+                await self.device.stop()
+        with anyio.CancelScope(shield=True):
+            for client in list(self._clients):
+                with contextlib.suppress(Exception), anyio.move_on_after(1.0):
+                    await client.ws.close(code=1001, message=b"server shutting down")
+            if self._runner is not None:
+                with anyio.move_on_after(2.0):
+                    await self._runner.cleanup()
+        # The watchers' task group, entered by start() in this task: left here.
+        if self._tasks is not None and self._exit is not None:
+            self._tasks.cancel_scope.cancel()
+            await self._exit.aclose()
+
+    # --- HTTP --------------------------------------------------------------------------
+
+    async def _secure(self, request: Any, response: Any) -> None:
+        for name, value in _SECURITY_HEADERS.items():
+            response.headers.setdefault(name, value)
+
+    def _cookie(self) -> str:
+        return f"chassis_sdk_token_{self.port}"
+
+    def _refuse_request(self, request: Any) -> Any:
+        """The HTTP error for a request that may not be served, else ``None``."""
+        web = self._web
+        if is_loopback(self.host):
+            host = urlsplit(f"//{request.host}").hostname or ""
+            if not is_loopback(host):
+                self._refused_at_door(request, f"Host {request.host[:100]!r} is not this computer")
+                return web.Response(status=403, text="Host is not this computer\n")
+        if self._token is None:
+            return None
+        given = given_tokens(request.path_qs, request.headers.getall("Authorization", []))
+        cookie = request.cookies.get(self._cookie())
+        if cookie is not None:
+            given.append(cookie)
+        if not any(hmac.compare_digest(g.encode(), self._token.encode()) for g in given):
+            self._refused_at_door(request, "no token" if not given else "a wrong token")
+            return web.Response(
+                status=401,
+                text="open the address chassis-sdk web printed (it carries ?token=...)\n",
+            )
+        return None
+
+    def _refused_at_door(self, request: Any, why: str) -> None:
+        self.refused_connections += 1
+        peer = request.remote or "?"
+        _log.warning("web: refused a request from %s: %s", peer, why)
+
+    async def _index(self, request: Any) -> Any:
+        web = self._web
+        refused = self._refuse_request(request)
+        if refused is not None:
+            return refused
+        if self._token is not None and "token" in request.query:
+            # The token leaves the address bar (and the history) for a cookie.
+            response = web.HTTPSeeOther("/")
+            response.set_cookie(
+                self._cookie(), self._token, httponly=True, samesite="Strict", path="/"
+            )
+            return response
+        page = resources.files(__package__).joinpath("web_static/index.html").read_text("utf-8")
+        return web.Response(text=page, content_type="text/html", charset="utf-8")
+
+    async def _static(self, request: Any) -> Any:
+        web = self._web
+        name = request.match_info["name"]
+        kind = _STATIC.get(name)
+        if kind is None:
+            raise web.HTTPNotFound()
+        body = resources.files(__package__).joinpath(f"web_static/{name}").read_bytes()
+        return web.Response(body=body, content_type=kind, charset="utf-8")
+
+    # --- WebSocket ---------------------------------------------------------------------
+
+    def _origin_refused(self, request: Any) -> str | None:
+        origins = request.headers.getall("Origin", [])
+        if len(origins) > 1:
+            return "more than one Origin header"
+        if not origins:
+            return None  # not a browser: the token (if any) was checked
+        origin = origin_key(origins[0])
+        own = {origin_key(f"{scheme}://{request.host}") for scheme in ("http", "https")}
+        if origin in own or origin in self._origins:
+            return None
+        return f"Origin {origins[0][:100]!r} is not allowed"
+
+    async def _socket(self, request: Any) -> Any:
+        web = self._web
+        refused = self._refuse_request(request)
+        if refused is not None:
+            return refused
+        why = self._origin_refused(request)
+        if why is not None:
+            self._refused_at_door(request, why)
+            return web.Response(status=403, text=f"{why}\n")
+        if len(self._clients) >= self.max_clients or self._closed:
+            self._refused_at_door(request, f"{self.max_clients} pages are connected already")
+            return web.Response(status=503, text="too many pages connected\n")
+        ws = web.WebSocketResponse(
+            heartbeat=_HEARTBEAT, max_msg_size=_MAX_MESSAGE, compress=False, autoping=True
+        )
+        await ws.prepare(request)
+        self._numbered += 1
+        client = _Client(ws, self._numbered)
+        self._clients.add(client)
+        _log.info("web: %s connected from %s", client.name, request.remote)
+        try:
+            await ws.send_str(json.dumps(self._hello()))
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._send, client)
+                await self._receive(client)
+                tg.cancel_scope.cancel()
+        except (ConnectionError, RuntimeError):
+            pass  # the page went away while being written to
+        finally:
+            self._clients.discard(client)
+            if client.driving and not self.read_only and not self._closed:
+                _log.info("web: %s left while driving; the robot is stopped", client.name)
+                await self._stop_now()
+            with anyio.CancelScope(shield=True), anyio.move_on_after(1.0):
+                await ws.close()
+        return ws
+
+    def _hello(self) -> dict[str, Any]:
+        device = self.device
+        return {
+            "type": "hello",
+            "device": device.device_name,
+            "port": device.port,
+            "read_only": self.read_only,
+            "actions": self._actions,
+            "max_linear": self.max_linear,
+            "max_angular": self.max_angular,
+            "command_timeout": self.command_timeout,
+            "rate": self.rate,
+            "gamepad": {
+                "linear_axis": self.gamepad.linear_axis,
+                "angular_axis": self.gamepad.angular_axis,
+                "enable_button": self.gamepad.enable_button,
+                "scale_linear": self.gamepad.scale_linear,
+                "scale_angular": self.gamepad.scale_angular,
+                "deadzone": self.gamepad.deadzone,
+                "stale_after": self.gamepad.stale_after,
+            },
+            "features": dict(self._profile.remote.features),
+            "events": list(self._events),
+            "path": [list(p) for p in self._path],
+        }
+
+    async def _send(self, client: _Client) -> None:
+        """Send the newest state (a slow page gets fewer, never a backlog)."""
+        ws = client.ws
+        while True:
+            await client.wake.wait()
+            client.wake.clear()
+            state, client.state = client.state, None
+            if state is None:
+                continue
+            if client.events or client.notes:
+                # The state is the same text for every page; its events are this page's.
+                extra = {"events": list(client.events), "notes": list(client.notes)}
+                client.events.clear()
+                client.notes.clear()
+                state = state[:-1] + ", " + json.dumps(extra)[1:]
+            await ws.send_str(state)
+
+    async def _receive(self, client: _Client) -> None:
+        aiohttp = self._web
+        text_kind = aiohttp.WSMsgType.TEXT
+        binary_kind = aiohttp.WSMsgType.BINARY
+        async for message in client.ws:
+            if message.type == binary_kind:
+                self._refuse(client, "a binary message: commands are JSON text")
+                continue
+            if message.type != text_kind:
+                break  # an error or a close: the socket is done
+            try:
+                await self._handle(client, message.data.encode())
+            except (CommandError, ValueError, TypeError) as exc:
+                self._refuse(client, str(exc))
+            except ChassisError as exc:
+                self._refuse(client, f"not done: {exc}")
+            except Exception as exc:  # no message may end the server
+                _log.exception("web: error handling a message from %s", client.name)
+                self._refuse(client, f"error: {type(exc).__name__}: {exc}")
+            await anyio.lowlevel.checkpoint()  # a flood still lets the rest run
+
+    def _refuse(self, client: _Client, why: str) -> None:
+        report = self.refusals.add(client.name, why)
+        client.notes.append({"refused": why, "total": self.refusals.total})
+        if report is not None:
+            _log.warning("web: refused %s", report.summary())
+
+    async def _handle(self, client: _Client, raw: object) -> None:
+        body = command_object(raw, limit=_MAX_MESSAGE)
+        kind = body.get("type")
+        if not isinstance(kind, str):
+            raise CommandError("a message needs a string 'type'")
+        if kind not in self._actions:
+            if kind in ("drive", "release", "clear_faults", "led", "buzzer", "stop", "estop"):
+                mode = "read-only" if self.read_only else f"a {self.device.device_name}"
+                raise CommandError(f"{kind!r} is not offered ({mode})")
+            raise CommandError(f"unknown message type {kind[:40]!r}")
+        if kind == "drive":
+            _keys(body, ("linear", "angular", "t"))
+            self._drive(client, body)
+        elif kind == "stop":
+            _keys(body, ())
+            client.driving = False
+            await self._stop_now()
+        elif kind == "estop":
+            _keys(body, ())
+            client.driving = False
+            device: Any = self.device
+            if not hasattr(device, "emergency_stop"):
+                await self._stop_now()
+                client.notes.append({"done": f"stop (a {device.device_name} has no e-stop)"})
+                return
+            self._estop_engaged = True
+            self._pending = None
+            self._stop_epoch += 1
+            await device.emergency_stop()
+            client.notes.append({"done": "estop"})
+        else:
+            self._request(client, kind, body)
+
+    def _drive(self, client: _Client, body: Mapping[str, Any]) -> None:
+        linear, angular = _finite(body, "linear"), _finite(body, "angular")
+        for name, value, limit in (
+            ("linear", linear, self.max_linear),
+            ("angular", angular, self.max_angular),
+        ):
+            if abs(value) > limit * (1 + 1e-9):
+                raise CommandError(f"{name} {value:g} is beyond the limit {limit:g}")
+        if "t" in body:
+            t = _finite(body, "t") / 1000.0
+            if t < client.last_t:
+                raise CommandError("t went back: messages out of order")
+            client.last_t = t
+            now = time.monotonic()
+            client.offset = min(client.offset, now - t)
+            late = now - t - client.offset
+            if late > self.command_timeout:
+                raise CommandError(f"held up {late:.2f} s (longer than the deadman)")
+        if self._estop_engaged:
+            raise CommandError("the emergency stop is engaged: release it first")
+        if linear == 0.0 and angular == 0.0:
+            client.driving = False
+        else:
+            client.driving = True
+        if self._pending is not None:
+            self.superseded += 1
+        self._pending = (linear, angular)
+        self._velocity.set()
+
+    async def _stop_now(self) -> None:
+        if self._pending is not None:
+            self.superseded += 1
+        self._pending = None
+        self._stop_epoch += 1
+        await self.device.stop()
+
+    def _request(self, client: _Client, kind: str, body: Mapping[str, Any]) -> None:
+        """Release, clear faults, LED, buzzer: in a task (a stop behind it never waits),
+        one at a time per page."""
+        device: Any = self.device
+        if kind in ("led", "buzzer"):
+            _keys(body, ("on",))
+            on = body.get("on")
+            if not isinstance(on, bool):
+                raise CommandError(f"{kind} needs 'on': true or false")
+            call = getattr(device, f"set_{kind}")
+            args: tuple[Any, ...] = (on,)
+        else:
+            _keys(body, ())
+            call = device.release_emergency_stop if kind == "release" else device.clear_faults
+            args = ()
+        if client.busy:
+            raise CommandError(f"{kind}: the previous request is not answered yet")
+        if self._tasks is None:
+            raise CommandError("the dashboard is not running")
+        client.busy = True
+
+        async def run() -> None:
+            try:
+                with anyio.fail_after(_REQUEST_TIMEOUT):
+                    await call(*args)
+                if kind == "release":
+                    self._estop_engaged = False
+                client.notes.append({"done": kind})
+            except (ChassisError, ValueError, TimeoutError) as exc:
+                self._refuse(client, f"{kind} not done: {exc}")
+            finally:
+                client.busy = False
+
+        self._tasks.start_soon(run, name=f"web {kind}")
+
+    # --- the device --------------------------------------------------------------------
+
+    async def _write_velocity(self) -> None:
+        """The newest drive message, at most one per :data:`VELOCITY_PERIOD`."""
+        next_write = -math.inf
+        while True:
+            await self._velocity.wait()
+            self._velocity.clear()
+            wait = next_write - anyio.current_time()
+            if wait > 0:
+                await anyio.sleep(wait)  # a newer one may come meanwhile: it counts
+            pending, epoch = self._pending, self._stop_epoch
+            self._pending = None
+            if pending is None or self._estop_engaged:
+                continue
+            linear, angular = pending
+            try:
+                if epoch != self._stop_epoch:
+                    continue  # a stop came in between: it wins
+                if linear == 0.0 and angular == 0.0:
+                    await self.device.stop()
+                else:
+                    await self.device.set_velocity(linear, angular, duration=self.command_timeout)
+            except (ChassisError, ValueError) as exc:
+                report = self.refusals.add("drive", f"not written: {exc}")
+                if report is not None:
+                    _log.warning("web: refused %s", report.summary())
+                continue
+            self.commands += 1
+            next_write = anyio.current_time() + VELOCITY_PERIOD
+
+    async def _watch(self, stream: str) -> None:
+        """Keep the newest reading of ``stream`` (and the odometry path)."""
+        subscribe = getattr(self.device, stream)
+        async for reading in subscribe():
+            self._latest[stream] = reading
+            if stream == "odometry":
+                x, y = float(reading.x), float(reading.y)
+                if not self._path or math.dist(self._path[-1], (x, y)) >= _PATH_STEP:
+                    self._path.append((round(x, 4), round(y, 4)))
+
+    async def _watch_events(self) -> None:
+        async for event in self.device.events():
+            body = jsonable(event)
+            # Wall time: the event's monotonic stamp, as this computer's clock read it.
+            body["time"] = time.time() - (time.monotonic() - event.timestamp)
+            body["text"] = str(event)
+            self._events.append(body)
+            for client in self._clients:
+                client.events.append(body)
+
+    def _state(self) -> str:
+        """The state every page is sent, as JSON text (a non-finite reading as ``null``:
+        JSON has none)."""
+        device = self.device
+        latest = {name: jsonable(reading) for name, reading in self._latest.items()}
+        commanded = device.commanded_velocity
+        estop = self._estop_engaged
+        telemetry = self._latest.get("telemetry")
+        if telemetry is not None and getattr(telemetry, "emergency_stopped", False):
+            estop = True
+        body = {
+            "type": "state",
+            "time": time.time(),
+            "link": {"state": device.connection_state.name, "age": device.last_frame_age},
+            "commanded": list(commanded) if commanded is not None else None,
+            "written": list(device.written_velocity),
+            "streams": latest,
+            "odometry": latest.get("odometry"),
+            "estop": estop,
+            "refused": self.refusals.total,
+            "commands": self.commands,
+            "clients": len(self._clients),
+        }
+        try:
+            return json.dumps(body, default=str, allow_nan=False)
+        except ValueError:
+            return json.dumps(_finite_only(body), default=str)
+
+    async def _broadcast(self) -> None:
+        """Every ``1/rate`` s, the state (made once) to every page."""
+        period = 1.0 / self.rate
+        while True:
+            await anyio.sleep(period)
+            if not self._clients:
+                continue
+            state = self._state()
+            for client in self._clients:
+                client.state = state
+                client.wake.set()
+            report = self.refusals.due()
+            if report is not None:
+                _log.warning("web: refused %s", report.summary())
+
+
+def _finite_only(value: Any) -> Any:
+    """``value`` with every non-finite float as ``None``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_only(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_only(v) for v in value]
+    return value

@@ -1,0 +1,506 @@
+"""The web dashboard's server, from outside: an independent WebSocket client
+(``websockets``) and HTTP client (``urllib`` in a thread) against
+:class:`~chassis_sdk.integrations.web.WebDashboard` serving a simulator over a real pty.
+The page itself is tested in a real browser in ``test_web_browser.py``."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+import urllib.error
+import urllib.request
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from typing import Any
+
+import pytest
+
+pytest.importorskip("aiohttp", reason="the dashboard's extra: pip install '.[web]'")
+
+import websockets
+from websockets.typing import Origin
+
+from chassis_sdk import Board, Chassis, MotionLimits
+from chassis_sdk.integrations.web import GamepadMapping, WebDashboard
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+from .test_cli_operator import cli, running
+
+pytestmark = pytest.mark.timeout(60)
+
+TOKEN = "a-token-of-twenty-chars"
+
+
+async def _until(condition: Callable[[], bool], timeout: float) -> float:
+    """Seconds until ``condition()`` holds (TimeoutError after ``timeout``)."""
+    start = time.monotonic()
+    async with asyncio.timeout(timeout):
+        while not condition():
+            await asyncio.sleep(0.002)
+    return time.monotonic() - start
+
+
+def moving(sim: ChassisSimulator) -> bool:
+    return any(sim.firmware.target)
+
+
+class Page:
+    """A WebSocket client as the page is one: hello first, then states."""
+
+    def __init__(self, ws: Any) -> None:
+        self.ws = ws
+        self.hello: dict[str, Any] = {}
+        self.states: list[dict[str, Any]] = []
+        self.notes: list[dict[str, Any]] = []
+        self.events: list[dict[str, Any]] = []
+        self._changed = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+
+    async def start(self) -> None:
+        self.hello = json.loads(await self.ws.recv())
+        assert self.hello["type"] == "hello"
+        self._task = asyncio.create_task(self._read())
+
+    async def _read(self) -> None:
+        with contextlib.suppress(websockets.ConnectionClosed):
+            await self._read_all()
+
+    async def _read_all(self) -> None:
+        async for text in self.ws:
+            message = json.loads(text)
+            assert message["type"] == "state"
+            self.states.append(message)
+            self.notes += message.get("notes", [])
+            self.events += message.get("events", [])
+            self._changed.set()
+
+    async def wait(self, condition: Callable[[], bool], timeout: float = 3.0) -> None:
+        async with asyncio.timeout(timeout):
+            while not condition():
+                self._changed.clear()
+                await self._changed.wait()
+
+    async def send(self, **message: Any) -> None:
+        await self.ws.send(json.dumps(message))
+
+    async def drive(self, linear: float, angular: float = 0.0) -> None:
+        await self.send(type="drive", linear=linear, angular=angular, t=time.monotonic() * 1000)
+
+    def refusals(self) -> list[str]:
+        return [n["refused"] for n in self.notes if "refused" in n]
+
+
+@asynccontextmanager
+async def page(
+    web: WebDashboard, *, origin: str | None = None, headers: dict[str, str] | None = None
+) -> AsyncIterator[Page]:
+    url = f"ws://127.0.0.1:{web.port}/ws"
+    async with websockets.connect(
+        url, origin=Origin(origin) if origin else None, additional_headers=headers
+    ) as ws:
+        p = Page(ws)
+        await p.start()
+        yield p
+        if p._task is not None:
+            p._task.cancel()
+
+
+def http_get(url: str, headers: dict[str, str] | None = None) -> tuple[int, dict[str, str], str]:
+    """GET without following redirects: status, headers, body."""
+
+    class NoRedirect(urllib.request.HTTPRedirectHandler):
+        def redirect_request(self, *args: Any) -> None:
+            return None
+
+    opener = urllib.request.build_opener(NoRedirect)
+    request = urllib.request.Request(url, headers=headers or {})
+    try:
+        with opener.open(request, timeout=5) as response:
+            return response.status, dict(response.headers), response.read().decode()
+    except urllib.error.HTTPError as exc:
+        return exc.code, dict(exc.headers), exc.read().decode()
+
+
+async def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, dict[str, str], str]:
+    return await asyncio.to_thread(http_get, url, headers)
+
+
+# --- what it serves ------------------------------------------------------------------------
+
+
+async def test_the_page_its_assets_and_live_state_of_a_chassis() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=0.3) as robot,
+        WebDashboard(robot, port=0) as web,
+    ):
+        status, headers, body = await get(web.url)
+        assert status == 200
+        assert "<title>chassis-sdk dashboard</title>" in body
+        assert "frame-ancestors 'none'" in headers["Content-Security-Policy"]
+        assert headers["X-Frame-Options"] == "DENY"
+        for name in ("app.js", "app.css", "uPlot.iife.min.js", "uPlot.min.css"):
+            status, _, asset = await get(f"{web.url}static/{name}")
+            assert status == 200, name
+            assert len(asset) > 500, name
+        assert (await get(f"{web.url}static/../web.py"))[0] == 404
+        assert (await get(f"{web.url}static/index.html"))[0] == 404
+        async with page(web) as p:
+            assert p.hello["device"] == "chassis"
+            assert p.hello["actions"] == ["stop", "estop", "drive", "release", "clear_faults"]
+            assert p.hello["command_timeout"] == 0.3
+            assert p.hello["gamepad"]["enable_button"] == 4
+            await p.wait(lambda: len(p.states) >= 10)
+            state = p.states[-1]
+            assert state["link"]["state"] == "CONNECTED"
+            assert state["link"]["age"] < 0.5
+            assert state["streams"]["telemetry"]["voltage"] == pytest.approx(
+                robot.latest_telemetry.voltage  # type: ignore[union-attr]
+            )
+            assert {"x", "y", "heading"} <= set(state["odometry"])
+            assert abs(state["time"] - time.time()) < 2  # wall time
+            # 20 states a second.
+            first = len(p.states)
+            t0 = time.monotonic()
+            await p.wait(lambda: len(p.states) >= first + 20)
+            assert 0.7 < time.monotonic() - t0 < 1.6
+
+
+async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
+    async with (
+        BoardSimulator() as sim,
+        Board(sim.port) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        assert p.hello["actions"] == ["stop", "estop", "drive", "led", "buzzer"]
+        await p.wait(lambda: bool(p.states) and "imu" in p.states[-1]["streams"])
+        imu = p.states[-1]["streams"]["imu"]
+        assert set(imu["accel"]) == {"x", "y", "z"}
+        await p.send(type="led", on=True)
+        await p.wait(lambda: {"done": "led"} in p.notes)
+        assert await robot.get_led() is True
+        await p.send(type="estop")  # a board has no e-stop: it stops
+        await p.wait(lambda: any("has no e-stop" in n.get("done", "") for n in p.notes))
+
+
+# --- driving -------------------------------------------------------------------------------
+
+
+async def test_drive_messages_move_the_robot_and_the_deadman_stops_it() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=0.3) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        for _ in range(10):  # 20 Hz, as the page sends while a control is held
+            await p.drive(0.3, 0.2)
+            await asyncio.sleep(0.05)
+        assert moving(sim)
+        assert robot.commanded_velocity == (0.3, 0.2)
+        t0 = time.monotonic()
+        await _until(lambda: not moving(sim), 2.0)  # the page froze: the deadman
+        assert 0.2 < time.monotonic() - t0 < 0.3 + 0.15
+        # A stop at once, well before the deadman.
+        await p.drive(0.3)
+        await _until(lambda: moving(sim), 2.0)
+        t0 = time.monotonic()
+        await p.send(type="stop")
+        assert await _until(lambda: not moving(sim), 0.2) < 0.1
+        assert web.commands >= 11
+        assert web.refused == 0
+
+
+async def test_a_socket_that_closes_while_driving_stops_the_robot_at_once() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=2.0) as robot,
+        WebDashboard(robot, port=0) as web,
+    ):
+        async with page(web) as p:
+            await p.drive(0.2)
+            await _until(lambda: moving(sim), 2.0)
+        assert await _until(lambda: not moving(sim), 0.5) < 0.1  # not the 2 s deadman
+        # A page that only watched leaves a robot someone else drives alone.
+        async with page(web) as driver:
+            async with page(web) as viewer:
+                await driver.drive(0.2)
+                await _until(lambda: moving(sim), 2.0)
+                await viewer.wait(lambda: bool(viewer.states))
+            await asyncio.sleep(0.1)  # what must not happen: a stop from the viewer
+            assert moving(sim)
+
+
+async def test_only_the_newest_command_counts_and_a_stop_wins() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=0.5) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        # A burst (a stalled network delivering at once): at most one write per 20 ms,
+        # the newest.
+        for i in range(200):
+            await p.ws.send(json.dumps({"type": "drive", "linear": 0.001 * i, "angular": 0.0}))
+        await _until(lambda: robot.commanded_velocity == (0.199, 0.0), 3.0)
+        assert web.commands < 60
+        assert web.superseded > 100
+        # A velocity right before a stop never acts after it.
+        for _ in range(20):
+            await p.drive(0.25)
+            await p.send(type="stop")
+            await _until(lambda: not moving(sim), 1.0)
+            await asyncio.sleep(0.03)  # a write slot later
+            assert not moving(sim)
+
+
+async def test_a_held_up_command_is_refused() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, command_timeout=0.3) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        now = time.monotonic() * 1000
+        await p.send(type="drive", linear=0.0, angular=0.0, t=now)  # the fastest delivery
+        await p.send(type="drive", linear=0.2, angular=0.0, t=now - 1000)  # out of order
+        await p.send(type="drive", linear=0.2, angular=0.0, t=now + 10)
+        await asyncio.sleep(0.5)  # the next one arrives 0.5 s late by the page's clock
+        await p.send(type="drive", linear=0.2, angular=0.0, t=now + 20)
+        await p.wait(lambda: len(p.refusals()) == 2)
+        assert "out of order" in p.refusals()[0]
+        assert "held up" in p.refusals()[1]
+        assert web.refused == 2
+
+
+async def test_estop_engages_and_refuses_velocity_until_released() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        await p.drive(0.2)
+        await _until(lambda: moving(sim), 2.0)
+        await p.send(type="estop")
+        await _until(lambda: sim.firmware.software_estop and not moving(sim), 1.0)
+        await p.wait(lambda: p.states[-1]["estop"] if p.states else False)
+        await p.drive(0.2)
+        await p.wait(lambda: any("emergency stop is engaged" in r for r in p.refusals()))
+        await p.send(type="release")
+        await p.wait(lambda: {"done": "release"} in p.notes)
+        await _until(lambda: not sim.firmware.software_estop, 1.0)
+        await p.drive(0.2)
+        await _until(lambda: moving(sim), 2.0)
+        await p.send(type="clear_faults")
+        await p.wait(lambda: {"done": "clear_faults"} in p.notes)
+        assert web.refused == 1
+
+
+BAD = [
+    ("not json", "not JSON"),
+    ("[1, 2]", "not an object"),
+    ('{"linear": 0.1}', "needs a string 'type'"),
+    ('{"type": "fly"}', "unknown message type"),
+    ('{"type": "drive", "linear": "fast", "angular": 0}', "linear must be a number"),
+    ('{"type": "drive", "linear": true, "angular": 0}', "linear must be a number"),
+    ('{"type": "drive", "linear": 0.1}', "angular must be a number"),
+    ('{"type": "drive", "linear": NaN, "angular": 0}', "not JSON"),
+    ('{"type": "drive", "linear": 1e999, "angular": 0}', "finite"),
+    ('{"type": "drive", "linear": 5, "angular": 0}', "beyond the limit"),
+    ('{"type": "drive", "linear": 0.1, "angular": -9}', "beyond the limit"),
+    ('{"type": "drive", "linear": 0.1, "angular": 0, "speed": 1}', "unknown keys"),
+    ('{"type": "drive", "type": "drive", "linear": 0.1, "angular": 0}', "appears twice"),
+    ('{"type": "stop", "now": true}', "unknown keys"),
+    ('{"type": "led", "on": true}', "not offered"),
+    ('{"type": "drive", "linear": 0.1, "angular": 0, "t": "soon"}', "t must be a number"),
+]
+
+
+async def test_malformed_messages_are_refused_counted_shown_and_move_nothing() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, limits=MotionLimits(max_linear=0.5, max_angular=1.0)) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        written = robot.stats.frames_sent
+        for raw, _ in BAD:
+            await p.ws.send(raw)
+        await p.ws.send(b'{"type": "drive", "linear": 0.1, "angular": 0}')  # binary
+        await p.wait(lambda: len(p.refusals()) == len(BAD) + 1)
+        for (raw, why), refusal in zip(BAD, p.refusals(), strict=False):
+            assert why in refusal, (raw, refusal)
+        assert "binary" in p.refusals()[-1]
+        await p.wait(lambda: p.states[-1]["refused"] == len(BAD) + 1)
+        assert robot.stats.frames_sent == written  # not a byte
+        assert not moving(sim)
+        # An oversized message ends that socket (RFC 6455 1009), not the server.
+        await p.ws.send(json.dumps({"type": "stop", "pad": "x" * 5000}))
+        await asyncio.wait_for(p.ws.wait_closed(), 5)
+        assert p.ws.close_code == 1009
+        async with page(web) as again:
+            await again.drive(0.1)
+            await _until(lambda: moving(sim), 2.0)
+
+
+async def test_read_only_takes_only_stop_and_estop() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        WebDashboard(robot, port=0, read_only=True) as web,
+        page(web) as p,
+    ):
+        assert p.hello["read_only"] is True
+        assert p.hello["actions"] == ["stop", "estop"]
+        for message in ({"type": "drive", "linear": 0.1, "angular": 0.0}, {"type": "release"}):
+            await p.send(**message)
+        await p.wait(lambda: len(p.refusals()) == 2)
+        assert all("read-only" in r for r in p.refusals())
+        assert not moving(sim)
+        await p.send(type="estop")
+        await _until(lambda: sim.firmware.software_estop, 1.0)
+        assert web.commands == 0
+
+
+# --- who may connect -----------------------------------------------------------------------
+
+
+async def test_a_foreign_origin_or_host_is_refused() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        WebDashboard(robot, port=0, allow_origins=["https://ops.example.com"]) as web,
+    ):
+        own = f"http://127.0.0.1:{web.port}"
+        async with page(web, origin=own) as p:
+            assert p.hello["type"] == "hello"
+        async with page(web, origin="https://ops.example.com") as p:
+            assert p.hello["type"] == "hello"
+        for origin in ("https://evil.example", f"http://localhost:{web.port}", "null"):
+            with pytest.raises(websockets.InvalidStatus) as refused:
+                async with page(web, origin=origin):
+                    pass
+            assert refused.value.response.status_code == 403, origin
+        # DNS rebinding: a page of evil.example whose name now points at 127.0.0.1.
+        status, _, _ = await get(web.url, {"Host": f"evil.example:{web.port}"})
+        assert status == 403
+        assert web.refused_connections == 4
+
+
+async def test_a_token_is_required_everywhere_but_the_static_files() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        WebDashboard(robot, port=0, token=TOKEN) as web,
+    ):
+        assert web.login_url == f"{web.url}?token={TOKEN}"
+        assert (await get(web.url))[0] == 401
+        assert (await get(f"{web.url}?token=wrong-token-wrong-token"))[0] == 401
+        assert (await get(f"{web.url}static/app.js"))[0] == 200
+        # The token leaves the address for a cookie of this port.
+        status, headers, _ = await get(web.login_url)
+        assert status == 303
+        assert headers["Location"] == "/"
+        cookie = headers["Set-Cookie"]
+        assert f"chassis_sdk_token_{web.port}={TOKEN}" in cookie
+        assert "HttpOnly" in cookie
+        assert "SameSite=Strict" in cookie
+        name_value = cookie.split(";")[0]
+        assert (await get(web.url, {"Cookie": name_value}))[0] == 200
+        with pytest.raises(websockets.InvalidStatus) as refused:
+            async with page(web):
+                pass
+        assert refused.value.response.status_code == 401
+        for headers_ok in ({"Cookie": name_value}, {"Authorization": f"Bearer {TOKEN}"}):
+            async with page(web, headers=headers_ok) as p:
+                assert p.hello["type"] == "hello"
+
+
+async def test_too_many_pages_are_refused() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        WebDashboard(robot, port=0, max_clients=2) as web,
+        page(web),
+        page(web),
+    ):
+        with pytest.raises(websockets.InvalidStatus) as refused:
+            async with page(web):
+                pass
+        assert refused.value.response.status_code == 503
+
+
+@pytest.mark.parametrize(
+    ("options", "why"),
+    [
+        ({"port": 70000}, "port must be"),
+        ({"token": "short"}, "at least 16"),
+        ({"allow_origins": "https://a.example"}, "not one string"),
+        ({"allow_origins": ["null"]}, "'null'"),
+        ({"rate": 0}, "rate must be"),
+        ({"command_timeout": -1}, "command_timeout"),
+        ({"max_clients": 0}, "max_clients"),
+    ],
+)
+async def test_a_bad_option_is_refused_before_anything_opens(
+    options: dict[str, Any], why: str
+) -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        with pytest.raises(ValueError, match=why):
+            WebDashboard(robot, **options)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("enable_button", -1), ("linear_axis", 64), ("scale_linear", 0), ("deadzone", 1.0)],
+)
+def test_a_bad_gamepad_mapping_is_refused(field: str, value: float) -> None:
+    with pytest.raises(ValueError, match=field):
+        GamepadMapping(**{field: value})
+
+
+async def test_beyond_loopback_a_random_token_is_made() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        web = WebDashboard(robot, host="0.0.0.0", port=0)  # not started: never bound
+        assert web.token is not None
+        assert len(web.token) >= 24
+        assert web.login_url.endswith(f"?token={web.token}")
+        assert WebDashboard(robot, host="0.0.0.0").token != web.token
+
+
+# --- the command ---------------------------------------------------------------------------
+
+
+async def test_cli_web_serves_drives_and_sigterm_stops_the_robot() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        running("web", sim.port, "--port", "0", "--command-timeout", "2") as cli_web,
+    ):
+        line = await asyncio.wait_for(cli_web.proc.stdout.readline(), 10)  # type: ignore[union-attr]
+        assert b"dashboard of" in line, line
+        url = line.decode().split(" at ")[1].split()[0]
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        async with websockets.connect(f"ws://127.0.0.1:{port}/ws") as ws:
+            assert json.loads(await ws.recv())["type"] == "hello"
+            await ws.send(json.dumps({"type": "drive", "linear": 0.2, "angular": 0.0}))
+            await _until(lambda: moving(sim), 3.0)
+            cli_web.proc.terminate()
+            await _until(lambda: not moving(sim), 1.0)  # not the 2 s deadman
+        assert await asyncio.wait_for(cli_web.proc.wait(), 10) == 143
+
+
+async def test_cli_web_refuses_a_taken_port_in_one_line() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        WebDashboard(robot, port=0) as web,
+        ChassisSimulator() as other,
+    ):
+        code, _, err = await cli("web", other.port, "--port", str(web.port), "--seconds", "1")
+    assert code == 1
+    assert err.strip().startswith("chassis-sdk: cannot serve on 127.0.0.1:")
+    assert "\n" not in err.strip()
