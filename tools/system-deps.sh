@@ -7,11 +7,16 @@
 #   g++              builds that peer
 #   iproute2         `ip`, to set up the tests' loopback-only network namespaces
 #   util-linux       `unshare`, which makes them
+#   chromium         the web dashboard's tests drive Debian's Chromium (headless) through
+#                    Playwright, which downloads no browser of its own
+#   fonts-dejavu-core  text for Chromium to render (the docs' screenshot, the pages)
+#   tmux             the terminal teleop's tests type into a real terminal
 # Idempotent: does nothing (and never touches apt) when all are present; uses sudo only
 # when not root, and only when something is missing.
 set -eu
 
-packages="mosquitto fastddsgen libfastrtps-dev libfastcdr-dev g++ iproute2 util-linux"
+packages="mosquitto fastddsgen libfastrtps-dev libfastcdr-dev g++ iproute2 util-linux
+    chromium fonts-dejavu-core tmux"
 
 installed() {
     dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"
@@ -33,10 +38,12 @@ command -v g++ >/dev/null 2>&1 || need g++
 command -v ip >/dev/null 2>&1 || [ -x /usr/sbin/ip ] || [ -x /sbin/ip ] || need iproute2
 command -v unshare >/dev/null 2>&1 || need util-linux
 command -v mosquitto >/dev/null 2>&1 || [ -x /usr/sbin/mosquitto ] || need mosquitto
+command -v chromium >/dev/null 2>&1 || need chromium
+command -v tmux >/dev/null 2>&1 || need tmux
 [ -f /usr/include/fastdds/dds/domain/DomainParticipantFactory.hpp ] || need libfastrtps-dev
 
 if [ -z "$missing" ]; then
-    echo "system-deps: all present ($packages)"
+    echo "system-deps: all present ($(echo $packages))"
     exit 0
 fi
 echo "system-deps: missing:$missing; installing with apt-get"
