@@ -43,6 +43,7 @@ from . import (
     ros2_args,
     serve_args,
     sim_command,
+    teleop_args,
 )
 from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, Command, UsageError, device_from_env
 
@@ -57,6 +58,7 @@ COMMANDS = (
     info_command,
     monitor_command,
     drive_command,
+    teleop_args,
     bridge_args,
     ros2_args,
     record_command,
