@@ -8,6 +8,7 @@ import argparse
 import asyncio
 import os
 import time
+from typing import Any
 
 import pytest
 
@@ -404,10 +405,10 @@ async def test_a_virtual_pad_drives_and_its_unplug_is_seen() -> None:
     from evdev import AbsInfo, UInput, ecodes
 
     info = AbsInfo(value=0, min=-32768, max=32767, fuzz=0, flat=0, resolution=0)
-    caps = {ecodes.EV_KEY: [TL], ecodes.EV_ABS: [(X, info), (Y, info)]}
+    caps: dict[int, Any] = {ecodes.EV_KEY: [TL], ecodes.EV_ABS: [(X, info), (Y, info)]}
     ui = UInput(caps, name="chassis-sdk test pad")
     try:
-        path = ui.device.path
+        path = str(ui.device.path)
         mapping = JoyMapping(scale_linear=0.5, scale_angular=1.0, timeout=0.0)
         p = Pad(path, mapping, time.monotonic())
         changed = asyncio.Event()

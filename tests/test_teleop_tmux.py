@@ -59,7 +59,9 @@ class Pane:
         self.conf = tmp_path / "tmux.conf"
         self.conf.write_text("set -g remain-on-exit on\nset -g history-limit 2000\n")
         line = " ".join(shlex.quote(c) for c in command)
-        self.script = f"cd {shlex.quote(str(ROOT))}; {line}; echo EXIT=$?; stty -a; echo STTY-DONE; sleep 60"
+        self.script = (
+            f"cd {shlex.quote(str(ROOT))}; {line}; echo EXIT=$?; stty -a; echo STTY-DONE; sleep 60"
+        )
 
     async def tmux(self, *args: str) -> str:
         env = {k: v for k, v in os.environ.items() if k != "TMUX"}

@@ -459,8 +459,9 @@ async def test_a_bad_option_is_refused_before_anything_opens(
     [("enable_button", -1), ("linear_axis", 64), ("scale_linear", 0), ("deadzone", 1.0)],
 )
 def test_a_bad_gamepad_mapping_is_refused(field: str, value: float) -> None:
+    options: dict[str, Any] = {field: value}
     with pytest.raises(ValueError, match=field):
-        GamepadMapping(**{field: value})
+        GamepadMapping(**options)
 
 
 async def test_beyond_loopback_a_random_token_is_made() -> None:

@@ -44,6 +44,7 @@ from . import (
     serve_args,
     sim_command,
     teleop_args,
+    web_args,
 )
 from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, Command, UsageError, device_from_env
 
@@ -61,6 +62,7 @@ COMMANDS = (
     teleop_args,
     bridge_args,
     ros2_args,
+    web_args,
     record_command,
     export_command,
     serve_args,
