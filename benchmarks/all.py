@@ -36,6 +36,7 @@ SCRIPTS = [
     "recording.py",
     "scaling.py",
     "ros2.py",
+    "web.py",
 ]
 #: How each script that can writes its figures to a file.
 JSON_FLAG = {
@@ -44,6 +45,7 @@ JSON_FLAG = {
     "recording.py": "--json",
     "scaling.py": "--json",
     "ros2.py": "--json",
+    "web.py": "--json",
 }
 
 
@@ -58,6 +60,8 @@ PACKAGES = [
     "mcap",
     "serialx",
     "uvloop",
+    "aiohttp",
+    "playwright",
     "cyclonedds",
 ]
 
