@@ -62,15 +62,22 @@ async def web(device: DeviceProfile, port: str, args: argparse.Namespace) -> Non
         async with dashboard:
             mode = "read-only" if args.read_only else "drive by hand"
             out(f"dashboard of {port} ({device.name}) at {dashboard.url} ({mode}); Ctrl-C to quit")
-            if dashboard.token is not None:
-                # Printed once, as Jupyter does: the page swaps it for a cookie.
+            if dashboard.token is not None and token is None:
+                # A token made now is printed once, as Jupyter does: the page swaps it
+                # for a cookie. One from --token-file is never printed (a service's
+                # output goes to its journal).
                 print(f"open {dashboard.login_url}", file=sys.stderr)
-                if not is_loopback(args.host):
-                    print(
-                        "chassis-sdk web: the page is plain HTTP: on a network you do not "
-                        "trust, reach it over SSH instead (ssh -L 8080:127.0.0.1:8080 robot)",
-                        file=sys.stderr,
-                    )
+            elif token is not None:
+                print(
+                    f"open {dashboard.url}?token=<the token in {args.token_file}>",
+                    file=sys.stderr,
+                )
+            if not is_loopback(args.host):
+                print(
+                    "chassis-sdk web: the page is plain HTTP: on a network you do not "
+                    "trust, reach it over SSH instead (ssh -L 8080:127.0.0.1:8080 robot)",
+                    file=sys.stderr,
+                )
             with anyio.move_on_after(args.seconds):  # None: until Ctrl-C or SIGTERM
                 await anyio.sleep_forever()
         stopped = "" if args.read_only else "; the robot is stopped"

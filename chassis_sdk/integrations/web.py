@@ -38,7 +38,8 @@ Loopback by default. Then only requests whose ``Host`` names this computer are s
 (a page elsewhere that rebinds its own name to 127.0.0.1 gets HTTP 403). Beyond
 loopback a token is required (a random one unless given): the URL to open carries it
 once (``/?token=...``, as Jupyter does), the server answers with a cookie for this
-port (``HttpOnly``, ``SameSite=Strict``) and sends the browser on to ``/``. Every
+port (``HttpOnly``, ``SameSite=Lax``: sent when the operator follows the address from
+another site, never with another site's requests) and sends the browser on to ``/``. Every
 request but the static files needs the token (the cookie, ``?token=`` or
 ``Authorization: Bearer``), compared in constant time. The WebSocket handshake's
 ``Origin`` must be the page's own (``http://`` + the ``Host`` asked for) or one of
@@ -57,7 +58,7 @@ import math
 import secrets
 import time
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from types import TracebackType
@@ -97,6 +98,8 @@ _MAX_MESSAGE = 4096
 #: Seconds between WebSocket pings: a client that does not answer within half of it is
 #: closed (and, if it was driving, the robot stops).
 _HEARTBEAT = 4.0
+#: Seconds an idle HTTP connection is kept open.
+_KEEPALIVE = 10.0
 #: Events kept for a page that opens later, and odometry path points.
 _EVENTS_KEPT = 50
 _PATH_POINTS = 2000
@@ -305,9 +308,12 @@ class WebDashboard:
         self.refusals = Refusals()
         self._clients: set[_Client] = set()
         self._numbered = 0
+        self._admitted = 0
+        #: Errors caught in the dashboard's own tasks (each logged with its traceback).
+        self.errors = 0
         self._pending: tuple[float, float] | None = None
+        self._pending_from: _Client | None = None
         self._velocity = asyncio.Event()
-        self._stop_epoch = 0
         self._estop_engaged = False
         self._events: deque[dict[str, Any]] = deque(maxlen=_EVENTS_KEPT)
         self._path: deque[tuple[float, float]] = deque(maxlen=_PATH_POINTS)
@@ -315,7 +321,7 @@ class WebDashboard:
         self._runner: Any = None
         self._bound = 0
         self._tasks: anyio.abc.TaskGroup | None = None
-        self._exit: contextlib.AsyncExitStack | None = None
+        self._background: asyncio.Task[None] | None = None
         self._closed = False
 
     # --- what it is --------------------------------------------------------------------
@@ -391,7 +397,12 @@ class WebDashboard:
             ChassisError: The address cannot be bound (in use, not this computer's).
         """
         web = self._web
-        app = web.Application(client_max_size=_MAX_MESSAGE, handler_args={"max_field_size": 8190})
+        # An idle connection is closed after _KEEPALIVE (aiohttp's default is an hour:
+        # anyone who reaches the port could hold descriptors the device needs).
+        app = web.Application(
+            client_max_size=_MAX_MESSAGE,
+            handler_args={"max_field_size": 8190, "keepalive_timeout": _KEEPALIVE},
+        )
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._socket)
         app.router.add_get("/static/{name}", self._static)
@@ -409,24 +420,47 @@ class WebDashboard:
         self._runner = runner
         if runner.addresses:
             self._bound = runner.addresses[0][1]
-        stack = contextlib.AsyncExitStack()
-        self._tasks = await stack.enter_async_context(anyio.create_task_group())
-        self._exit = stack
-        tg = self._tasks
-        tg.start_soon(self._write_velocity, name="web velocity")
-        tg.start_soon(self._broadcast, name="web state")
-        tg.start_soon(self._watch_events, name="web events")
-        for stream in self._profile.remote.streams:
-            tg.start_soon(self._watch, stream, name=f"web {stream}")
+        # The dashboard's own tasks live in a task of their own, not in the caller's:
+        # nothing of theirs can cancel the application around the dashboard.
+        self._background = asyncio.get_running_loop().create_task(
+            self._run_tasks(), name="web dashboard"
+        )
+
+    async def _run_tasks(self) -> None:
+        async with anyio.create_task_group() as tg:
+            self._tasks = tg
+            # None of them may end the dashboard: each is guarded.
+            tg.start_soon(self._guarded, "the velocity writer", self._write_velocity)
+            tg.start_soon(self._guarded, "the state broadcast", self._broadcast)
+            tg.start_soon(self._guarded, "the events", self._watch_events)
+            for stream in self._profile.remote.streams:
+                tg.start_soon(self._guarded, f"the {stream} stream", self._watch, stream)
+
+    async def _guarded(self, what: str, job: Callable[..., Awaitable[None]], *args: Any) -> None:
+        """Run ``job``; a link lost for good (a device without ``reconnect``) ends it
+        quietly (the page shows the link), any other error is logged and counted."""
+        try:
+            await job(*args)
+        except ChassisError as exc:
+            _log.info("web: %s ended: %s", what, exc)
+        except Exception:
+            self.errors += 1
+            _log.exception("web: %s failed; the dashboard goes on without it", what)
 
     async def aclose(self) -> None:
-        """Stop the robot if a page was driving it, close every page, stop serving."""
+        """Stop the robot if a page was driving it, close every page, stop serving.
+
+        From its first line no drive message is taken and none is written: the pages
+        still open while they are closed cannot move the robot after its zero.
+        """
         if self._closed:
             return
         self._closed = True
-        driving = any(c.driving for c in self._clients)
         self._pending = None
-        self._stop_epoch += 1
+        driving = any(c.driving for c in self._clients)
+        background = self._background
+        if background is not None:
+            background.cancel()  # the writer, the watchers, the requests
         if driving and not self.read_only:
             with contextlib.suppress(ChassisError):
                 await self.device.stop()
@@ -437,10 +471,8 @@ class WebDashboard:
             if self._runner is not None:
                 with anyio.move_on_after(2.0):
                     await self._runner.cleanup()
-        # The watchers' task group, entered by start() in this task: left here.
-        if self._tasks is not None and self._exit is not None:
-            self._tasks.cancel_scope.cancel()
-            await self._exit.aclose()
+            if background is not None:
+                await asyncio.wait([background])  # (its cancellation is not ours)
 
     # --- HTTP --------------------------------------------------------------------------
 
@@ -454,10 +486,19 @@ class WebDashboard:
     def _refuse_request(self, request: Any) -> Any:
         """The HTTP error for a request that may not be served, else ``None``."""
         web = self._web
+        # The header itself: aiohttp's request.host falls back to a blocking
+        # socket.getfqdn() in some versions when there is none.
+        host_header = request.headers.get("Host")
+        if not host_header:
+            self._refused_at_door(request, "no Host header")
+            return web.Response(status=400, text="no Host header\n")
         if is_loopback(self.host):
-            host = urlsplit(f"//{request.host}").hostname or ""
+            try:
+                host = urlsplit(f"//{host_header}").hostname or ""
+            except ValueError:
+                host = ""
             if not is_loopback(host):
-                self._refused_at_door(request, f"Host {request.host[:100]!r} is not this computer")
+                self._refused_at_door(request, f"Host {host_header[:100]!r} is not this computer")
                 return web.Response(status=403, text="Host is not this computer\n")
         if self._token is None:
             return None
@@ -485,11 +526,11 @@ class WebDashboard:
             return refused
         if self._token is not None and "token" in request.query:
             # The token leaves the address bar (and the history) for a cookie.
-            response = web.HTTPSeeOther("/")
-            response.set_cookie(
-                self._cookie(), self._token, httponly=True, samesite="Strict", path="/"
+            redirect = web.HTTPSeeOther("/")
+            redirect.set_cookie(
+                self._cookie(), self._token, httponly=True, samesite="Lax", path="/"
             )
-            return response
+            raise redirect
         page = resources.files(__package__).joinpath("web_static/index.html").read_text("utf-8")
         return web.Response(text=page, content_type="text/html", charset="utf-8")
 
@@ -511,7 +552,8 @@ class WebDashboard:
         if not origins:
             return None  # not a browser: the token (if any) was checked
         origin = origin_key(origins[0])
-        own = {origin_key(f"{scheme}://{request.host}") for scheme in ("http", "https")}
+        host = request.headers.get("Host", "")
+        own = {origin_key(f"{scheme}://{host}") for scheme in ("http", "https")}
         if origin in own or origin in self._origins:
             return None
         return f"Origin {origins[0][:100]!r} is not allowed"
@@ -525,32 +567,37 @@ class WebDashboard:
         if why is not None:
             self._refused_at_door(request, why)
             return web.Response(status=403, text=f"{why}\n")
-        if len(self._clients) >= self.max_clients or self._closed:
+        if self._admitted >= self.max_clients or self._closed:
             self._refused_at_door(request, f"{self.max_clients} pages are connected already")
             return web.Response(status=503, text="too many pages connected\n")
-        ws = web.WebSocketResponse(
-            heartbeat=_HEARTBEAT, max_msg_size=_MAX_MESSAGE, compress=False, autoping=True
-        )
-        await ws.prepare(request)
-        self._numbered += 1
-        client = _Client(ws, self._numbered)
-        self._clients.add(client)
-        _log.info("web: %s connected from %s", client.name, request.remote)
+        self._admitted += 1  # before the handshake's first await: the bound holds
         try:
-            await ws.send_str(json.dumps(self._hello()))
-            async with anyio.create_task_group() as tg:
-                tg.start_soon(self._send, client)
-                await self._receive(client)
-                tg.cancel_scope.cancel()
-        except (ConnectionError, RuntimeError):
-            pass  # the page went away while being written to
+            ws = web.WebSocketResponse(
+                heartbeat=_HEARTBEAT, max_msg_size=_MAX_MESSAGE, compress=False, autoping=True
+            )
+            await ws.prepare(request)
+            self._numbered += 1
+            client = _Client(ws, self._numbered)
+            self._clients.add(client)
+            _log.info("web: %s connected from %s", client.name, request.remote)
+            try:
+                await ws.send_str(json.dumps(self._hello()))
+                async with anyio.create_task_group() as tg:
+                    tg.start_soon(self._send, client)
+                    await self._receive(client)
+                    tg.cancel_scope.cancel()
+            except (ConnectionError, RuntimeError):
+                pass  # the page went away while its hello was written
+            finally:
+                self._clients.discard(client)
+                if client.driving and not self.read_only and not self._closed:
+                    _log.info("web: %s left while driving; the robot is stopped", client.name)
+                    with contextlib.suppress(ChassisError):  # an outage: nothing to stop
+                        await self._stop_now()
+                with anyio.CancelScope(shield=True), anyio.move_on_after(1.0):
+                    await ws.close()
         finally:
-            self._clients.discard(client)
-            if client.driving and not self.read_only and not self._closed:
-                _log.info("web: %s left while driving; the robot is stopped", client.name)
-                await self._stop_now()
-            with anyio.CancelScope(shield=True), anyio.move_on_after(1.0):
-                await ws.close()
+            self._admitted -= 1
         return ws
 
     def _hello(self) -> dict[str, Any]:
@@ -594,7 +641,10 @@ class WebDashboard:
                 client.events.clear()
                 client.notes.clear()
                 state = state[:-1] + ", " + json.dumps(extra)[1:]
-            await ws.send_str(state)
+            try:
+                await ws.send_str(state)
+            except (ConnectionError, RuntimeError):
+                return  # the page went away: its receiving side sees the close
 
     async def _receive(self, client: _Client) -> None:
         aiohttp = self._web
@@ -650,7 +700,6 @@ class WebDashboard:
                 return
             self._estop_engaged = True
             self._pending = None
-            self._stop_epoch += 1
             await device.emergency_stop()
             client.notes.append({"done": "estop"})
         else:
@@ -676,6 +725,8 @@ class WebDashboard:
                 raise CommandError(f"held up {late:.2f} s (longer than the deadman)")
         if self._estop_engaged:
             raise CommandError("the emergency stop is engaged: release it first")
+        if self._closed:
+            raise CommandError("the dashboard is closing")
         if linear == 0.0 and angular == 0.0:
             client.driving = False
         else:
@@ -683,13 +734,13 @@ class WebDashboard:
         if self._pending is not None:
             self.superseded += 1
         self._pending = (linear, angular)
+        self._pending_from = client
         self._velocity.set()
 
     async def _stop_now(self) -> None:
         if self._pending is not None:
             self.superseded += 1
         self._pending = None
-        self._stop_epoch += 1
         await self.device.stop()
 
     def _request(self, client: _Client, kind: str, body: Mapping[str, Any]) -> None:
@@ -722,6 +773,10 @@ class WebDashboard:
                 client.notes.append({"done": kind})
             except (ChassisError, ValueError, TimeoutError) as exc:
                 self._refuse(client, f"{kind} not done: {exc}")
+            except Exception as exc:  # never the dashboard's end
+                self.errors += 1
+                _log.exception("web: %s failed", kind)
+                self._refuse(client, f"{kind} not done: {type(exc).__name__}")
             finally:
                 client.busy = False
 
@@ -738,22 +793,23 @@ class WebDashboard:
             wait = next_write - anyio.current_time()
             if wait > 0:
                 await anyio.sleep(wait)  # a newer one may come meanwhile: it counts
-            pending, epoch = self._pending, self._stop_epoch
-            self._pending = None
-            if pending is None or self._estop_engaged:
+            # Taken and written with no await in between (set_velocity and stop write
+            # before their first await): a stop handled before this emptied the slot,
+            # one handled after writes its zero after this.
+            pending, self._pending = self._pending, None
+            sender = self._pending_from
+            if pending is None or self._estop_engaged or self._closed:
                 continue
             linear, angular = pending
             try:
-                if epoch != self._stop_epoch:
-                    continue  # a stop came in between: it wins
                 if linear == 0.0 and angular == 0.0:
                     await self.device.stop()
                 else:
                     await self.device.set_velocity(linear, angular, duration=self.command_timeout)
             except (ChassisError, ValueError) as exc:
-                report = self.refusals.add("drive", f"not written: {exc}")
-                if report is not None:
-                    _log.warning("web: refused %s", report.summary())
+                # Not connected (an outage), or beyond the wire: this command is lost.
+                if sender is not None:
+                    self._refuse(sender, f"not written: {exc}")
                 continue
             self.commands += 1
             next_write = anyio.current_time() + VELOCITY_PERIOD

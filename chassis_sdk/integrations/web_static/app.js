@@ -337,7 +337,8 @@ function currentCommand() {
   const h = state.hello, k = scale();
   const lin = unit[0] * h.max_linear * k;
   const ang = unit[1] * h.max_angular * k;
-  return [Math.round(lin * 1000) / 1000, Math.round(ang * 1000) / 1000];
+  // Towards zero: a full stick must never round past the limit (it would be refused).
+  return [Math.trunc(lin * 1000) / 1000, Math.trunc(ang * 1000) / 1000];
 }
 
 function tick() {
