@@ -340,13 +340,28 @@ def test_a_silent_pad_stops_and_the_next_event_resumes() -> None:
     assert off.velocity(1e6) == (0.0, 0.0)
 
 
-def test_dropped_events_need_a_fresh_enable_press() -> None:
+def test_dropped_events_need_a_fresh_enable_press_and_fresh_axes() -> None:
     j = pad()
     j.event(EV_KEY, TL, 1, 0.0)
-    j.event(EV_SYN, SYN_DROPPED, 0, 0.1)
+    j.event(EV_ABS, Y, -32768, 0.05)  # full forward ...
+    assert j.velocity(0.05) is not None
+    j.event(EV_SYN, SYN_DROPPED, 0, 0.1)  # ... and its return to the centre was lost
     assert j.velocity(0.1) is None
     j.event(EV_KEY, TL, 1, 0.2)
-    assert j.velocity(0.2) == (0.0, 0.0)
+    assert j.velocity(0.2) is None  # the stale "full forward" never drives
+    j.event(EV_ABS, Y, 0, 0.3)
+    assert j.velocity(0.3) is None  # the other mapped axis is unknown still
+    j.event(EV_ABS, X, 0, 0.4)
+    assert j.velocity(0.4) == (0.0, 0.0)
+
+
+def test_a_key_timeout_beyond_two_seconds_is_refused() -> None:
+    with pytest.raises(ValueError, match="key_timeout"):
+        machine(key_timeout=7.5)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["teleop", "/dev/null", "--key-timeout", "7.5"])
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["teleop", "/dev/null", "--joy-timeout", "30"])
 
 
 def test_a_button_held_at_start_does_not_enable() -> None:

@@ -223,8 +223,12 @@ class JoyState:
         elif etype == EV_ABS and code in self._ranges:
             self.axis(code, value, now)
         elif etype == EV_SYN and code == SYN_DROPPED:
-            self.enabled = False  # events were lost: the state is unknown
-            self._why = "events dropped: press enable again"
+            # Events were lost: the button and every axis are unknown (the stick's
+            # return to the centre may be among them) until each reports again.
+            self.enabled = False
+            for axis in self._axes:
+                self._axes[axis] = None
+            self._why = "events dropped: press enable again and move the stick"
 
     def axis(self, code: int, value: int, now: float) -> None:
         """An axis's new raw value; out of its range it is refused and the axis is

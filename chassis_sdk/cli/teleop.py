@@ -48,6 +48,7 @@ from ..core.validation import check_real
 __all__ = [
     "KEY_HELP",
     "KEY_TIMEOUT",
+    "MAX_KEY_TIMEOUT",
     "REPEAT_FLOOR",
     "Effect",
     "Key",
@@ -57,6 +58,9 @@ __all__ = [
 
 #: Default key timeout before the first autorepeat (s): above X11's 660 ms delay.
 KEY_TIMEOUT = 0.75
+#: The longest key timeout taken (s): a tap drives for up to the key timeout, so a typo
+#: (7.5 for 0.75) must not mean seconds of motion.
+MAX_KEY_TIMEOUT = 2.0
 #: The shortest key timeout while repeats arrive (s).
 REPEAT_FLOOR = 0.15
 #: While repeats arrive the timeout is this many repeat intervals.
@@ -229,7 +233,9 @@ class KeyTeleop:
     ) -> None:
         self.max_linear = check_real(max_linear, "max_linear", low=0, low_open=True)
         self.max_angular = check_real(max_angular, "max_angular", low=0, low_open=True)
-        self.key_timeout = check_real(key_timeout, "key_timeout", low=0, low_open=True, unit="s")
+        self.key_timeout = check_real(
+            key_timeout, "key_timeout", low=0, low_open=True, high=MAX_KEY_TIMEOUT, unit="s"
+        )
         speed = check_real(speed, "speed", low=0, high=1, low_open=True)
         #: The speed scale, percent.
         self.percent = max(1, round(speed * 100))

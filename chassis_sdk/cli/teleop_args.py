@@ -18,11 +18,13 @@ from .arguments import (
     finite,
     limit_args,
     port_args,
-    positive,
     require_port,
 )
 from .joystick import ABS_CODES, BTN_CODES, event_code
-from .teleop import KEY_TIMEOUT
+from .teleop import KEY_TIMEOUT, MAX_KEY_TIMEOUT
+
+#: The longest a silent pad may go on driving (s).
+MAX_JOY_TIMEOUT = 5.0
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -31,7 +33,10 @@ __all__ = ["add_parser"]
 
 SPEED = arg_type(float, lambda v: check_real(v, "speed", low=0, high=1, low_open=True))
 DEADZONE = arg_type(float, lambda v: check_real(v, "joy_deadzone", low=0, high=0.99))
-JOY_TIMEOUT = arg_type(float, lambda v: check_real(v, "joy_timeout", low=0))
+JOY_TIMEOUT = arg_type(float, lambda v: check_real(v, "joy_timeout", low=0, high=MAX_JOY_TIMEOUT))
+KEY_TIMEOUT_ARG = arg_type(
+    float, lambda v: check_real(v, "key_timeout", low=0, low_open=True, high=MAX_KEY_TIMEOUT)
+)
 BUTTON = arg_type(str, lambda v: event_code(v, BTN_CODES, "--enable-button"))
 AXIS = arg_type(str, lambda v: event_code(v, ABS_CODES, "an axis"))
 
@@ -54,7 +59,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     deadman_args(p, "teleop")
     p.add_argument(
         "--key-timeout",
-        type=positive("key_timeout"),
+        type=KEY_TIMEOUT_ARG,
         default=KEY_TIMEOUT,
         metavar="S",
         help=(

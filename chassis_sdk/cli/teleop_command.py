@@ -46,6 +46,22 @@ STATUS_EVERY = 0.1
 WIDTH = 79
 
 
+def _write_or_drop(data: bytes) -> None:
+    """Write ``data`` to the terminal without ever blocking the loop: over a stalled
+    SSH link the terminal's buffer fills, and a blocking write would freeze the loop
+    (no resend, no deadman). A status line that does not fit now is dropped (the next
+    one is complete); the descriptor's blocking mode is put back as it was."""
+    sys.stdout.flush()
+    fd = sys.stdout.fileno()
+    blocking = os.get_blocking(fd)
+    try:
+        os.set_blocking(fd, False)
+        with contextlib.suppress(BlockingIOError):
+            os.write(fd, data)
+    finally:
+        os.set_blocking(fd, blocking)
+
+
 @contextlib.contextmanager
 def cbreak(fd: int) -> Iterator[None]:
     """The terminal ``fd`` in cbreak mode, without signal keys, flow control or echo,
@@ -107,8 +123,7 @@ class Terminal:
         self._shown = line
         try:
             if self._tty:
-                sys.stdout.write(f"\r{line}\033[K")
-                sys.stdout.flush()
+                _write_or_drop(f"\r{line}\033[K".encode())
             else:
                 out(line)
         except OSError as exc:
