@@ -193,7 +193,7 @@ async def test_hold_drives_and_release_stops_within_the_stated_bound(tmp_path: P
             pytest.fail("could not send 30 Hz repeats steadily on this machine")
         report(f"held key release -> zero (stated bound {bound * 1000:.0f} ms)", released)
         assert released <= bound + SLACK
-        assert released < 0.3  # well before the 0.75 s of a press that never repeats
+        assert released < 0.5  # well before the 0.75 s of a press that never repeats
         first = next(i for i, f in enumerate(frames) if vx(f) > 0)
         assert all(vx(f) == 150 for f in frames[first:-1]), "a held key must not stutter"
         assert frames[-1].time - frames[first].time > 1.3  # ~0.5 s delay + 1 s of repeats
