@@ -24,7 +24,6 @@ import asyncio
 import contextlib
 import json
 import os
-import platform
 import resource
 import statistics
 import sys
@@ -33,6 +32,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from all import machine  # this directory's all.py
+from load import rss_bytes
+
 from chassis_sdk import Chassis
 from chassis_sdk.sim import ChassisSimulator
 
@@ -40,14 +43,6 @@ SELF = os.path.abspath(__file__)
 ROOT = Path(__file__).resolve().parent.parent
 #: One drive frame (18 bytes, 10 bits a byte) at 115200 baud, seconds.
 WIRE = 18 * 10 / 115200
-
-
-def rss_bytes() -> int:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) * 1024
-    return 0
 
 
 # --- 1: cost, in a fresh process each ---------------------------------------------------------
@@ -238,9 +233,9 @@ def main() -> int:
         return 1
     window = 3.0 if args.quick else 10.0
     repeats = 3 if args.quick else 10
-    machine = platform.processor() or platform.machine()
-    print(f"machine: {machine}, {os.cpu_count()} cores, Python {platform.python_version()}; "
-          f"window {window:g} s, {repeats} repeats")  # fmt: skip
+    for line in machine():
+        print(line)
+    print(f"window {window:g} s, {repeats} repeats")
     print("\n1. CPU and memory at 50 Hz telemetry (one process: simulator + Chassis [+ dashboard])")
     costs = {}
     for label, pages in (("floor", None), ("0 pages", 0), ("1 page", 1), ("4 pages", 4)):

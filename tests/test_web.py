@@ -22,29 +22,17 @@ pytest.importorskip("aiohttp", reason="the dashboard's extra: pip install '.[web
 import websockets
 from websockets.typing import Origin
 
-from chassis_sdk import Board, Chassis, MotionLimits
+from chassis_sdk import Chassis, MotionLimits
 from chassis_sdk.integrations.web import GamepadMapping, WebDashboard
 from chassis_sdk.protocol import DriveVelocity
-from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+from chassis_sdk.sim import ChassisSimulator
 
+from .support.dashboard import moving, served, until
 from .test_cli_operator import cli, running
 
 pytestmark = pytest.mark.timeout(60)
 
 TOKEN = "a-token-of-twenty-chars"
-
-
-async def _until(condition: Callable[[], bool], timeout: float) -> float:
-    """Seconds until ``condition()`` holds (TimeoutError after ``timeout``)."""
-    start = time.monotonic()
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.002)
-    return time.monotonic() - start
-
-
-def moving(sim: ChassisSimulator) -> bool:
-    return any(sim.firmware.target)
 
 
 class Page:
@@ -133,9 +121,7 @@ async def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, dic
 
 async def test_the_page_its_assets_and_live_state_of_a_chassis() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=0.3) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=0.3) as (_sim, robot, web),
     ):
         status, headers, body = await get(web.url)
         assert status == 200
@@ -158,7 +144,7 @@ async def test_the_page_its_assets_and_live_state_of_a_chassis() -> None:
             assert state["link"]["state"] == "CONNECTED"
             assert state["link"]["age"] < 0.5
             assert state["streams"]["telemetry"]["voltage"] == pytest.approx(
-                robot.latest_telemetry.voltage  # type: ignore[union-attr]
+                robot.latest_telemetry.voltage
             )
             assert {"x", "y", "heading"} <= set(state["odometry"])
             assert abs(state["time"] - time.time()) < 2  # wall time
@@ -171,9 +157,7 @@ async def test_the_page_its_assets_and_live_state_of_a_chassis() -> None:
 
 async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
     async with (
-        BoardSimulator() as sim,
-        Board(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(board=True) as (_sim, robot, web),
         page(web) as p,
     ):
         assert p.hello["actions"] == ["stop", "estop", "drive", "led", "buzzer"]
@@ -192,9 +176,7 @@ async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
 
 async def test_drive_messages_move_the_robot_and_the_deadman_stops_it() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=0.3) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=0.3) as (sim, robot, web),
         page(web) as p,
     ):
         for _ in range(10):  # 20 Hz, as the page sends while a control is held
@@ -203,33 +185,31 @@ async def test_drive_messages_move_the_robot_and_the_deadman_stops_it() -> None:
         assert moving(sim)
         assert robot.commanded_velocity == (0.3, 0.2)
         t0 = time.monotonic()
-        await _until(lambda: not moving(sim), 2.0)  # the page froze: the deadman
+        await until(lambda: not moving(sim), 2.0)  # the page froze: the deadman
         assert 0.2 < time.monotonic() - t0 < 0.3 + 0.15
         # A stop at once, well before the deadman.
         await p.drive(0.3)
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         t0 = time.monotonic()
         await p.send(type="stop")
-        assert await _until(lambda: not moving(sim), 0.2) < 0.1
+        assert await until(lambda: not moving(sim), 0.2) < 0.1
         assert web.commands >= 11
         assert web.refused == 0
 
 
 async def test_a_socket_that_closes_while_driving_stops_the_robot_at_once() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=2.0) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=2.0) as (sim, _robot, web),
     ):
         async with page(web) as p:
             await p.drive(0.2)
-            await _until(lambda: moving(sim), 2.0)
-        assert await _until(lambda: not moving(sim), 0.5) < 0.1  # not the 2 s deadman
+            await until(lambda: moving(sim), 2.0)
+        assert await until(lambda: not moving(sim), 0.5) < 0.1  # not the 2 s deadman
         # A page that only watched leaves a robot someone else drives alone.
         async with page(web) as driver:
             async with page(web) as viewer:
                 await driver.drive(0.2)
-                await _until(lambda: moving(sim), 2.0)
+                await until(lambda: moving(sim), 2.0)
                 await viewer.wait(lambda: bool(viewer.states))
             await asyncio.sleep(0.1)  # what must not happen: a stop from the viewer
             assert moving(sim)
@@ -254,7 +234,7 @@ async def test_closing_the_dashboard_while_pages_drive_leaves_zero_the_last_fram
                         await asyncio.sleep(0.002)
 
             senders = [asyncio.create_task(keep_driving(p)) for p in pages]
-            await _until(lambda: moving(sim), 2.0)
+            await until(lambda: moving(sim), 2.0)
             await asyncio.sleep(0.3)
             await web.aclose()
             await asyncio.sleep(0.1)  # what must not happen: a velocity after the zero
@@ -291,9 +271,7 @@ async def test_a_link_lost_for_good_neither_ends_the_dashboard_nor_the_applicati
 
 async def test_a_request_without_a_host_header_is_refused() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (_sim, _robot, web),
     ):
         reader, writer = await asyncio.open_connection("127.0.0.1", web.port)
         writer.write(b"GET / HTTP/1.0\r\n\r\n")
@@ -305,32 +283,28 @@ async def test_a_request_without_a_host_header_is_refused() -> None:
 
 async def test_only_the_newest_command_counts_and_a_stop_wins() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=0.5) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=0.5) as (sim, robot, web),
         page(web) as p,
     ):
         # A burst (a stalled network delivering at once): at most one write per 20 ms,
         # the newest.
         for i in range(200):
             await p.ws.send(json.dumps({"type": "drive", "linear": 0.001 * i, "angular": 0.0}))
-        await _until(lambda: robot.commanded_velocity == (0.199, 0.0), 3.0)
+        await until(lambda: robot.commanded_velocity == (0.199, 0.0), 3.0)
         assert web.commands < 60
         assert web.superseded > 100
         # A velocity right before a stop never acts after it.
         for _ in range(20):
             await p.drive(0.25)
             await p.send(type="stop")
-            await _until(lambda: not moving(sim), 1.0)
+            await until(lambda: not moving(sim), 1.0)
             await asyncio.sleep(0.03)  # a write slot later
             assert not moving(sim)
 
 
 async def test_a_held_up_command_is_refused() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=0.3) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=0.3) as (_sim, _robot, web),
         page(web) as p,
     ):
         now = time.monotonic() * 1000
@@ -347,23 +321,21 @@ async def test_a_held_up_command_is_refused() -> None:
 
 async def test_estop_engages_and_refuses_velocity_until_released() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (sim, _robot, web),
         page(web) as p,
     ):
         await p.drive(0.2)
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         await p.send(type="estop")
-        await _until(lambda: sim.firmware.software_estop and not moving(sim), 1.0)
+        await until(lambda: sim.firmware.software_estop and not moving(sim), 1.0)
         await p.wait(lambda: p.states[-1]["estop"] if p.states else False)
         await p.drive(0.2)
         await p.wait(lambda: any("emergency stop is engaged" in r for r in p.refusals()))
         await p.send(type="release")
         await p.wait(lambda: {"done": "release"} in p.notes)
-        await _until(lambda: not sim.firmware.software_estop, 1.0)
+        await until(lambda: not sim.firmware.software_estop, 1.0)
         await p.drive(0.2)
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         await p.send(type="clear_faults")
         await p.wait(lambda: {"done": "clear_faults"} in p.notes)
         assert web.refused == 1
@@ -391,9 +363,7 @@ BAD = [
 
 async def test_malformed_messages_are_refused_counted_shown_and_move_nothing() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, limits=MotionLimits(max_linear=0.5, max_angular=1.0)) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(limits=MotionLimits(max_linear=0.5, max_angular=1.0)) as (sim, robot, web),
         page(web) as p,
     ):
         written = robot.stats.frames_sent
@@ -413,14 +383,12 @@ async def test_malformed_messages_are_refused_counted_shown_and_move_nothing() -
         assert p.ws.close_code == 1009
         async with page(web) as again:
             await again.drive(0.1)
-            await _until(lambda: moving(sim), 2.0)
+            await until(lambda: moving(sim), 2.0)
 
 
 async def test_read_only_takes_only_stop_and_estop() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0, read_only=True) as web,
+        served(web={"read_only": True}) as (sim, _robot, web),
         page(web) as p,
     ):
         assert p.hello["read_only"] is True
@@ -431,7 +399,7 @@ async def test_read_only_takes_only_stop_and_estop() -> None:
         assert all("read-only" in r for r in p.refusals())
         assert not moving(sim)
         await p.send(type="estop")
-        await _until(lambda: sim.firmware.software_estop, 1.0)
+        await until(lambda: sim.firmware.software_estop, 1.0)
         assert web.commands == 0
 
 
@@ -440,9 +408,7 @@ async def test_read_only_takes_only_stop_and_estop() -> None:
 
 async def test_a_foreign_origin_or_host_is_refused() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0, allow_origins=["https://ops.example.com"]) as web,
+        served(web={"allow_origins": ["https://ops.example.com"]}) as (_sim, _robot, web),
     ):
         own = f"http://127.0.0.1:{web.port}"
         async with page(web, origin=own) as p:
@@ -462,9 +428,7 @@ async def test_a_foreign_origin_or_host_is_refused() -> None:
 
 async def test_a_token_is_required_everywhere_but_the_static_files() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0, token=TOKEN) as web,
+        served(web={"token": TOKEN}) as (_sim, _robot, web),
     ):
         assert web.login_url == f"{web.url}?token={TOKEN}"
         assert (await get(web.url))[0] == 401
@@ -491,9 +455,7 @@ async def test_a_token_is_required_everywhere_but_the_static_files() -> None:
 
 async def test_too_many_pages_are_refused() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0, max_clients=2) as web,
+        served(web={"max_clients": 2}) as (_sim, _robot, web),
         page(web),
         page(web),
     ):
@@ -557,17 +519,15 @@ async def test_cli_web_serves_drives_and_sigterm_stops_the_robot() -> None:
         async with websockets.connect(f"ws://127.0.0.1:{port}/ws") as ws:
             assert json.loads(await ws.recv())["type"] == "hello"
             await ws.send(json.dumps({"type": "drive", "linear": 0.2, "angular": 0.0}))
-            await _until(lambda: moving(sim), 3.0)
+            await until(lambda: moving(sim), 3.0)
             cli_web.proc.terminate()
-            await _until(lambda: not moving(sim), 1.0)  # not the 2 s deadman
+            await until(lambda: not moving(sim), 1.0)  # not the 2 s deadman
         assert await asyncio.wait_for(cli_web.proc.wait(), 10) == 143
 
 
 async def test_cli_web_refuses_a_taken_port_in_one_line() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (_sim, _robot, web),
         ChassisSimulator() as other,
     ):
         code, _, err = await cli("web", other.port, "--port", str(web.port), "--seconds", "1")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 import re
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -20,11 +20,8 @@ pytest.importorskip("playwright", reason="the browser tests need playwright ('.[
 
 from playwright.async_api import expect
 
-from chassis_sdk import Board, Chassis
-from chassis_sdk.integrations.web import WebDashboard
-from chassis_sdk.sim import BoardSimulator, ChassisSimulator
-
 from .support.browser import chromium, is_blank
+from .support.dashboard import moving, served, until
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -35,23 +32,13 @@ TOKEN = "a-token-of-twenty-chars"
 RELEASE_BOUND = 0.1
 
 
-async def _until(condition: Callable[[], bool], timeout: float) -> float:
-    """Seconds until ``condition()`` holds (TimeoutError after ``timeout``)."""
-    start = time.monotonic()
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.002)
-    return time.monotonic() - start
-
-
-def moving(sim: ChassisSimulator) -> bool:
-    return any(sim.firmware.target)
-
-
 @asynccontextmanager
-async def opened(browser: Any, url: str) -> AsyncIterator[Any]:
-    """A page of the dashboard, connected and showing a live link; no script error."""
+async def opened(browser: Any, url: str, init_script: str | None = None) -> AsyncIterator[Any]:
+    """A page of the dashboard, connected and showing a live link; no script error.
+    ``init_script`` runs before the page's own."""
     context = await browser.new_context(viewport={"width": 1280, "height": 900})
+    if init_script is not None:
+        await context.add_init_script(init_script)
     page = await context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
@@ -69,14 +56,12 @@ async def opened(browser: Any, url: str) -> AsyncIterator[Any]:
 
 async def test_the_page_shows_live_telemetry_and_is_not_blank(tmp_path: Path) -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (_sim, robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
         await expect(page.locator("#battery")).to_have_text(re.compile(r" V$"))
-        voltage = robot.latest_telemetry.voltage  # type: ignore[union-attr]
+        voltage = robot.latest_telemetry.voltage
         assert await page.text_content("#battery") == f"{voltage:.1f} V"
         assert "last frame" in (await page.text_content("#age") or "")
         await page.wait_for_selector("#streams table caption")
@@ -100,16 +85,14 @@ def test_the_screenshot_in_the_docs_is_not_blank() -> None:
 
 async def test_a_held_key_drives_and_letting_go_stops_at_once() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=0.5) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=0.5) as (sim, robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
         released = []
         for key, expect in (("KeyW", (1, 0)), ("ArrowLeft", (0, 1)), ("KeyS", (-1, 0))):
             await page.keyboard.down(key)
-            await _until(lambda: moving(sim), 2.0)
+            await until(lambda: moving(sim), 2.0)
             await asyncio.sleep(0.6)  # longer than the deadman: held keeps it going
             assert moving(sim)
             commanded = robot.commanded_velocity
@@ -118,23 +101,21 @@ async def test_a_held_key_drives_and_letting_go_stops_at_once() -> None:
             assert signs == expect, (key, commanded)
             t0 = time.monotonic()
             await page.keyboard.up(key)
-            await _until(lambda: not moving(sim), 1.0)
+            await until(lambda: not moving(sim), 1.0)
             released.append(time.monotonic() - t0)
         print(f"key release -> zero: {[round(r * 1000, 1) for r in released]} ms")
         assert max(released) < RELEASE_BOUND, released
         # Space is STOP, whatever else is held.
         await page.keyboard.down("KeyW")
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         await page.keyboard.press("Space")
-        assert await _until(lambda: not moving(sim), 1.0) < RELEASE_BOUND
+        assert await until(lambda: not moving(sim), 1.0) < RELEASE_BOUND
         await page.keyboard.up("KeyW")
 
 
 async def test_a_dragged_joystick_drives_and_letting_go_stops_at_once() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (sim, robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
@@ -143,7 +124,7 @@ async def test_a_dragged_joystick_drives_and_letting_go_stops_at_once() -> None:
         await page.mouse.move(cx, cy)
         await page.mouse.down()
         await page.mouse.move(cx - 40, cy - 100, steps=5)  # forward, turning left
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         await asyncio.sleep(0.3)
         commanded = robot.commanded_velocity
         assert commanded is not None
@@ -151,28 +132,26 @@ async def test_a_dragged_joystick_drives_and_letting_go_stops_at_once() -> None:
         assert commanded[1] > 0.05
         t0 = time.monotonic()
         await page.mouse.up()
-        released = await _until(lambda: not moving(sim), 1.0)
+        released = await until(lambda: not moving(sim), 1.0)
         print(f"joystick release -> zero: {(time.monotonic() - t0) * 1000:.1f} ms")
         assert released < RELEASE_BOUND
 
 
 async def test_a_frozen_tab_stops_the_robot_within_the_deadman() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=0.4) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=0.4) as (sim, _robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
         await page.keyboard.down("KeyW")
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         # The page's thread busy for 2 s: it sends nothing (the socket stays open).
         freeze = asyncio.create_task(
             page.evaluate("() => { const end = performance.now() + 2000; while (performance.now() < end) {} }")
         )  # fmt: skip
         await asyncio.sleep(0.05)
         t0 = time.monotonic()
-        await _until(lambda: not moving(sim), 2.0)
+        await until(lambda: not moving(sim), 2.0)
         stopped = time.monotonic() - t0
         print(f"tab frozen -> zero: {stopped * 1000:.0f} ms (deadman 400 ms)")
         assert 0.2 < stopped < 0.4 + 0.15
@@ -183,42 +162,34 @@ async def test_a_frozen_tab_stops_the_robot_within_the_deadman() -> None:
 
 async def test_closing_the_page_stops_the_robot_at_once() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port, command_timeout=2.0) as robot,
-        WebDashboard(robot, port=0) as web,
-        chromium() as browser,
-    ):
-        context = await browser.new_context()
-        page = await context.new_page()
-        await page.goto(web.url)
-        await expect(page.locator("#link")).to_have_text("link connected")
-        await page.keyboard.down("KeyW")
-        await _until(lambda: moving(sim), 2.0)
-        t0 = time.monotonic()
-        await page.close()
-        await _until(lambda: not moving(sim), 1.0)
-        closed = time.monotonic() - t0
-        print(f"page closed -> zero: {closed * 1000:.1f} ms (deadman 2 s)")
-        assert closed < 0.2
-        await context.close()
-
-
-async def test_estop_engages_the_simulators_estop_and_release_lets_it_go() -> None:
-    async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(command_timeout=2.0) as (sim, _robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
         await page.keyboard.down("KeyW")
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
+        t0 = time.monotonic()
+        await page.close()
+        await until(lambda: not moving(sim), 1.0)
+        closed = time.monotonic() - t0
+        print(f"page closed -> zero: {closed * 1000:.1f} ms (deadman 2 s)")
+        assert closed < 0.2
+
+
+async def test_estop_engages_the_simulators_estop_and_release_lets_it_go() -> None:
+    async with (
+        served() as (sim, _robot, web),
+        chromium() as browser,
+        opened(browser, web.url) as page,
+    ):
+        await page.keyboard.down("KeyW")
+        await until(lambda: moving(sim), 2.0)
         await page.get_by_role("button", name="E-STOP", exact=True).click()
-        await _until(lambda: sim.firmware.software_estop and not moving(sim), 1.0)
+        await until(lambda: sim.firmware.software_estop and not moving(sim), 1.0)
         await page.keyboard.up("KeyW")
         await page.wait_for_selector("#estop-banner", state="visible")
         await page.get_by_role("button", name="release e-stop").click()
-        await _until(lambda: not sim.firmware.software_estop, 2.0)
+        await until(lambda: not sim.firmware.software_estop, 2.0)
         await page.wait_for_selector("#estop-banner", state="hidden")
         assert web.refused == 0
 
@@ -241,16 +212,10 @@ _GAMEPAD = """
 
 async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (sim, robot, web),
         chromium() as browser,
+        opened(browser, web.url, init_script=_GAMEPAD) as page,
     ):
-        context = await browser.new_context()
-        await context.add_init_script(_GAMEPAD)
-        page = await context.new_page()
-        await page.goto(web.url)
-        await expect(page.locator("#link")).to_have_text("link connected")
         # Stick forward, enable not held: nothing is sent.
         await page.evaluate("() => { window.__pad.axes[1] = -0.8; }")
         await expect(page.locator("#pad")).to_contain_text("hold enable")
@@ -261,7 +226,7 @@ async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
         await page.evaluate(
             "() => { window.__pad.buttons[4] = { pressed: true, touched: true, value: 1 }; }"
         )
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         commanded = robot.commanded_velocity
         assert commanded is not None
         assert commanded[0] > 0.1
@@ -269,7 +234,7 @@ async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
         await page.evaluate(
             "() => { window.__pad.buttons[4] = { pressed: false, touched: false, value: 0 }; }"
         )
-        await _until(lambda: not moving(sim), 1.0)
+        await until(lambda: not moving(sim), 1.0)
         released = time.monotonic() - t0
         print(f"enable released -> zero: {released * 1000:.0f} ms")
         assert released < 0.15  # the pad is read at each 50 ms tick
@@ -277,10 +242,10 @@ async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
         await page.evaluate(
             "() => { window.__pad.buttons[4] = { pressed: true, touched: true, value: 1 }; }"
         )
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         t0 = time.monotonic()
         await page.evaluate("() => clearInterval(window.__live)")
-        await _until(lambda: not moving(sim), 3.0)
+        await until(lambda: not moving(sim), 3.0)
         stale = time.monotonic() - t0
         print(f"pad stale -> zero: {stale * 1000:.0f} ms (stale_after 1 s)")
         assert 0.9 < stale < 1.0 + 0.2
@@ -289,21 +254,18 @@ async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
         await page.evaluate(
             "() => { window.__live = setInterval(() => { window.__pad.timestamp = performance.now(); }, 16); }"
         )
-        await _until(lambda: moving(sim), 2.0)
+        await until(lambda: moving(sim), 2.0)
         await page.evaluate("() => { window.__pad.connected = false; }")
-        assert await _until(lambda: not moving(sim), 1.0) < 0.15
+        assert await until(lambda: not moving(sim), 1.0) < 0.15
         # Out of range (a pad that reports garbage) moves nothing.
         await page.evaluate("() => { window.__pad.connected = true; window.__pad.axes[1] = -7; }")
         await asyncio.sleep(0.3)
         assert not moving(sim)
-        await context.close()
 
 
 async def test_junk_sent_from_a_page_moves_nothing_and_is_shown() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served() as (sim, robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
@@ -332,9 +294,7 @@ async def test_junk_sent_from_a_page_moves_nothing_and_is_shown() -> None:
 
 async def test_read_only_offers_only_stop_and_estop() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0, read_only=True) as web,
+        served(web={"read_only": True}) as (sim, _robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
@@ -351,14 +311,12 @@ async def test_read_only_offers_only_stop_and_estop() -> None:
         assert web.refused == 0  # the page did not even try
         assert not moving(sim)
         await page.get_by_role("button", name="E-STOP", exact=True).click()
-        await _until(lambda: sim.firmware.software_estop, 2.0)
+        await until(lambda: sim.firmware.software_estop, 2.0)
 
 
 async def test_a_board_page_shows_the_imu_and_switches_the_led() -> None:
     async with (
-        BoardSimulator() as sim,
-        Board(sim.port) as robot,
-        WebDashboard(robot, port=0) as web,
+        served(board=True) as (sim, _robot, web),
         chromium() as browser,
         opened(browser, web.url) as page,
     ):
@@ -366,15 +324,13 @@ async def test_a_board_page_shows_the_imu_and_switches_the_led() -> None:
         assert await page.get_by_role("button", name="LED").is_visible()
         assert not await page.get_by_role("button", name="release e-stop").is_visible()
         await page.get_by_role("button", name="LED").click()
-        await _until(lambda: sim.firmware.led, 2.0)
+        await until(lambda: sim.firmware.led, 2.0)
         assert web.refused == 0
 
 
 async def test_the_token_in_the_address_becomes_a_cookie() -> None:
     async with (
-        ChassisSimulator() as sim,
-        Chassis(sim.port) as robot,
-        WebDashboard(robot, port=0, token=TOKEN) as web,
+        served(web={"token": TOKEN}) as (_sim, _robot, web),
         chromium() as browser,
     ):
         async with opened(browser, web.login_url) as page:

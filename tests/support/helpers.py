@@ -59,11 +59,14 @@ class Heartbeat:
             await self._task
 
 
-async def until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
-    """Wait for a condition of the SDK's own state (its counters have no event)."""
+async def until(condition: Callable[[], bool], timeout: float = 5.0, poll: float = 0.005) -> float:
+    """Wait for a condition of the SDK's own state (its counters have no event);
+    return how long it took (s)."""
+    start = time.monotonic()
     async with asyncio.timeout(timeout):
         while not condition():
-            await asyncio.sleep(0.005)
+            await asyncio.sleep(poll)
+    return time.monotonic() - start
 
 
 def open_fds_on(path: str) -> int:
