@@ -113,7 +113,11 @@ async def test_a_flood_of_refused_samples_neither_stalls_the_loop_nor_delays_the
         estop.write(m.Bool(data=True))
         await until(lambda: sim.firmware.software_estop, 1.0)
         engaged = time.monotonic() - sent
-        assert engaged < 0.1, engaged
+        # Behind the flood on Cyclone's receive thread: each flood sample enters Python
+        # there (the listener) and waits for the GIL the busy loop holds, up to the 5 ms
+        # switch interval. Idle it takes 10-30 ms; on two loaded cores CI saw 160-200 ms
+        # (1 run in 5 past a 100 ms bound). Unbatched, it would be seconds.
+        assert engaged < 0.3, engaged
         assert heart.max_gap < 0.1, heart.max_gap
         assert not any(c.linear_mm for _, c in drives(sim))  # not one NaN written
 
