@@ -6,10 +6,11 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import enum
+import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["jsonable", "plain"]
+__all__ = ["jsonable", "plain", "wall_time"]
 
 # One converter per type, worked out once: a recorder or a bridge converts every
 # message, and asking "is this a dataclass? an enum? ..." of each value every time
@@ -77,3 +78,11 @@ def jsonable(msg: object) -> dict[str, Any]:
     """A message as a JSON-ready ``dict`` (a bare value as ``{"value": ...}``)."""
     result = plain(msg)
     return result if isinstance(result, dict) else {"value": result}
+
+
+def wall_time(monotonic: float, *, now: float | None = None) -> float:
+    """The wall-clock time (epoch seconds) of a ``time.monotonic()`` reading: what
+    leaves the process is wall time. A reading without a clock (0.0) is ``now``."""
+    if now is None:
+        now = time.time()
+    return now - (time.monotonic() - monotonic) if monotonic > 0 else now

@@ -32,6 +32,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from ..core.validation import check_real
+
 __all__ = [
     "MAX_COMMAND_BYTES",
     "TIMESTAMP_SKEW",
@@ -39,6 +41,7 @@ __all__ = [
     "RefusalReport",
     "Refusals",
     "check_fresh",
+    "command_number",
     "command_object",
     "command_time",
 ]
@@ -118,6 +121,20 @@ def command_object(raw: object, *, limit: int = MAX_COMMAND_BYTES) -> dict[str, 
     if not isinstance(payload, dict):
         raise CommandError(f"the payload is a JSON {type(payload).__name__}, not an object")
     return payload
+
+
+def command_number(body: dict[str, Any], key: str, name: str | None = None) -> float:
+    """``body[key]`` as a finite ``float`` (checked as every number from a caller is,
+    by :func:`~chassis_sdk.core.validation.check_real`).
+
+    Raises:
+        CommandError: Missing, not a number (a ``bool`` is not), or not finite; the
+            message names the field (``name``, default ``key``) in one bounded line.
+    """
+    try:
+        return check_real(body.get(key), key if name is None else name)
+    except ValueError as exc:
+        raise CommandError(str(exc)[:_MAX_REASON_CHARS]) from None
 
 
 def command_time(value: object) -> float:

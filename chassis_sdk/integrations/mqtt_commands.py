@@ -34,9 +34,15 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from ..core.plain import plain
-from ..core.validation import check_real
 from ..errors import ChassisError
-from .inbound import TIMESTAMP_SKEW, CommandError, check_fresh, command_object, command_time
+from .inbound import (
+    TIMESTAMP_SKEW,
+    CommandError,
+    check_fresh,
+    command_number,
+    command_object,
+    command_time,
+)
 from .mqtt_inbox import Lanes
 from .mqtt_ownership import Ownership
 from .mqtt_publish import Publisher, epoch_now
@@ -50,13 +56,6 @@ __all__ = ["REQUEST_WORKERS", "Commands"]
 _REQUESTS_MAX = 16
 #: Workers answering requests (each may wait for the device for a few seconds).
 REQUEST_WORKERS = 2
-
-
-def _number(payload: dict[str, Any], key: str) -> float:
-    try:
-        return check_real(payload.get(key), repr(key))
-    except ValueError as exc:
-        raise CommandError(str(exc)) from None
 
 
 def _why(exc: Exception) -> str:
@@ -228,7 +227,10 @@ class Commands:
 
     def _velocity_of(self, message: aiomqtt.Message) -> tuple[float, float, float | None]:
         payload = command_object(message.payload)
-        linear, angular = _number(payload, "linear"), _number(payload, "angular")
+        linear, angular = (
+            command_number(payload, "linear", repr("linear")),
+            command_number(payload, "angular", repr("angular")),
+        )
         return linear, angular, self._check_time(payload)
 
     def _hold(self, stamp: float | None) -> float | None:

@@ -68,16 +68,18 @@ from urllib.parse import urlsplit
 import anyio
 
 from ..core.device import Device
-from ..core.plain import jsonable
+from ..core.plain import jsonable, wall_time
+from ..core.validation import check_int, check_real
 from ..devices import profile
 from ..errors import ChassisError
 from .access import check_allowed_origin, check_token, given_tokens, is_loopback, origin_key
-from .inbound import CommandError, Refusals, command_object
+from .inbound import CommandError, Refusals, command_number, command_object
 
 __all__ = [
     "DEFAULT_MAX_ANGULAR",
     "DEFAULT_MAX_LINEAR",
     "MAX_CLIENTS",
+    "MAX_DEADZONE",
     "VELOCITY_PERIOD",
     "GamepadMapping",
     "WebDashboard",
@@ -85,6 +87,8 @@ __all__ = [
 
 _log = logging.getLogger("chassis_sdk.integrations.web")
 
+#: The widest gamepad deadzone taken (a fraction of full deflection).
+MAX_DEADZONE = 0.95
 #: Least seconds between two velocity commands written (the newest in between counts).
 VELOCITY_PERIOD = 0.02
 #: What a page may ask for when neither the dashboard nor the device sets a limit
@@ -155,35 +159,18 @@ class GamepadMapping:
 
     def __post_init__(self) -> None:
         for name in ("linear_axis", "angular_axis", "enable_button"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 64:
-                raise ValueError(f"{name} must be an index 0..63, got {value!r}")
+            check_int(getattr(self, name), name, low=0, high=63)
         for name in ("scale_linear", "scale_angular"):
-            value = getattr(self, name)
-            if not isinstance(value, int | float) or not 0 < value <= 1:
-                raise ValueError(f"{name} must be in (0, 1], got {value!r}")
-        if not isinstance(self.deadzone, int | float) or not 0 <= self.deadzone < 1:
-            raise ValueError(f"deadzone must be in [0, 1), got {self.deadzone!r}")
-        if not isinstance(self.stale_after, int | float) or not 0 < self.stale_after <= 10:
-            raise ValueError(f"stale_after must be in (0, 10] seconds, got {self.stale_after!r}")
+            check_real(getattr(self, name), name, low=0, low_open=True, high=1)
+        check_real(self.deadzone, "deadzone", low=0, high=MAX_DEADZONE)
+        check_real(self.stale_after, "stale_after", low=0, low_open=True, high=10, unit="s")
 
 
 def _limit(name: str, given: float | None, device: float | None, default: float) -> float:
     if given is None:
         return device if device is not None else default
-    if isinstance(given, bool) or not isinstance(given, int | float) or not 0 < given < math.inf:
-        raise ValueError(f"{name} must be a positive number, got {given!r}")
-    return float(given) if device is None else min(float(given), device)
-
-
-def _finite(body: Mapping[str, Any], key: str) -> float:
-    value = body.get(key)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise CommandError(f"{key} must be a number, got {type(value).__name__}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise CommandError(f"{key} must be finite, got {value}")
-    return value
+    limit = check_real(given, name, low=0, low_open=True)
+    return limit if device is None else min(limit, device)
 
 
 def _keys(body: Mapping[str, Any], allowed: Iterable[str]) -> None:
@@ -267,8 +254,7 @@ class WebDashboard:
         self._web = web
         if not isinstance(host, str) or not host:
             raise ValueError(f"host must be an address, got {host!r}")
-        if not isinstance(port, int) or isinstance(port, bool) or not 0 <= port <= 65535:
-            raise ValueError(f"port must be 0..65535, got {port!r}")
+        check_int(port, "port", low=0, high=65535)
         if isinstance(allow_origins, str):
             raise ValueError("allow_origins is a list of origins, not one string")
         self._origins = frozenset(check_allowed_origin(o) for o in allow_origins)
@@ -279,12 +265,9 @@ class WebDashboard:
         self._token = token
         timeout = command_timeout if command_timeout is not None else device.command_timeout
         timeout = 0.5 if timeout is None else timeout
-        if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not timeout > 0:
-            raise ValueError(f"command_timeout must be > 0 seconds, got {command_timeout!r}")
-        if isinstance(rate, bool) or not isinstance(rate, int | float) or not 1 <= rate <= 50:
-            raise ValueError(f"rate must be 1..50 updates a second, got {rate!r}")
-        if not isinstance(max_clients, int) or isinstance(max_clients, bool) or max_clients < 1:
-            raise ValueError(f"max_clients must be >= 1, got {max_clients!r}")
+        timeout = check_real(timeout, "command_timeout", low=0, low_open=True, unit="s")
+        check_real(rate, "rate", low=1, high=50, unit="updates a second")
+        check_int(max_clients, "max_clients", low=1)
         limits = device.limits
         self.max_linear = _limit("max_linear", max_linear, limits.max_linear, DEFAULT_MAX_LINEAR)
         self.max_angular = _limit(
@@ -294,7 +277,7 @@ class WebDashboard:
         self.host = host
         self._port = port
         self.read_only = bool(read_only)
-        self.command_timeout = float(timeout)
+        self.command_timeout = timeout
         self.rate = float(rate)
         self.gamepad = gamepad if gamepad is not None else GamepadMapping()
         self.max_clients = max_clients
@@ -705,8 +688,8 @@ class WebDashboard:
         else:
             self._request(client, kind, body)
 
-    def _drive(self, client: _Client, body: Mapping[str, Any]) -> None:
-        linear, angular = _finite(body, "linear"), _finite(body, "angular")
+    def _drive(self, client: _Client, body: dict[str, Any]) -> None:
+        linear, angular = command_number(body, "linear"), command_number(body, "angular")
         for name, value, limit in (
             ("linear", linear, self.max_linear),
             ("angular", angular, self.max_angular),
@@ -714,7 +697,7 @@ class WebDashboard:
             if abs(value) > limit * (1 + 1e-9):
                 raise CommandError(f"{name} {value:g} is beyond the limit {limit:g}")
         if "t" in body:
-            t = _finite(body, "t") / 1000.0
+            t = command_number(body, "t") / 1000.0
             if t < client.last_t:
                 raise CommandError("t went back: messages out of order")
             client.last_t = t
@@ -828,7 +811,7 @@ class WebDashboard:
         async for event in self.device.events():
             body = jsonable(event)
             # Wall time: the event's monotonic stamp, as this computer's clock read it.
-            body["time"] = time.time() - (time.monotonic() - event.timestamp)
+            body["time"] = wall_time(event.timestamp)
             body["text"] = str(event)
             self._events.append(body)
             for client in self._clients:

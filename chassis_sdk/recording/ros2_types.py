@@ -36,6 +36,8 @@ from typing import Any, Final, Literal
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
 
+from ..core.plain import wall_time
+
 __all__ = [
     "BATTERY_PERIOD",
     "BATTERY_STATUS_UNKNOWN",
@@ -606,13 +608,6 @@ def covariance(diagonal: Sequence[float], name: str = "covariance") -> list[floa
     for i, v in enumerate(values):
         matrix[i * 7] = v
     return matrix
-
-
-def wall_time(monotonic: float, *, now: float | None = None) -> float:
-    """The wall-clock time (epoch seconds) of a ``time.monotonic()`` reading."""
-    if now is None:
-        now = time.time()
-    return now - (time.monotonic() - monotonic) if monotonic > 0 else now
 
 
 def stamp(epoch: float) -> Time:
