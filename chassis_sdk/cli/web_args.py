@@ -7,7 +7,7 @@ import argparse
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from ..core.validation import check_int
+from ..core.validation import check_int, check_real
 from ..devices import DeviceProfile, profile
 from .arguments import arg_type, deadman_args, device_arg, limit_args, port_args, require_port
 
@@ -22,14 +22,8 @@ TCP_PORT = arg_type(int, lambda v: check_int(v, "port", low=0, high=65535))
 INDEX = arg_type(int, lambda v: check_int(v, "index", low=0, high=63))
 
 
-def _fraction(text: str) -> float:
-    value = float(text)
-    if not 0 < value <= 1:
-        raise ValueError(f"must be in (0, 1], got {value:g}")
-    return value
-
-
-FRACTION = arg_type(float, _fraction)
+#: A fraction of full scale: (0, 1].
+FRACTION = arg_type(float, lambda v: check_real(v, "pad_scale", low=0, low_open=True, high=1))
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
