@@ -2,11 +2,13 @@
 
 Errors are split by whose fault they are, as h11 does:
 
-* the caller's fault: a bad argument raises the built-in :class:`ValueError` before a
-  single byte is written, so nothing is half done;
-* the link's or the device's fault: a subclass of :class:`ChassisError`.
+* the caller's fault: a bad argument raises a built-in error before a single byte is
+  written, so nothing is half done: `TypeError` for a wrong type (a ``str`` or
+  ``None`` where a number is wanted), `ValueError` for a bad value of the right
+  type (NaN, out of range), as the standard library does;
+* the link's or the device's fault: a subclass of [`ChassisError`][chassis_sdk.ChassisError].
 
-:class:`asyncio.CancelledError` is never wrapped in any of these.
+`asyncio.CancelledError` is never wrapped in any of these.
 """
 
 from __future__ import annotations
@@ -26,7 +28,9 @@ class ChassisError(Exception):
 
 
 class RequestTimeoutError(ChassisError, TimeoutError):
-    """A request got no reply within ``request_timeout`` on any of its attempts."""
+    """A request got no reply within ``request_timeout`` on any of its attempts, or a
+    wait (``wait_for``, ``wait_connected``) ended at its timeout: every timeout the SDK
+    raises, a [`ChassisError`][chassis_sdk.ChassisError] and a `TimeoutError` both."""
 
 
 class ConnectionLostError(ChassisError, ConnectionError):

@@ -5,7 +5,7 @@ command registers itself.
 Each command module has an ``add_parser(sub, names)`` that adds its subparser and sets
 its ``func``: ``func(args)`` checks what it needs, does a command that needs no event
 loop there and then (returning ``None``), or returns the coroutine that
-:func:`chassis_sdk.cli.main` runs under :func:`chassis_sdk.run`.
+`chassis_sdk.cli.main` runs under [`chassis_sdk.run`][chassis_sdk.run].
 """
 
 from __future__ import annotations
@@ -15,23 +15,27 @@ import os
 from collections.abc import Callable, Coroutine, Sequence
 from typing import TYPE_CHECKING, Any, TypeAlias
 
-from ..core.validation import check_int, check_real
+from ..core.validation import check_int, check_probability, check_real
 
 if TYPE_CHECKING:
     Subparsers: TypeAlias = argparse._SubParsersAction[argparse.ArgumentParser]
 
 __all__ = [
     "BAUD",
+    "DRIVE_CEILING_ANGULAR",
+    "DRIVE_CEILING_LINEAR",
     "DRIVE_MAX_ANGULAR",
     "DRIVE_MAX_LINEAR",
     "ENV_BROKER",
     "ENV_DEVICE",
     "ENV_PORT",
     "ENV_PROTOCOL",
+    "TCP_PORT",
     "Command",
     "Job",
     "UsageError",
     "arg_type",
+    "chance",
     "deadman_args",
     "device_arg",
     "device_from_env",
@@ -48,9 +52,15 @@ ENV_DEVICE = "CHASSIS_SDK_DEVICE"
 #: The old name of ``CHASSIS_SDK_DEVICE``, still read when that is not set.
 ENV_PROTOCOL = "CHASSIS_SDK_PROTOCOL"
 ENV_BROKER = "CHASSIS_SDK_BROKER"
-#: ``drive``'s (and ``serve``'s) default limits: slow enough to walk beside.
+#: The default limits of every command that drives (``drive``, ``teleop``, ``serve``,
+#: ``web``, ``ros2``, ``calibrate``): slow enough to walk beside.
 DRIVE_MAX_LINEAR = 0.5
 DRIVE_MAX_ANGULAR = 1.0
+#: The most ``--max-linear``/``--max-angular`` (or the profile's ``[limits]``) may raise
+#: them to: beyond, a typo (``--max-linear 10``) is refused while parsing. Faster is
+#: for a program, through the API's ``MotionLimits``.
+DRIVE_CEILING_LINEAR = 2.0
+DRIVE_CEILING_ANGULAR = 4.0
 
 #: What a command's ``func`` returns: the coroutine to run, or ``None`` when done.
 Job: TypeAlias = Coroutine[Any, Any, None] | None
@@ -69,7 +79,7 @@ def arg_type(convert: Callable[[str], Any], check: Callable[[Any], Any]) -> Call
     def parse(text: str) -> Any:
         try:
             return check(convert(text))
-        except ValueError as exc:
+        except (TypeError, ValueError) as exc:  # a wrong type or a bad value: both refused
             raise argparse.ArgumentTypeError(str(exc)) from None
 
     return parse
@@ -85,8 +95,17 @@ def positive(name: str) -> Callable[[str], Any]:
     return arg_type(float, lambda v: check_real(v, name, low=0, low_open=True))
 
 
+def chance(name: str) -> Callable[[str], Any]:
+    """A chance per event (a rate of faults): a finite number from 0 to 1, named ``name``
+    in the refusal."""
+    return arg_type(float, lambda v: check_probability(v, name))
+
+
 #: A serial speed: a whole number from 1.
 BAUD = arg_type(int, lambda v: check_int(v, "baudrate", low=1))
+#: A TCP port to serve on: 0 to 65535 (0: any free one). Every ``--tcp``/``--port``-like
+#: option takes it, so 99999 is refused while parsing (exit 2), not when binding.
+TCP_PORT = arg_type(int, lambda v: check_int(v, "port", low=0, high=65535))
 
 
 def port_args(p: argparse.ArgumentParser, *, required: bool = True) -> None:
@@ -100,20 +119,27 @@ def port_args(p: argparse.ArgumentParser, *, required: bool = True) -> None:
 
 
 def limit_args(p: argparse.ArgumentParser, clamps: str = "") -> None:
-    """``--max-linear`` and ``--max-angular`` (defaults :data:`DRIVE_MAX_LINEAR`,
-    :data:`DRIVE_MAX_ANGULAR`): what they clamp is named in the help (``clamps``)."""
+    """``--max-linear`` and ``--max-angular`` (defaults `DRIVE_MAX_LINEAR`,
+    `DRIVE_MAX_ANGULAR`, at most `DRIVE_CEILING_LINEAR`,
+    `DRIVE_CEILING_ANGULAR`): what they clamp is named in the help (``clamps``)."""
     what = f" (clamps {clamps})" if clamps else ""
     p.add_argument(
         "--max-linear",
-        type=positive("max_linear"),
+        type=_speed_limit("max_linear", DRIVE_CEILING_LINEAR, "m/s"),
         default=DRIVE_MAX_LINEAR,
-        help=f"m/s{what}; default %(default)s",
+        help=f"m/s{what}; default %(default)s, at most {DRIVE_CEILING_LINEAR:g}",
     )
     p.add_argument(
         "--max-angular",
-        type=positive("max_angular"),
+        type=_speed_limit("max_angular", DRIVE_CEILING_ANGULAR, "rad/s"),
         default=DRIVE_MAX_ANGULAR,
-        help=f"rad/s{what}; default %(default)s",
+        help=f"rad/s{what}; default %(default)s, at most {DRIVE_CEILING_ANGULAR:g}",
+    )
+
+
+def _speed_limit(name: str, ceiling: float, unit: str) -> Callable[[str], Any]:
+    return arg_type(
+        float, lambda v: check_real(v, name, low=0, low_open=True, high=ceiling, unit=unit)
     )
 
 
@@ -175,7 +201,7 @@ def device_arg(
 
 
 def require_port(args: argparse.Namespace) -> str:
-    """``args.port``, or a :class:`UsageError` saying how to give one."""
+    """``args.port``, or a `UsageError` saying how to give one."""
     port: str | None = args.port
     if port is None:
         raise UsageError(f"{args.command}: no port given (give PORT, or set {ENV_PORT})")

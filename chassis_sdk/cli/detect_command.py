@@ -4,6 +4,7 @@ this user can open (all at once). Nothing is ever written to a port."""
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -19,7 +20,11 @@ from .common import out
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
-__all__ = ["add_parser", "detect"]
+__all__ = ["EXIT_NOTHING_HEARD", "add_parser", "detect"]
+
+#: ``detect``'s exit status when no known device is heard: 2, as ``info``, ``monitor``
+#: and ``drive`` give for a port where nothing answers in time.
+EXIT_NOTHING_HEARD = 2
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
@@ -35,10 +40,12 @@ def _start(args: argparse.Namespace) -> Job:
 
 
 async def _detect_one(port: str, seconds: float, baudrate: int) -> str:
-    try:
-        found = await capture.detect_device(port, seconds=seconds, baudrate=baudrate)
-    except ChassisError as exc:
-        return str(exc)
+    """The device heard on ``port``, else a line saying nothing was.
+
+    Raises:
+        ChassisError: ``port`` cannot be opened.
+    """
+    found = await capture.detect_device(port, seconds=seconds, baudrate=baudrate)
     if found is None:
         heard = " or ".join(p.recognised_by for p in profiles().values())
         return f"nothing recognisable within {seconds:g} s (expected {heard})"
@@ -49,12 +56,14 @@ async def detect(port: str | None, seconds: float, baudrate: int) -> None:
     """Print the device on ``port``, or a line per openable port when it is ``None``.
 
     Raises:
-        ChassisError: No known device answered (on ``port``, or on any port).
+        ChassisError: The port cannot be opened, or there is no port to listen to.
+        SystemExit: `EXIT_NOTHING_HEARD`, after one line on stderr, when no known
+            device was heard (on ``port``, or on any port).
     """
     if port is not None:
-        found = await _detect_one(port, seconds, baudrate)
+        found = await _detect_one(port, seconds, baudrate)  # not opened: exit 1
         if found not in profiles():
-            raise ChassisError(f"{port}: {found}")
+            _nothing_heard(f"{port}: {found}")
         out(found)
         return
     # Every listed port at once, listening only: nothing is ever written to a port
@@ -65,7 +74,10 @@ async def detect(port: str | None, seconds: float, baudrate: int) -> None:
     results = [""] * len(ports)
 
     async def listen(i: int) -> None:
-        results[i] = await _detect_one(ports[i], seconds, baudrate)
+        try:
+            results[i] = await _detect_one(ports[i], seconds, baudrate)
+        except ChassisError as exc:
+            results[i] = str(exc)
 
     async with anyio.create_task_group() as tg:
         for i in range(len(ports)):
@@ -73,4 +85,9 @@ async def detect(port: str | None, seconds: float, baudrate: int) -> None:
     for port_name, found in zip(ports, results, strict=True):
         out(f"{port_name}: {found}")
     if not any(found in profiles() for found in results):
-        raise ChassisError("no known device answered on any port")
+        _nothing_heard("no known device answered on any port")
+
+
+def _nothing_heard(line: str) -> None:
+    print(f"chassis-sdk: {line}", file=sys.stderr, flush=True)
+    raise SystemExit(EXIT_NOTHING_HEARD)

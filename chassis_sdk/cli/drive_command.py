@@ -1,36 +1,99 @@
 """``chassis-sdk drive``: drive for a while, within limits, then stop; only a device
-that answers in its own protocol is driven, and a lost link ends it at once."""
+that answers in its own protocol is driven, one whose motion is blocked (an e-stop, a
+bumper, a driver fault) is refused before anything is written, and a lost link ends it
+at once."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
+from ..core.device import Device
 from ..core.supervisor import ConnectionState
-from ..core.watchdog import MotionLimits
+from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
 from ..errors import ChassisError
-from .arguments import device_arg, finite, limit_args, port_args, positive, require_port
+from .arguments import (
+    DRIVE_CEILING_ANGULAR,
+    DRIVE_CEILING_LINEAR,
+    UsageError,
+    arg_type,
+    device_arg,
+    finite,
+    limit_args,
+    port_args,
+    positive,
+    require_port,
+)
 from .common import first_frame, out
+from .info_command import EXIT_FAULT
+from .profile import device_options
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
-__all__ = ["add_parser", "drive"]
+__all__ = ["MAX_DURATION", "add_parser", "blocked_line", "drive"]
+
+#: The longest ``--duration`` (s): ten minutes; a longer run is a job for teleop or a
+#: program, not one command line (``1e9`` was 31 years).
+MAX_DURATION = 600.0
+DURATION = arg_type(
+    float, lambda v: check_real(v, "duration", low=0, low_open=True, high=MAX_DURATION, unit="s")
+)
+
+#: A flag of ``motion_blocked()`` -> (what the device is, what to do; ``{port}`` is filled).
+_BLOCKED: dict[str, tuple[str, str]] = {
+    "SOFTWARE_ESTOP": (
+        "e-stopped (software)",
+        "release it with `chassis-sdk estop {port} --release`",
+    ),
+    "HARDWARE_ESTOP": ("e-stopped (hardware button)", "release the button"),
+    "REMOTE_ESTOP": ("e-stopped (remote control)", "release it on the remote control"),
+    "FRONT_BUMPER": (
+        "stopped by its front bumper",
+        "free it, then `chassis-sdk clear-faults {port} --front-bumper`",
+    ),
+    "REAR_BUMPER": (
+        "stopped by its rear bumper",
+        "free it, then `chassis-sdk clear-faults {port} --rear-bumper`",
+    ),
+    "FRONT_DRIVER_OFFLINE": ("without its front motor driver", "check its power and cable"),
+    "REAR_DRIVER_OFFLINE": ("without its rear motor driver", "check its power and cable"),
+}
+for _wheel in ("FRONT_LEFT", "FRONT_RIGHT", "REAR_LEFT", "REAR_RIGHT"):
+    _BLOCKED[f"{_wheel}_DRIVER_ERROR"] = (
+        f"stopped by a {_wheel.lower().replace('_', '-')} motor driver error",
+        "clear it with `chassis-sdk clear-faults {port} --driver`",
+    )
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``drive``."""
-    p = sub.add_parser("drive", help="drive for a while (within limits), then stop")
+    p = sub.add_parser(
+        "drive",
+        help="drive for a while (within limits), then stop",
+        description="Drive at --linear and/or --angular (at least one) for --duration, "
+        f"then stop. Speeds beyond --max-linear/--max-angular are clamped (the defaults "
+        f"are slow; the flags or the profile's [limits] raise them, up to "
+        f"{DRIVE_CEILING_LINEAR:g} m/s and {DRIVE_CEILING_ANGULAR:g} rad/s). A device "
+        f"that reports its motion blocked (an e-stop, a bumper, a driver fault) is "
+        f"refused with exit {EXIT_FAULT} and nothing written; Ctrl-C stops it.",
+    )
     port_args(p)
     device_arg(p, names)
-    p.add_argument("--linear", type=finite("linear"), default=0.0, help="m/s")
-    p.add_argument("--angular", type=finite("angular"), default=0.0, help="rad/s")
-    p.add_argument("--duration", type=positive("duration"), default=1.0, help="seconds")
+    p.add_argument("--linear", type=finite("linear"), help="m/s (default 0 if --angular)")
+    p.add_argument("--angular", type=finite("angular"), help="rad/s (default 0 if --linear)")
+    p.add_argument(
+        "--duration",
+        type=DURATION,
+        default=1.0,
+        help=f"seconds, at most {MAX_DURATION:g}; default %(default)s",
+    )
     limit_args(p, "--linear and --angular")
     p.add_argument(
         "--timeout", type=positive("timeout"), default=2.0, help="seconds to hear the device"
@@ -40,15 +103,27 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    if args.linear is None and args.angular is None:
+        raise UsageError("drive: give a velocity: --linear V and/or --angular W")
     return drive(profile(args.device), port, args)
 
 
-def _clamp(name: str, value: float, limit: float, flag: str, unit: str) -> float:
+def _clamp(name: str, value: float, limit: float, flag: str, unit: str, ceiling: float) -> float:
     if abs(value) <= limit:
         return value
     clamped = limit if value > 0 else -limit
-    out(f"{name} {value:g} {unit} clamped to {clamped:g} {unit} ({flag})")
+    more = f"; {flag} raises it, up to {ceiling:g} {unit}" if limit < ceiling else ""
+    out(f"{name} {value:g} {unit} clamped to {clamped:g} {unit} ({flag}){more}")
     return clamped
+
+
+def blocked_line(device: str, port: str, flags: Sequence[str]) -> str:
+    """The one line that refuses to drive ``device`` whose ``motion_blocked()`` gave
+    ``flags``: what it is and what to do, for each."""
+    known = [_BLOCKED.get(f, (f"blocked ({f})", "see `chassis-sdk info {port}`")) for f in flags]
+    whats = " and ".join(what for what, _ in known)
+    todo = "; ".join(dict.fromkeys(fix.format(port=port) for _, fix in known))
+    return f"the {device} is {whats}; {todo}"
 
 
 async def drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
@@ -57,23 +132,51 @@ async def drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
 
     Raises:
         ChassisError: The link was lost while driving (the firmware stops the wheels).
+        SystemExit: `EXIT_FAULT`, after one line on stderr, when
+            the device reports its motion blocked (nothing is written).
     """
-    linear = _clamp("linear", args.linear, args.max_linear, "--max-linear", "m/s")
-    angular = _clamp("angular", args.angular, args.max_angular, "--max-angular", "rad/s")
-    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
-    async with device.device(port, baudrate=args.baudrate, limits=limits) as dev:
-        # Only a device that answers in its own protocol is driven.
-        await first_frame(dev, args.timeout, device.recognised_by)
-        states = dev.connection_states()
-        out(f"driving v={linear:g} m/s, w={angular:g} rad/s for {args.duration:g} s")
-        started = time.monotonic()
-        await dev.set_velocity(linear, angular, duration=args.duration)
-        with anyio.move_on_after(args.duration):
-            async for state in states:
-                if state in (ConnectionState.LOST, ConnectionState.RECONNECTING):
-                    raise ChassisError(
-                        f"lost the link to {port} after {time.monotonic() - started:.1f} s "
-                        "while driving; the firmware stops the wheels on its own"
-                    )
-        await dev.stop()
+    linear = _clamp(
+        "linear", args.linear or 0.0, args.max_linear, "--max-linear", "m/s", DRIVE_CEILING_LINEAR
+    )
+    angular = _clamp(
+        "angular",
+        args.angular or 0.0,
+        args.max_angular,
+        "--max-angular",
+        "rad/s",
+        DRIVE_CEILING_ANGULAR,
+    )
+    blocked: tuple[str, ...] = ()
+    try:
+        async with device.device(port, **device_options(args)) as dev:
+            # Only a device that answers in its own protocol is driven.
+            await first_frame(dev, args.timeout, device.recognised_by)
+            # The firmware takes a command while e-stopped and ignores it: say so first.
+            blocked = dev.motion_blocked()
+            if not blocked:
+                await _drive(dev, port, linear, angular, args.duration)
+    except anyio.get_cancelled_exc_class():
+        # Ctrl-C or SIGTERM: leaving the block wrote zero and closed the port.
+        out("interrupted; stopped")
+        raise
+    if blocked:
+        print(f"chassis-sdk: {blocked_line(device.name, port, blocked)}", file=sys.stderr)
+        raise SystemExit(EXIT_FAULT)
     out("stopped")
+
+
+async def _drive(
+    dev: Device[Any, Any], port: str, linear: float, angular: float, duration: float
+) -> None:
+    states = dev.connection_states()
+    out(f"driving v={linear:g} m/s, w={angular:g} rad/s for {duration:g} s")
+    started = time.monotonic()
+    await dev.set_velocity(linear, angular, duration=duration)
+    with anyio.move_on_after(duration):
+        async for state in states:
+            if state in (ConnectionState.LOST, ConnectionState.RECONNECTING):
+                raise ChassisError(
+                    f"lost the link to {port} after {time.monotonic() - started:.1f} s "
+                    "while driving; the firmware stops the wheels on its own"
+                )
+    await dev.stop()

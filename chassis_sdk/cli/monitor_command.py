@@ -14,15 +14,18 @@ from typing import TYPE_CHECKING, Any
 
 import anyio
 
+from ..core.charge import battery_fields, battery_text
+from ..core.plain import outbound
 from ..devices import DeviceProfile, profile
 from .arguments import device_arg, port_args, positive, require_port
-from .common import first_frame, jsonable, out
+from .common import first_frame, out
 from .devices import commands
+from .profile import device_options
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
-__all__ = ["add_parser", "monitor"]
+__all__ = ["add_parser", "brief", "monitor"]
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
@@ -37,19 +40,34 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
-    return monitor(profile(args.device), port, args.baudrate, args.seconds, args.json)
+    # A viewer writes nothing, not even the zero at close: another program may be
+    # driving this robot (read_only). The profile's battery model gives the charge.
+    options = device_options(args, read_only=True)
+    baudrate = options.pop("baudrate")
+    return monitor(profile(args.device), port, baudrate, args.seconds, args.json, **options)
 
 
 async def monitor(
-    device: DeviceProfile, port: str, baudrate: int, seconds: float | None, as_json: bool
+    device: DeviceProfile,
+    port: str,
+    baudrate: int,
+    seconds: float | None,
+    as_json: bool,
+    **options: Any,
 ) -> None:
-    """Follow ``device`` on ``port`` for ``seconds`` (``None``: until cancelled)."""
+    """Follow ``device`` on ``port`` for ``seconds`` (``None``: until cancelled).
+
+    ``options`` are the device's keyword options, passed to its own monitor (if it has
+    one) or its constructor: ``battery=BatteryModel(...)`` shows the state of charge
+    beside each voltage (``24.6 V  63 %``, ``--`` while not known; in JSON
+    ``battery_percentage`` and ``battery_level``, ``null`` while not known)."""
     own = commands(device.name).monitor
     if own is not None:
-        await own(port, baudrate, seconds, as_json)
+        await own(port, baudrate, seconds, as_json, **options)
         return
     # Any other device: its streams (from its profile), link and events, as lines.
-    async with device.device(port, baudrate=baudrate, reconnect=True) as dev:
+    options = {"reconnect": True, **options}
+    async with device.device(port, baudrate=baudrate, **options) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         if not as_json:
             print("Ctrl-C to quit", file=sys.stderr)
@@ -57,15 +75,20 @@ async def monitor(
             for name in device.remote.streams:
                 tg.start_soon(_follow, dev, name, as_json)
             tg.start_soon(_follow_link, dev, as_json)
+            tg.start_soon(_follow_events, dev, as_json)
             with anyio.move_on_after(math.inf if seconds is None else seconds):
                 await anyio.sleep_forever()
             tg.cancel_scope.cancel()
 
 
-def _brief(value: object) -> str:
-    """A message's fields on one line, numbers to three decimals."""
+#: Fields a line leaves out: the clock (wall and monotonic) of each message.
+_CLOCKS = frozenset({"timestamp", "monotonic"})
+
+
+def brief(value: object) -> str:
+    """A message's fields on one line (not its clock), numbers to three decimals."""
     if isinstance(value, dict):
-        return " ".join(f"{k}={_brief(v)}" for k, v in value.items() if k != "timestamp")
+        return " ".join(f"{k}={brief(v)}" for k, v in value.items() if k not in _CLOCKS)
     if isinstance(value, float):
         return f"{value:.3f}"
     return str(value)
@@ -74,10 +97,21 @@ def _brief(value: object) -> str:
 async def _follow(dev: Any, stream: str, as_json: bool) -> None:
     last = 0.0
     async for message in getattr(dev, stream)():
+        fields = outbound(message)
+        # A reading of the pack's voltage: the state of charge beside it.
+        voltage = fields.get("voltage") if isinstance(fields, dict) else None
         if as_json:
-            out(json.dumps({"type": type(message).__name__, **jsonable(message)}))
+            body = {"type": type(message).__name__, **fields}
+            if isinstance(voltage, float):
+                body.update(battery_fields(dev))
+            out(json.dumps(body))
         elif time.monotonic() - last >= 0.2:  # five lines a second per stream at most
-            out(f"{stream}: {_brief(jsonable(message))}")
+            if isinstance(voltage, float):
+                rest = brief({k: v for k, v in fields.items() if k != "voltage"})
+                text = f"{battery_text(voltage, dev)}  {rest}".rstrip()
+            else:
+                text = brief(fields)
+            out(f"{stream}: {text}")
             last = time.monotonic()
 
 
@@ -88,3 +122,10 @@ async def _follow_link(dev: Any, as_json: bool) -> None:
             if as_json
             else f"link: {state.value}"
         )
+
+
+async def _follow_events(dev: Any, as_json: bool) -> None:
+    async for event in dev.events():
+        if event.kind.value.startswith("link_"):
+            continue  # _follow_link tells these
+        out(json.dumps({"type": "event", **outbound(event)}) if as_json else f"event: {event}")

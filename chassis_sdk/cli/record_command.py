@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg, port_args, positive, require_port
-from .common import progress_line
+from .common import progress_line, show_warnings
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -28,7 +28,12 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     )
     port_args(p)
     p.add_argument("file", help="FILE.jsonl: raw bytes; FILE.mcap: also decoded (Foxglove)")
-    p.add_argument("--seconds", type=positive("seconds"), default=10.0)
+    p.add_argument(
+        "--seconds",
+        type=positive("seconds"),
+        default=10.0,
+        help="how long to record, in seconds (default %(default)s)",
+    )
     device_arg(p, names, detected=True)
     p.add_argument(
         "--ros2",
@@ -42,6 +47,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    writable(args.file)
     path: str | os.PathLike[str] = args.file
     if args.namespace is not None and not args.ros2:
         raise ChassisError("--namespace is for --ros2 (a rosbag2 file)")
@@ -56,17 +62,38 @@ def _start(args: argparse.Namespace) -> Job:
             path = rosbag(args.file, namespace=args.namespace or "")
         except (ImportError, TypeError) as exc:
             raise ChassisError(str(exc)) from None
+    # No frame of the device a few seconds in is said while recording, in one line.
+    show_warnings("chassis_sdk.recording.capture", "record")
     return record(port, path, args.seconds, args.baudrate, args.device)
+
+
+def writable(file: str) -> None:
+    """Refuse, before the port opens, a capture file that cannot be written.
+
+    Raises:
+        ChassisError: Its directory does not exist or is not writable, or it is a
+            directory.
+    """
+    target = Path(file)
+    folder = target.parent
+    if not folder.is_dir():
+        raise ChassisError(f"cannot write {file}: no such directory {folder}")
+    if target.is_dir():
+        raise ChassisError(f"cannot write {file}: it is a directory")
+    if not os.access(folder, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
+        raise ChassisError(f"cannot write {file}: permission denied")
 
 
 async def record(
     port: str, path: str | os.PathLike[str], seconds: float, baudrate: int, device: str | None
 ) -> None:
     """Record ``port`` into ``path`` (a file name, or a recording chosen with its
-    options: :func:`chassis_sdk.recording.ros2.rosbag`) for ``seconds``, showing progress.
+    options: `chassis_sdk.recording.ros2.rosbag`) for ``seconds``, showing progress.
 
     Raises:
-        ChassisError: The link was lost and not restored before the end.
+        ChassisError: The link was lost and not restored before the end, or no frame
+            of the device (of any known device, when none is named) arrived: the
+            file is kept, but it is not the recording that was meant.
     """
     show = progress_line(f"recording {os.fspath(path)}")
 
@@ -74,9 +101,14 @@ async def record(
         link = "" if up else "  LINK LOST, reconnecting"
         show(f"{n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s{link}", not up)
 
-    cap = await capture.record(
-        port, path, seconds=seconds, baudrate=baudrate, progress=progress, device=device
-    )
+    try:
+        cap = await capture.record(
+            port, path, seconds=seconds, baudrate=baudrate, progress=progress, device=device
+        )
+    except ChassisError:
+        raise
+    except OSError as exc:  # the file, not the port (the port's are ChassisErrors)
+        raise ChassisError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from None
     show.done(
         f"recorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s "
         f"to {os.fspath(path)}"
@@ -84,3 +116,25 @@ async def record(
     )
     if not cap.connected:
         raise ChassisError(f"the link to {port} was lost and not restored before the end")
+    if cap.device is None:
+        what = f"{device} frame" if device else "frame of any known device"
+        raise ChassisError(
+            f"no {what} in the {cap.bytes:,} bytes recorded from {port}"
+            + _hint(os.fspath(path), device, cap.bytes)
+        )
+
+
+def _hint(path: str, device: str | None, total: int) -> str:
+    """What the recorded bytes look like instead, where a known device's frames are
+    in them."""
+    if not total or device is None:
+        return " (is the device on and sending, at this baud rate?)"
+    from .captures import head
+
+    try:
+        other = capture.detect_in(head(path))
+    except (OSError, ValueError):  # not readable back: no hint, the error stands
+        other = None
+    if other is not None and other != device:
+        return f": they look like a {other}; record again with --device {other}"
+    return " (the wrong baud rate?)"

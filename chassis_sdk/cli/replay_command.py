@@ -13,14 +13,19 @@ import anyio
 
 from ..errors import ChassisError
 from ..recording import capture
-from .arguments import device_arg, positive
+from .arguments import TCP_PORT, UsageError, device_arg, positive
 from .captures import detect_file, no_messages
-from .common import jsonable, out
+from .common import jsonable, out, show_warnings
+from .monitor_command import brief
+from .sim_command import serving
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
-__all__ = ["add_parser", "replay", "replay_as_device"]
+__all__ = ["add_parser", "replay", "replay_as_device", "replay_line"]
+
+#: The options that only mean something with ``--as-device``, and their defaults.
+_DEVICE_OPTIONS = {"tcp": None, "speed": 1.0, "start_after": 1.0}
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
@@ -32,22 +37,41 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument(
         "--as-device", action="store_true", help="serve the recorded bytes on a pty (or --tcp)"
     )
-    p.add_argument("--tcp", type=int, metavar="PORT", help="with --as-device: serve on TCP")
-    p.add_argument("--speed", type=positive("speed"), default=1.0, help="playback speed")
+    p.add_argument(
+        "--tcp", type=TCP_PORT, metavar="PORT", help="with --as-device: serve on TCP (0: any free)"
+    )
+    p.add_argument(
+        "--speed", type=positive("speed"), help="with --as-device: playback speed (default 1)"
+    )
     p.add_argument(
         "--start-after",
         type=positive("start_after"),
-        default=1.0,
-        help="with --as-device on a pty: seconds before playback starts",
+        help="with --as-device on a pty: seconds before playback starts (default 1)",
     )
     p.set_defaults(func=_start)
 
 
 def _start(args: argparse.Namespace) -> Job:
+    given = [name for name in _DEVICE_OPTIONS if getattr(args, name) is not None]
+    if not args.as_device and given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise UsageError(f"replay: {flags} needs --as-device (serve the capture as a device)")
+    for name, default in _DEVICE_OPTIONS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, default)
+    # A capture cut by a hard kill is read up to the cut; say so at any verbosity.
+    show_warnings("chassis_sdk.recording.capture", "replay")
     if args.as_device:
         return replay_as_device(args)
     replay(args.file, args.device, args.json)
     return None
+
+
+def replay_line(t: float, msg: object) -> str:
+    """A decoded message as ``replay`` prints it: its time, its type and its fields the
+    way ``monitor`` shows them (names for flags and enums, numbers to three
+    decimals)."""
+    return f"{t:10.3f}  {type(msg).__name__}: {brief(jsonable(msg))}"
 
 
 def replay(path: str, device: str | None, as_json: bool) -> None:
@@ -66,7 +90,7 @@ def replay(path: str, device: str | None, as_json: bool) -> None:
         if as_json:
             lines.append(json.dumps({"t": t, "type": type(msg).__name__, **jsonable(msg)}))
         else:
-            lines.append(f"{t:10.6f}  {msg}")
+            lines.append(replay_line(t, msg))
         if len(lines) == 1000:
             sys.stdout.write("\n".join(lines) + "\n")
             lines.clear()
@@ -79,7 +103,12 @@ def replay(path: str, device: str | None, as_json: bool) -> None:
 
 async def replay_as_device(args: argparse.Namespace) -> None:
     """Serve the bytes of the capture ``args.file`` at the recorded timing (times
-    ``args.speed``), then say what the application wrote."""
+    ``args.speed``), then say what the application wrote. On TCP, playback starts
+    when a client connects (and again from the start for each new one).
+
+    Raises:
+        ChassisError: The capture holds no bytes, or the TCP port cannot be served.
+    """
     from ..sim.server import SimulatorServer
 
     proto = args.device or detect_file(args.file)
@@ -91,7 +120,9 @@ async def replay_as_device(args: argparse.Namespace) -> None:
     total = sum(len(data) for _, data in device.chunks)
     if not total:
         raise ChassisError(f"{args.file} holds no bytes to replay")
-    async with SimulatorServer(device, tcp_port=args.tcp) as server:
+    async with serving(SimulatorServer(device, tcp_port=args.tcp), args.tcp) as server:
+        if args.tcp is not None:
+            device.hold()  # not to nobody: from the first client's connection
         out(server.port)
         out(f"replaying {total:,} bytes of {proto} capture {args.file} at {args.speed:g}x")
         await finished.wait()
@@ -100,4 +131,7 @@ async def replay_as_device(args: argparse.Namespace) -> None:
     for command in device.commands:
         kinds[type(command).__name__] = kinds.get(type(command).__name__, 0) + 1
     wrote = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) or "nothing"
-    out(f"replayed {device.bytes_played:,} bytes; the application wrote {wrote}")
+    out(
+        f"replayed {device.bytes_played:,} of the capture's {total:,} bytes; "
+        f"the application wrote {wrote}"
+    )
