@@ -1,14 +1,18 @@
-"""Run every benchmark and print its table (about 25 minutes; --quick: about 4).
+"""Run every benchmark and print its table (about 75 minutes; --quick: about 5).
 
     pip install ".[bench,fast,serialx,uvloop,columns]"
-    python benchmarks/all.py [--quick] [--json results.json]
+    python benchmarks/all.py [--quick] [--runs K] [--json results.json]
     python benchmarks/goals.py results.json --write docs/figures.md
 
 The figures in docs/figures.md come from this command on the 2-core development
 machine. It first prints what a figure depends on: the date, the commit, the CPU,
-Python and the versions of the packages on the path, and the load before and after
-each script. ``--json FILE`` also writes all of that and every script's figures to one
-file, from which ``goals.py`` makes the goals table in the docs.
+Python, the versions of the packages on the path and the decoding path (compiled or
+pure), and the load before and after each script. The scripts behind a goal
+(`REPEATED`) run ``--runs`` times (default 3; 1 with ``--quick``), interleaved (all of
+them once, then again), since the machine drifts by a third from one minute to the
+next: ``goals.py`` shows each figure as min / median / max over the runs. The other
+scripts run once. ``--json FILE`` also writes all of that and every run's figures to
+one file, from which ``goals.py`` makes the goals table in the docs.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import platform
 import subprocess
 import sys
 import tempfile
+import time
 from importlib import metadata
 from pathlib import Path
 
@@ -42,11 +47,14 @@ SCRIPTS = [
 JSON_FLAG = {
     "decoder_throughput.py": "--json",
     "latency.py": "--json-file",
+    "mqtt_fleet.py": "--json",
     "recording.py": "--json",
     "scaling.py": "--json",
     "ros2.py": "--json",
     "web.py": "--json",
 }
+#: The scripts whose figures the goals table shows: run ``--runs`` times.
+REPEATED = ("decoder_throughput.py", "latency.py", "mqtt_fleet.py", "recording.py", "scaling.py")
 
 
 PACKAGES = [
@@ -63,6 +71,7 @@ PACKAGES = [
     "aiohttp",
     "playwright",
     "cyclonedds",
+    "cython",
 ]
 
 
@@ -81,6 +90,24 @@ def _load() -> str:
     """The machine's load averages (1, 5, 15 minutes): a busy machine moves figures."""
     one, five, fifteen = os.getloadavg()
     return f"{one:.2f} {five:.2f} {fifteen:.2f}"
+
+
+def decoding_path() -> str:
+    """Which decoding path the protocols take here (``chassis_sdk.core.compiled``), asked
+    of a fresh interpreter with this environment (``CHASSIS_SDK_PURE`` included)."""
+    code = (
+        "import chassis_sdk.protocol\n"
+        "from chassis_sdk.core import compiled\n"
+        "s = compiled.status()\n"
+        "print('pure (no compiled path in this version)' if s == 'no protocol imported' else s)"
+    )
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True
+        )
+    except (OSError, subprocess.CalledProcessError) as exc:
+        return f"unknown ({exc})"
+    return done.stdout.strip()
 
 
 def machine() -> list[str]:
@@ -107,6 +134,7 @@ def machine() -> list[str]:
         f"cpu: {_cpu()} ({platform.machine()}), {len(os.sched_getaffinity(0))} cores usable",
         f"python: {platform.python_implementation()} {platform.python_version()}",
         f"packages: {', '.join(versions)}",
+        f"decoding path: {decoding_path()}",
     ]
 
 
@@ -114,35 +142,59 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="every script's quick mode")
     parser.add_argument("--json", metavar="FILE", help="write the machine and every figure")
+    parser.add_argument(
+        "--runs",
+        type=int,
+        metavar="K",
+        help="runs of each script behind a goal (default 3; with --quick, 1)",
+    )
     args = parser.parse_args()
+    runs = args.runs if args.runs is not None else (1 if args.quick else 3)
+    if runs < 1:
+        parser.error("--runs must be at least 1")
     extra = ["--quick"] if args.quick else []
-    report: dict[str, object] = {"machine": dict(line.split(": ", 1) for line in machine())}
-    scripts: dict[str, object] = {}
+    lines = machine()
+    report: dict[str, object] = {"machine": dict(line.split(": ", 1) for line in lines)}
+    scripts: dict[str, dict[str, object]] = {}
     report["scripts"] = scripts
     report["quick"] = args.quick
+    report["runs"] = runs
     print("== machine")
-    for line in machine():
+    for line in lines:
         print(line)
     print(flush=True)
     with tempfile.TemporaryDirectory() as tmp:
-        for script in SCRIPTS:
-            print(f"== {script} {' '.join(extra)}".rstrip(), flush=True)
-            before = _load()
-            print(f"load before: {before}", flush=True)
-            out = Path(tmp) / f"{script}.json"
-            flags = [JSON_FLAG[script], str(out)] if args.json and script in JSON_FLAG else []
-            command = [sys.executable, str(HERE / script), *extra, *flags]
-            done = subprocess.run(command, check=False)
-            after = _load()
-            print(f"load after: {after}", flush=True)
-            if done.returncode:
-                print(f"{script} failed with exit code {done.returncode}", file=sys.stderr)
-                return done.returncode
-            entry: dict[str, object] = {"load_before": before, "load_after": after}
-            if out.exists():
-                entry["figures"] = json.loads(out.read_text())
-            scripts[script] = entry
-            print(flush=True)
+        for k in range(runs):
+            for script in SCRIPTS if k == 0 else REPEATED:
+                again = f" (run {k + 1} of {runs})" if script in REPEATED and runs > 1 else ""
+                print(f"== {script} {' '.join(extra)}".rstrip() + again, flush=True)
+                before = _load()
+                print(f"load before: {before}", flush=True)
+                out = Path(tmp) / f"{script}.{k}.json"
+                flags = [JSON_FLAG[script], str(out)] if args.json and script in JSON_FLAG else []
+                command = [sys.executable, str(HERE / script), *extra, *flags]
+                began = time.monotonic()
+                done = subprocess.run(command, check=False)
+                took = time.monotonic() - began
+                after = _load()
+                print(f"load after: {after}; took {took:.0f} s", flush=True)
+                if done.returncode:
+                    print(f"{script} failed with exit code {done.returncode}", file=sys.stderr)
+                    return done.returncode
+                run: dict[str, object] = {
+                    "load_before": before,
+                    "load_after": after,
+                    "seconds": round(took, 1),
+                }
+                if out.exists():
+                    run["figures"] = json.loads(out.read_text())
+                # The first run's keys stay at the top (as before --runs); every run,
+                # the first included, is in "runs".
+                entry = scripts.setdefault(script, {**run, "runs": []})
+                runs_list = entry["runs"]
+                assert isinstance(runs_list, list)
+                runs_list.append(run)
+                print(flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
         print(f"wrote {args.json}")

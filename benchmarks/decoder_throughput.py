@@ -1,22 +1,35 @@
-"""Decoder throughput for both protocols (frames/s and MB/s), median of several runs,
-side by side with pymavlink in the same run.
+"""Decoder throughput for both protocols, on both decoding paths, against pymavlink in
+the same process (about 1 minute; --quick: about 10 s).
 
     pip install ".[bench]"     # pymavlink, for the comparison
-    python benchmarks/decoder_throughput.py
+    python benchmarks/decoder_throughput.py [--quick] [--json FILE]
 
-Measures the decoders of a whole capture into numpy columns (what ``plot`` uses), then
-ChassisDecoder on 0x81 telemetry (28 bytes) and BoardDecoder on 0x11 IMU
-frames (23 bytes), fed in 4 KiB chunks (what a busy port delivers) and one frame per
-call (a quiet port), against the wire limit at 115200 baud (11,520 bytes/s, 8N1), and
-pymavlink's MAVLink 2 parser on its 40-byte ATTITUDE message, fed the same way. The
-ratios are taken within this run, so a busy machine slows both sides alike.
+ChassisDecoder on 0x81 telemetry (28 bytes, protocol A) and BoardDecoder on 0x11 IMU
+frames (23 bytes, protocol B), fed one frame per call (a quiet port) and in 4 KiB
+chunks (what a busy port delivers), against pymavlink's MAVLink 2 parser on its
+40-byte ATTITUDE message fed the same way. Each path runs in a process of its own: the
+compiled fast path (when it is built) and the pure Python code (``CHASSIS_SDK_PURE=1``),
+one after the other. In each, every round measures the three decoders back to back in
+a rotating order, and a ratio to pymavlink is taken within a round, so a machine that
+drifts slows both sides of a ratio alike; a figure is the median over the rounds.
+
+The pure path's goal is "no slower than today": `REFERENCE` holds its figures
+measured before the compiled path landed (date and commit in it). Its frames/s move
+with the machine's load; the ratios to pymavlink measured in the same rounds are the
+steadier comparison, and the one ``goals.py`` uses.
+
+Also measured, on the active path: the decoders of a whole capture into numpy columns
+(what ``plot`` uses), against the decoder object per frame.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -38,30 +51,71 @@ from chassis_sdk.protocol import (
 WIRE_BYTES_PER_S = 115200 / 10
 RUNS = 7
 N = 50_000
+CHUNKINGS = ("per call", "4 KiB")
+PROTOCOLS = {"chassis": "protocol A (chassis 0x81)", "board": "protocol B (board 0x11)"}
+
+#: The pure path before the compiled path landed, "today" in the goal: three runs of
+#: this script (each the median of 7 rounds of 50,000 frames per decoder) on the 2-core
+#: development machine (AMD EPYC, CPython 3.11.7, pymavlink 2.4.50; load average 1.5-5
+#: from other work: pymavlink itself went from 31,000 to 104,000 frames/s between runs).
+#: Two runs at commit ab500e9, the third at 3d954c5 with CHASSIS_SDK_PURE=1 (the same
+#: pure code: that commit added the compiled twin beside it). ``vs_pymavlink`` is the
+#: median of the three runs, ``vs_pymavlink_min`` the slowest, ``vs_pymavlink_max``
+#: the fastest; ``frames_per_s`` the medians (they move with the load).
+REFERENCE: dict[str, Any] = {
+    "date": "2026-12-02",
+    "commit": "ab500e9",
+    "vs_pymavlink": {
+        "chassis / per call": 2.62,
+        "chassis / 4 KiB": 2.97,
+        "board / per call": 2.47,
+        "board / 4 KiB": 2.54,
+    },
+    "vs_pymavlink_min": {
+        "chassis / per call": 2.13,
+        "chassis / 4 KiB": 2.74,
+        "board / per call": 2.25,
+        "board / 4 KiB": 2.00,
+    },
+    "vs_pymavlink_max": {
+        "chassis / per call": 3.71,
+        "chassis / 4 KiB": 3.74,
+        "board / per call": 4.16,
+        "board / 4 KiB": 2.55,
+    },
+    "frames_per_s": {
+        "chassis / per call": 120_571,
+        "chassis / 4 KiB": 230_043,
+        "board / per call": 130_749,
+        "board / 4 KiB": 141_430,
+        "pymavlink / per call": 51_640,
+        "pymavlink / 4 KiB": 53_761,
+    },
+}
 
 
-def chassis_stream() -> tuple[bytes, int]:
+def chassis_stream(n: int) -> tuple[bytes, int]:
     enc = ChassisEncoder()
     t = Telemetry(24.6, ChassisStatus.REMOTE_OFFLINE, DockingState.SEARCHING, 0.3, -0.2,
                   WheelSpeeds(0.2, 0.4, 0.2, 0.4))  # fmt: skip
-    frames = [enc.encode(t) for _ in range(N)]
+    frames = [enc.encode(t) for _ in range(n)]  # each with its own sequence number
     return b"".join(frames), len(frames[0])
 
 
-def board_stream() -> tuple[bytes, int]:
+def board_stream(n: int) -> tuple[bytes, int]:
     s = ImuSample(Vector3(0.01, -0.02, 1.0), Vector3(0.5, -0.5, 10.0), Vector3(300, -300, -420))
     frame = BoardEncoder().encode(s)
-    return frame * N, len(frame)
+    return frame * n, len(frame)
 
 
-def mavlink_stream() -> tuple[bytes, int] | None:
+def mavlink_stream(n: int) -> tuple[bytes, int] | None:
     try:
         from pymavlink.dialects.v20 import common as mavlink
     except ImportError:
         return None
     sender = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     frame = mavlink.MAVLink_attitude_message(1000, 0.1, -0.2, 0.3, 0.01, 0.02, 0.03).pack(sender)
-    return frame * N, len(frame)
+    return frame * n, len(frame)
 
 
 class MavlinkDecoder:
@@ -76,84 +130,149 @@ class MavlinkDecoder:
         return self._parser.parse_buffer(data) or []
 
 
-def measure(make_decoder: Callable[[], Any], stream: bytes, chunk: int) -> float:
-    """Seconds to decode the whole stream in chunks of `chunk` bytes."""
-    chunks = [stream[i : i + chunk] for i in range(0, len(stream), chunk)]
+def measure(make_decoder: Callable[[], Any], chunks: list[bytes], frames: int) -> float:
+    """Frames per second decoding ``chunks`` with a fresh decoder."""
     dec = make_decoder()
-    t0 = time.perf_counter()
+    feed = dec.feed
     n = 0
+    t0 = time.perf_counter()
     for c in chunks:
-        n += len(dec.feed(c))
+        n += len(feed(c))
     elapsed = time.perf_counter() - t0
-    assert n == N, n
-    return elapsed
+    assert n == frames, (n, frames)
+    return frames / elapsed
 
 
-def columns(cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]]) -> dict[str, float]:
-    """A whole capture into arrays (numpy, ``capture_columns``) against the decoder
-    one object per frame, on the same bytes, printed first."""
+def columns(cases: dict[str, tuple[Callable[[], Any], bytes, int]]) -> dict[str, float]:
+    """A whole capture into arrays (numpy, ``capture_columns``), frames/s, printed
+    beside the decoder one object per frame on the same bytes."""
     try:
         from chassis_sdk.recording.columns import decode_joined
     except ImportError:
         print("numpy is not installed (pip install '.[columns]'): no column figures")
         return {}
     rates = {}
-    for name, dec, (stream, _) in cases:
-        objects = statistics.median(measure(dec, stream, 4096) for _ in range(RUNS))
+    for name, (dec, stream, _) in cases.items():
+        chunks = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
+        objects = statistics.median(measure(dec, chunks, N) for _ in range(RUNS))
         times = []
         for _ in range(RUNS):
             t0 = time.perf_counter()
             found = decode_joined(stream, [0.0], [len(stream)], dec())
             times.append(time.perf_counter() - t0)
             assert found.frames == N, found.frames
-        secs = statistics.median(times)
-        mb = len(stream) / secs / 1e6
-        rates[name] = N / secs
-        print(f"{name + ' columns':<20} {'whole':<11}{N / secs:>12,.0f}{mb:>8.1f}"
-              f"{'':>14}  {objects / secs:.0f}x objects")  # fmt: skip
+        rate = rates[name] = N / statistics.median(times)
+        print(f"{name} into columns, whole capture: {rate:,.0f} frames/s, "
+              f"{rate / objects:.0f}x the decoder's objects in 4 KiB chunks")  # fmt: skip
     return rates
+
+
+def one_path() -> dict[str, Any]:
+    """Every figure of the path this process runs (``CHASSIS_SDK_PURE`` decides)."""
+    from chassis_sdk.core import compiled
+
+    streams = {"chassis": chassis_stream(N), "board": board_stream(N)}
+    makers: dict[str, Callable[[], Any]] = {"chassis": ChassisDecoder, "board": BoardDecoder}
+    mav = mavlink_stream(N)
+    if mav is not None:
+        streams["pymavlink"] = mav
+        makers["pymavlink"] = MavlinkDecoder
+    chunked = {
+        (name, label): [
+            stream[i : i + (size if label == "per call" else 4096)]
+            for i in range(0, len(stream), size if label == "per call" else 4096)
+        ]
+        for name, (stream, size) in streams.items()
+        for label in CHUNKINGS
+    }
+    names = list(streams)
+    rates: dict[str, list[float]] = {f"{name} / {label}": [] for name, label in chunked}
+    ratios: dict[str, list[float]] = {
+        f"{p} / {label}": [] for p in PROTOCOLS for label in CHUNKINGS if mav is not None
+    }
+    for k in range(RUNS):
+        for label in CHUNKINGS:
+            got = {}
+            for name in names[k % len(names) :] + names[: k % len(names)]:  # rotate
+                got[name] = measure(makers[name], chunked[name, label], N)
+                rates[f"{name} / {label}"].append(got[name])
+            if mav is not None:
+                for p in PROTOCOLS:
+                    ratios[f"{p} / {label}"].append(got[p] / got["pymavlink"])
+    result: dict[str, Any] = {
+        "path": compiled.status(),
+        "frames_per_s": {key: statistics.median(v) for key, v in rates.items()},
+        "vs_pymavlink": {key: statistics.median(v) for key, v in ratios.items()},
+        "vs_pymavlink_rounds": ratios,
+        "rounds": RUNS,
+        "frames": N,
+    }
+    return result
+
+
+def run_path(pure: bool, quick: bool) -> dict[str, Any]:
+    """`one_path` in a fresh process, on the pure path or the default one."""
+    env = dict(os.environ)
+    env.pop("CHASSIS_SDK_PURE", None)
+    if pure:
+        env["CHASSIS_SDK_PURE"] = "1"
+    args = [sys.executable, __file__, "--one", *(["--quick"] if quick else [])]
+    out = subprocess.run(args, env=env, check=True, capture_output=True, text=True)
+    result: dict[str, Any] = json.loads(out.stdout)
+    return result
+
+
+def print_path(name: str, r: dict[str, Any]) -> None:
+    print(f"== {name} path: {r['path']}")
+    print(f"{'decoder':<22}{'chunking':<11}{'frames/s':>11}{'x wire':>8}{'x pymavlink':>13}")
+    for key, fps in r["frames_per_s"].items():
+        who, label = key.split(" / ")
+        size = {"chassis": 28, "board": 23, "pymavlink": 40}[who]
+        ratio = r["vs_pymavlink"].get(key)
+        text = f"{ratio:>12.2f}x" if ratio is not None else ""
+        print(f"{who:<22}{label:<11}{fps:>11,.0f}{fps / (WIRE_BYTES_PER_S / size):>8,.0f}{text}")
 
 
 def main() -> None:
     global RUNS, N
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer, shorter runs (for CI)")
+    parser.add_argument("--quick", action="store_true", help="fewer, shorter rounds (for CI)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
+    parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.quick:
         RUNS, N = 3, 10_000
-    cases: list[tuple[str, Callable[[], Any], tuple[bytes, int]]] = [
-        ("chassis 0x81", ChassisDecoder, chassis_stream()),
-        ("board 0x11", BoardDecoder, board_stream()),
-    ]
-    mav = mavlink_stream()
-    if mav is not None:
-        cases.append(("pymavlink ATTITUDE", MavlinkDecoder, mav))
-    print(f"{'decoder':<20}{'chunking':<12}{'frames/s':>12}{'MB/s':>8}{'x wire limit':>14}")
-    column_rates = columns(cases[:2])
-    rates: dict[tuple[str, str], float] = {}
-    for name, dec, (stream, size) in cases:
-        for label, chunk in [("4 KiB", 4096), ("per frame", size)]:
-            secs = statistics.median(measure(dec, stream, chunk) for _ in range(RUNS))
-            fps = rates[name, label] = N / secs
-            wire_fps = WIRE_BYTES_PER_S / size
-            print(f"{name:<20}{label:<12}{fps:>12,.0f}{len(stream) / secs / 1e6:>8.1f}"
-                  f"{fps / wire_fps:>14,.0f}")  # fmt: skip
-    a, b = WIRE_BYTES_PER_S / 28, WIRE_BYTES_PER_S / 23
-    print(f"(median of {RUNS} runs of {N:,} frames; wire limit at 115200 baud: "
-          f"{a:.0f} frames/s of 0x81, {b:.0f} of 0x11)")  # fmt: skip
-    ratios = {}
-    if mav is None:
+    if args.one:
+        print(json.dumps(one_path()))
+        return
+    report: dict[str, Any] = {"reference": REFERENCE}
+    default = run_path(False, args.quick)
+    if "compiled" in default["path"]:
+        report["compiled"] = default
+        print_path("compiled", default)
+    else:
+        print(f"== compiled path: not measured ({default['path']})")
+    pure = report["pure"] = run_path(True, args.quick)
+    print_path("pure", pure)
+    if "pymavlink / 4 KiB" not in pure["frames_per_s"]:
         print("pymavlink is not installed (pip install '.[bench]'): no comparison")
-    for label in ("4 KiB", "per frame") if mav is not None else ():
-        ratio = ratios[label] = rates["chassis 0x81", label] / rates["pymavlink ATTITUDE", label]
-        print(f"protocol A decoder / pymavlink, {label}: {ratio:.2f}x (target >= 5x)")
-    if args.json:
-        report = {
-            "frames_per_s": {f"{name} / {label}": fps for (name, label), fps in rates.items()},
-            "columns_frames_per_s": column_rates,
-            "vs_pymavlink": ratios,
+    for key, today in REFERENCE["vs_pymavlink"].items():
+        if key in pure["vs_pymavlink"]:
+            now = pure["vs_pymavlink"][key]
+            print(f"pure {key} vs pymavlink: {now:.2f}x, today's reference {today:.2f}x "
+                  f"({REFERENCE['date']}, {REFERENCE['commit']})")  # fmt: skip
+    print(
+        f"(median of {RUNS} rounds of {N:,} frames per decoder; wire limit at 115200 baud: "
+        f"{WIRE_BYTES_PER_S / 28:.0f} frames/s of 0x81, {WIRE_BYTES_PER_S / 23:.0f} of 0x11)"
+    )
+    # In this process: the default path (compiled when built), like the columns' users.
+    report["columns_frames_per_s"] = columns(
+        {
+            "chassis 0x81": (ChassisDecoder, *chassis_stream(N)),
+            "board 0x11": (BoardDecoder, *board_stream(N)),
         }
+    )
+    if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1))
 
 

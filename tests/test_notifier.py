@@ -94,16 +94,24 @@ def test_a_listener_that_raises_does_not_starve_the_others(
 ) -> None:
     robot = Chassis("/dev/never-opened")
     seen: list[object] = []
+    calls = 0
 
     def broken(message: object) -> None:
+        nonlocal calls
+        calls += 1
         raise OSError("disk full")
 
     with Notifier(robot) as notifier:
-        notifier.listen("telemetry", broken)
+        bad = notifier.listen("telemetry", broken)
         notifier.listen("telemetry", seen.append)
         robot.feed(_telemetry_bytes(), 1.0)
-    assert len(seen) == 1
-    assert "a listener failed" in caplog.text
+        robot.feed(_telemetry_bytes(), 2.0)
+    assert len(seen) == 2
+    assert calls == 1  # removed at its first error
+    assert isinstance(bad.error, OSError)
+    assert "listener test_a_listener_that_raises" in caplog.text
+    assert "on 'telemetry' raised OSError and was removed" in caplog.text
+    assert caplog.text.count("OSError: disk full") == 1  # logged once, with its traceback
 
 
 def test_a_device_class_with_the_old_kind_is_refused() -> None:

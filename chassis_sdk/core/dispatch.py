@@ -11,22 +11,27 @@ import asyncio
 import contextlib
 import copy
 import enum
+import functools
 import logging
 import time
 import weakref
 from collections import deque
 from collections.abc import Callable, Coroutine, Hashable
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Generic, TypeVar
 
 import anyio
 
-from ..errors import NotConnectedError
+from ..errors import NotConnectedError, RequestTimeoutError
 from .validation import check_real
 
 __all__ = [
+    "SLOW_CALLBACK",
+    "SLOW_SUMMARY_INTERVAL",
     "Broadcast",
     "Listener",
+    "ListenerStats",
     "Reply",
     "RequestTable",
     "Streams",
@@ -54,7 +59,7 @@ class Subscription(Generic[T]):
     garbage collection). A subscription is iterated by one ``async for``; iterating
     it again after leaving the loop ends at once. An abandoned subscription that was
     never iterated is gone as soon as nothing refers to it (the broadcast holds
-    subscriptions weakly). ``async with`` or :meth:`close` unsubscribes explicitly.
+    subscriptions weakly). ``async with`` or `close` unsubscribes explicitly.
     """
 
     __slots__ = ("__weakref__", "_broadcast", "_buffer", "_ended", "_error", "_waiter", "dropped")
@@ -121,29 +126,219 @@ class Subscription(Generic[T]):
         self.close()
 
 
+#: How long a listener's callback may take, seconds, before it is reported as slow
+#: (the default of ``slow=`` in [`Notifier.listen`][chassis_sdk.core.notifier.Notifier.listen]).
+#: Callbacks run in the read path: at 50 Hz per stream, a millisecond is already 5 % of
+#: the loop for one stream, and every message behind it waits.
+SLOW_CALLBACK = 0.001
+#: After a slow callback's first warning, at most one summary of its further slow calls
+#: is logged per this many seconds (so a callback slow on every frame cannot flood the
+#: log); its stats count every one.
+SLOW_SUMMARY_INTERVAL = 10.0
+
+
+@dataclass(frozen=True, slots=True)
+class ListenerStats:
+    """What one listener's callback has cost, as [`Listener.stats`][chassis_sdk.Listener.stats]
+    reports it (a snapshot; times in seconds).
+
+    Attributes:
+        stream: The stream's name (``"telemetry"``, ...), if known.
+        callback: The callback's name (its ``__qualname__``, else its ``repr``).
+        calls: Messages it was called with.
+        total: Time spent in it over all calls.
+        max: Its longest call.
+        slow: Calls that took longer than ``bound``.
+        bound: The time past which a call is slow.
+        error: What it raised, which removed it; ``None`` while it never raised.
+    """
+
+    stream: str | None
+    callback: str
+    calls: int
+    total: float
+    max: float
+    slow: int
+    bound: float
+    error: BaseException | None
+
+    @property
+    def mean(self) -> float:
+        """The mean time of a call, seconds (0 before the first)."""
+        return self.total / self.calls if self.calls else 0.0
+
+
+def _name(callback: Callable[..., object]) -> str:
+    if isinstance(callback, functools.partial):
+        return f"partial({_name(callback.func)})"
+    name = getattr(callback, "__qualname__", None)
+    return name if isinstance(name, str) else repr(callback)
+
+
 class Listener(Generic[T]):
-    """A synchronous subscriber: ``callback(item)`` runs inside :meth:`Broadcast.publish`
-    (in wire order, nothing buffered, no task woken). For recorders and live sinks,
-    which must see every message and cost nothing when absent. Held weakly, as
-    subscriptions are: keep it, and :meth:`close` it to stop listening. A stream that
-    fails (the link lost) does not end it: it is not an iteration that could end."""
+    """A synchronous subscriber: ``callback(item)`` runs inside `Broadcast.publish`
+    (in wire order, nothing buffered, no task woken), so it runs in the device's read
+    path and must be quick. For recorders, bridges and live sinks, which must see every
+    message and cost nothing when absent. Held weakly, as subscriptions are: keep it
+    (a [`Notifier`][chassis_sdk.core.notifier.Notifier] keeps its own), and `close` it
+    to stop listening. A stream that fails (the link lost) does not end it: it is not
+    an iteration that could end.
 
-    __slots__ = ("__weakref__", "_broadcast", "_callback")
+    A callback that raises is removed at once: it gets nothing more, the error is
+    logged once (with its traceback, the callback's name and the stream's) and kept in
+    ``error``, and the other listeners and subscribers still get that message; the link
+    goes on. ``KeyboardInterrupt`` and ``SystemExit`` are not the callback's fault and
+    are not caught: they go on up, as asyncio lets them. Any other ``BaseException``
+    (a ``CancelledError`` from a future the callback looked at, a ``GeneratorExit``)
+    is the callback's failure, handled as above: the read path has no task of the
+    callback's to cancel, and letting it out would end the link.
 
-    def __init__(self, broadcast: Broadcast[T], callback: Callable[[T], None]) -> None:
+    Every call is timed: `stats` gives the calls, the total and longest time, and the
+    calls slower than the bound (``slow``, ``SLOW_CALLBACK`` = 1 ms by default). The
+    first slow call logs a warning naming the callback, its time and the bound; later
+    ones, at most one summary per ``SLOW_SUMMARY_INTERVAL`` (10 s).
+
+    Attributes:
+        stream: The stream's name, if known (for the log and `stats`).
+        error: What the callback raised, which removed it; ``None`` until then.
+    """
+
+    __slots__ = (
+        "__weakref__",
+        "_bound",
+        "_broadcast",
+        "_callback",
+        "_calls",
+        "_joined",
+        "_max",
+        "_pending",
+        "_pending_max",
+        "_slow",
+        "_total",
+        "_warned_at",
+        "_watch",
+        "error",
+        "stream",
+    )
+
+    def __init__(
+        self,
+        broadcast: Broadcast[T],
+        callback: Callable[[T], None],
+        *,
+        slow: float = SLOW_CALLBACK,
+        stream: str | None = None,
+    ) -> None:
         self._broadcast = broadcast
         self._callback = callback
+        self.stream = stream
+        self.error: BaseException | None = None
+        # Calls are counted by the broadcast, once per publish, not once per listener:
+        # this one's are those since it joined (frozen in ``_calls`` when it leaves).
+        self._joined = broadcast._publishes
+        self._calls: int | None = None
+        self._total = 0.0
+        self._max = 0.0
+        self._slow = 0
+        # Publishing looks further only at a call longer than this: min(max, bound),
+        # so one comparison per call keeps both the maximum and the slow count.
+        self._watch = 0.0
+        self._bound = 0.0
+        self._set_bound(slow)
+        self._warned_at: float | None = None
+        self._pending = 0
+        self._pending_max = 0.0
 
-    def _push(self, item: T) -> None:
-        self._callback(item)
+    @property
+    def callback(self) -> Callable[[T], None]:
+        """The callback this listener calls."""
+        return self._callback
+
+    @property
+    def closed(self) -> bool:
+        """Whether it no longer listens: closed, or removed because its callback raised."""
+        return self._calls is not None
+
+    @property
+    def stats(self) -> ListenerStats:
+        """What its callback has cost so far (see [`ListenerStats`][chassis_sdk.ListenerStats])."""
+        calls = self._calls
+        return ListenerStats(
+            stream=self.stream,
+            callback=_name(self._callback),
+            calls=self._broadcast._publishes - self._joined if calls is None else calls,
+            total=self._total,
+            max=self._max,
+            slow=self._slow,
+            bound=self._bound,
+            error=self.error,
+        )
 
     def close(self) -> None:
-        """Stop listening."""
-        self._broadcast._discard_listener(self)
+        """Stop listening, from the next message published (one closed by another
+        callback during a publish still gets that message); safe to call again."""
+        if self._calls is None:
+            self._calls = self._broadcast._publishes - self._joined
+            self._broadcast._discard_listener(self)
+
+    def _set_bound(self, slow: float) -> None:
+        self._bound = check_real(slow, "slow", low=0, low_open=True, unit="s")
+        self._watch = min(self._max, self._bound)
+
+    def _where(self) -> str:
+        return _name(self._callback) + ("" if self.stream is None else f" on {self.stream!r}")
+
+    def _failed(self, error: BaseException) -> None:
+        """Its callback raised ``error``: remove it, keep and count the error, log it."""
+        self.close()
+        self.error = error
+        self._broadcast.listener_errors += 1
+        _log.error(
+            "listener %s raised %s and was removed (it gets no more messages)",
+            self._where(),
+            type(error).__name__,
+            exc_info=error,
+        )
+
+    def _timed(self, took: float, now: float) -> None:
+        """A call took ``took`` s, more than ``_watch``; ``now`` is the clock's."""
+        if took > self._max:
+            self._max = took
+        bound = self._bound
+        self._watch = min(self._max, bound)
+        if took <= bound:
+            return
+        self._slow += 1
+        if self._warned_at is None:
+            self._warned_at = now
+            _log.warning(
+                "listener %s took %.2f ms, over its bound of %g ms: callbacks run in the "
+                "read path, so every message behind it waits (hand slow work off with "
+                "loop.call_soon or a queue)",
+                self._where(),
+                took * 1e3,
+                bound * 1e3,
+            )
+            return
+        self._pending += 1
+        self._pending_max = max(self._pending_max, took)
+        since = now - self._warned_at
+        if since >= SLOW_SUMMARY_INTERVAL:
+            _log.warning(
+                "listener %s: %d more calls over %g ms in the last %.1f s (the longest %.2f ms)",
+                self._where(),
+                self._pending,
+                bound * 1e3,
+                since,
+                self._pending_max * 1e3,
+            )
+            self._warned_at = now
+            self._pending = 0
+            self._pending_max = 0.0
 
 
 class _Iteration(Generic[T]):
-    """What ``async for`` holds while it iterates a :class:`Subscription`; when the
+    """What ``async for`` holds while it iterates a `Subscription`; when the
     loop ends, however it ends, the loop drops it and it ends the subscription."""
 
     __slots__ = ("_next", "_sub")
@@ -168,6 +363,9 @@ class Broadcast(Generic[T]):
 
     Args:
         maxlen: Per-subscriber buffer size (``queue_size`` of the device).
+        name: The stream's name, for its listeners' log lines and stats.
+        clock: What times listeners' callbacks: seconds, monotonic (replaceable in
+            tests).
     """
 
     # Subscribers and listeners are held weakly (an abandoned iterator unsubscribes
@@ -176,23 +374,38 @@ class Broadcast(Generic[T]):
     # (a WeakSet's iterator costs more than a whole decode: docs/figures.md).
     __slots__ = (
         "__weakref__",
+        "_clock",
         "_closed",
         "_error",
         "_listeners",
+        "_publishes",
         "_refs",
         "dropped",
         "latest",
+        "listener_errors",
         "maxlen",
+        "name",
     )
 
-    def __init__(self, maxlen: int) -> None:
+    def __init__(
+        self,
+        maxlen: int,
+        *,
+        name: str | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.maxlen = maxlen
+        self.name = name
+        self._clock = clock
         self._refs: tuple[weakref.ref[Subscription[T]], ...] = ()
         self._listeners: tuple[weakref.ref[Listener[T]], ...] = ()
+        self._publishes = 0  # (that had listeners: how listeners count their calls)
         self._closed = False
         self._error: BaseException | None = None
         #: Messages dropped across all subscribers because one fell behind.
         self.dropped = 0
+        #: Listeners removed because their callback raised.
+        self.listener_errors = 0
         #: The latest message published, or ``None``.
         self.latest: T | None = None
 
@@ -218,10 +431,28 @@ class Broadcast(Generic[T]):
             self._add(sub)
         return sub
 
-    def listen(self, callback: Callable[[T], None]) -> Listener[T]:
+    def listen(
+        self,
+        callback: Callable[[T], None],
+        *,
+        slow: float = SLOW_CALLBACK,
+        stream: str | None = None,
+    ) -> Listener[T]:
         """Call ``callback(item)`` synchronously for every item published from now on,
-        until the returned :class:`Listener` is closed or dropped."""
-        listener = Listener(self, callback)
+        until the returned `Listener` is closed or dropped, or the callback raises.
+
+        Args:
+            callback: Called with each item, inside `publish`.
+            slow: Seconds past which a call is reported as slow.
+            stream: The stream's name for the log and the stats (this broadcast's
+                ``name`` if not given).
+
+        Raises:
+            ValueError: ``slow`` is not a finite number > 0.
+        """
+        listener = Listener(
+            self, callback, slow=slow, stream=self.name if stream is None else stream
+        )
         self._hold(listener, "_listeners")
         return listener
 
@@ -244,15 +475,32 @@ class Broadcast(Generic[T]):
 
     def publish(self, item: T) -> None:
         """Deliver ``item`` to every listener and subscriber (synchronous, never
-        blocks)."""
+        blocks). A listener whose callback raises is removed (see `Listener`); the
+        rest still get ``item``."""
         self.latest = item
-        for ref in self._listeners:
-            listener = ref()
-            if listener is not None:
-                try:
-                    listener._push(item)
-                except Exception:  # a recorder's error must not starve the rest
-                    _log.exception("a listener failed on %r", item)
+        listeners = self._listeners
+        if listeners:
+            # One clock read per call, chained (each call's end is the next one's
+            # start), and one comparison: what Listener._timed does is rare. Floats,
+            # not perf_counter_ns: their freelist makes them the cheaper.
+            self._publishes += 1
+            clock = self._clock
+            start = clock()
+            for ref in listeners:
+                listener = ref()
+                if listener is not None:
+                    try:
+                        listener._callback(item)
+                    except (KeyboardInterrupt, SystemExit):
+                        raise
+                    except BaseException as error:  # the callback's failure: see Listener
+                        listener._failed(error)
+                    end = clock()
+                    took = end - start
+                    start = end
+                    listener._total += took
+                    if took > listener._watch:
+                        listener._timed(took, end)
         for sub_ref in self._refs:
             sub = sub_ref()
             if sub is not None:
@@ -261,7 +509,7 @@ class Broadcast(Generic[T]):
     def fail(self, error: BaseException | None) -> None:
         """End every subscription after its buffered items: with ``error`` raised, or,
         if it is ``None``, with a normal end of iteration. Later subscriptions end the
-        same way at once, until :meth:`reopen`. Listeners stay (they are not
+        same way at once, until `reopen`. Listeners stay (they are not
         iterations that could end)."""
         self._closed = True
         self._error = error
@@ -273,7 +521,7 @@ class Broadcast(Generic[T]):
             sub._finish(copy.copy(error))
 
     def reopen(self) -> None:
-        """Accept subscribers again (after :meth:`fail`, on a new connection)."""
+        """Accept subscribers again (after `fail`, on a new connection)."""
         self._closed = False
         self._error = None
 
@@ -297,7 +545,8 @@ async def first_match(
     at, so nothing in between is missed); ``what`` and ``port`` are for the errors.
 
     Raises:
-        TimeoutError: None did within ``timeout`` seconds.
+        RequestTimeoutError: None did within ``timeout`` seconds (a
+            [`ChassisError`][chassis_sdk.ChassisError] that is also a `TimeoutError`).
         ValueError: ``timeout`` is not a finite number > 0.
         NotConnectedError: The device was closed meanwhile.
     """
@@ -311,7 +560,7 @@ async def first_match(
                 if predicate(item):
                     return item
             raise NotConnectedError(f"{port} was closed while waiting")
-    raise TimeoutError(f"{port}: no {what} satisfied the condition in {timeout:g} s")
+    raise RequestTimeoutError(f"{port}: no {what} satisfied the condition in {timeout:g} s")
 
 
 class Streams:
@@ -328,7 +577,7 @@ class Streams:
     def new(self, name: str | None = None) -> Broadcast[Any]:
         """A new stream of this device; ``name`` (its method's name, such as
         ``"telemetry"``) makes it a topic of recordings and live views."""
-        stream: Broadcast[Any] = Broadcast(self.maxlen)
+        stream: Broadcast[Any] = Broadcast(self.maxlen, name=name)
         self._all.append(stream)
         if name is not None:
             if name in self.named:
@@ -342,7 +591,7 @@ class Streams:
             stream.reopen()
 
     def fail(self, error: BaseException | None) -> None:
-        """End every subscription of every stream (see :meth:`Broadcast.fail`)."""
+        """End every subscription of every stream (see `Broadcast.fail`)."""
         for stream in self._all:
             stream.fail(error)
 
@@ -353,7 +602,7 @@ class Streams:
 
 
 class Reply(enum.Enum):
-    """What :meth:`RequestTable.resolve` made of a reply."""
+    """What `RequestTable.resolve` made of a reply."""
 
     MATCHED = "matched"  #: given to the call waiting for it
     LATE = "late"  #: the answer to a request whose call already gave up: dropped
@@ -447,7 +696,7 @@ class RequestTable(Generic[K, T]):
     to the previous call's second attempt). So every reply's latency is measured (from
     the write of the oldest request still waiting for one: replies come back in order),
     and a key with replies in flight stays out of use until ``quarantine`` after its
-    release *and* :data:`LATENCY_MARGIN` times the worst latency seen after its last
+    release *and* `LATENCY_MARGIN` times the worst latency seen after its last
     write. The first late reply of a slow device teaches the table that latency, and
     extends the quarantine of the replies still behind it at once.
 
@@ -507,7 +756,7 @@ class RequestTable(Generic[K, T]):
         it and for its quarantine to end; return the future the call's reply resolves.
 
         Raises:
-            BaseException: What :meth:`fail_all` was given, if it ran meanwhile.
+            BaseException: What `fail_all` was given, if it ran meanwhile.
         """
         slot = self._slots.get(key)
         if slot is None:
@@ -537,7 +786,7 @@ class RequestTable(Generic[K, T]):
         return call
 
     async def wait(self, key: K, call: asyncio.Future[T], timeout: float) -> bool:
-        """Wait up to ``timeout`` seconds for ``call`` (the future :meth:`acquire` gave
+        """Wait up to ``timeout`` seconds for ``call`` (the future `acquire` gave
         for ``key``) to be answered or failed; return whether it was. The call's future
         is left as it is on a timeout, so a reply to this attempt still answers a later
         one. Like ``asyncio.wait((call,), timeout=...)``, but the reply wakes the waiting

@@ -2,15 +2,17 @@
 ``Notifier``: its raw traffic both ways, every message of its named streams, and its
 connection states, each delivered synchronously on the event loop as it happens.
 
-Recorders, bridges and live views observe a device through this and through the
-device's public methods, never through its private attributes::
+It is the way to receive a stream by callback, for applications as for the SDK's own
+recorders and bridges, which observe a device through this and through the device's
+public methods, never through its private attributes::
 
-    from chassis_sdk.core.notifier import Notifier
+    from chassis_sdk import Notifier
 
     with Notifier(robot) as notifier:
-        notifier.listen("telemetry", lambda t: print(t.voltage))
+        voltage = notifier.listen("telemetry", lambda t: print(t.voltage))
         notifier.add_tap(my_byte_logger)  # rx(data, now) / tx(frame, now)
         await robot.set_velocity(0.2, 0.0)
+        print(voltage.stats)  # calls, time spent, slow calls, error
     # leaving the block (or close()) removes everything it added
 """
 
@@ -20,7 +22,7 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Self
 
-from .dispatch import Listener
+from .dispatch import SLOW_CALLBACK, Listener, ListenerStats
 from .supervisor import ConnectionState
 
 if TYPE_CHECKING:
@@ -31,15 +33,41 @@ __all__ = ["Notifier"]
 
 
 class Notifier:
-    """Delivers what happens on one device to taps and callbacks until :meth:`close`.
+    """Delivers what happens on one device to taps and callbacks until `close`.
 
-    Every callback runs synchronously inside the device's receive path (in wire
-    order, nothing buffered, no task woken): it must be quick and must not raise.
-    The device keeps the notifier until :meth:`close`, so nothing it added is lost to
-    the collector whether or not the caller keeps a reference.
+    Every callback runs synchronously inside the device's read path (in wire order,
+    nothing buffered, no task woken), so it must be quick: never block, never wait
+    for I/O, and hand anything slow to the loop (``loop.call_soon``) or to a queue
+    that a task drains. In exchange it costs a fraction of what waking an ``async
+    for`` does per message.
+
+    A listener's callback that raises is removed at once (it gets nothing more), the
+    error logged once with its traceback and kept in its handle's ``error``; the
+    other callbacks and subscribers still get that message and the link goes on.
+    Each call is timed: one longer than ``slow`` (1 ms by default) logs a warning,
+    then at most one summary per 10 s; `listener_stats` says what each costs.
+    ``KeyboardInterrupt`` and ``SystemExit`` raised in a callback go on up.
+
+    The device keeps the notifier until `close`, so nothing it added is lost to the
+    collector whether or not the caller keeps a reference.
 
     Args:
         device: The device to watch (connected or not; it goes on across reconnects).
+
+    Example:
+        ```python
+        import asyncio
+        from chassis_sdk import Chassis, Notifier, Telemetry
+
+        async def main() -> None:
+            frames: asyncio.Queue[Telemetry] = asyncio.Queue()
+            async with Chassis("/dev/ttyUSB0") as robot:
+                with Notifier(robot) as notifier:
+                    listener = notifier.listen("telemetry", frames.put_nowait)
+                    for _ in range(100):
+                        print((await frames.get()).voltage)
+                    print(listener.stats.calls, listener.stats.max)
+        ```
     """
 
     def __init__(self, device: Session[Any, Any]) -> None:
@@ -56,18 +84,35 @@ class Notifier:
 
     def add_tap(self, tap: Tap) -> None:
         """Let ``tap`` see every byte of the device's link, both ways: ``tap.rx(data,
-        now)`` for each chunk received (or :meth:`~chassis_sdk.core.session.Session.feed`),
+        now)`` for each chunk received (or [`feed`][chassis_sdk.Board.feed]),
         ``tap.tx(frame, now)`` for each frame as it begins to leave; ``now`` is
         ``time.monotonic()``."""
         self.device._link.add_tap(tap)
         self._taps.append(tap)
 
-    def listen(self, stream: str, callback: Callable[[Any], None]) -> None:
+    def listen(
+        self, stream: str, callback: Callable[[Any], None], *, slow: float = SLOW_CALLBACK
+    ) -> Listener[Any]:
         """Call ``callback(message)`` for every message of the stream named ``stream``
-        (see :attr:`stream_names`), from now on.
+        (see [`stream_names`][chassis_sdk.core.notifier.Notifier.stream_names]), from now
+        on, inside the read path, until `close` (of the handle or of this notifier) or
+        until the callback raises.
+
+        Args:
+            stream: The stream's name, such as ``"telemetry"``.
+            callback: Called with each message; quick, never blocking.
+            slow: Seconds past which a call is reported as slow (a warning in the log,
+                counted in the handle's ``stats``).
+
+        Returns:
+            The listener's handle (a ``Listener``): ``close()`` stops this callback
+            alone; ``stats`` (a ``ListenerStats``) gives its calls, the time spent, its
+            slow calls and the error that removed it; ``closed`` says whether it
+            still listens. This notifier keeps it: it need not be kept.
 
         Raises:
-            ValueError: The device has no stream of that name.
+            ValueError: The device has no stream of that name, or ``slow`` is not a
+                finite number > 0.
         """
         named = self.device._streams.named
         found = named.get(stream)
@@ -75,11 +120,41 @@ class Notifier:
             raise ValueError(
                 f"{self.device.device_name} has no stream {stream!r}; it has: {', '.join(named)}"
             )
-        self._listeners.append(found.listen(callback))
+        listener = found.listen(callback, slow=slow, stream=stream)
+        self._listeners.append(listener)
+        return listener
 
-    def listen_states(self, callback: Callable[[ConnectionState], None]) -> None:
-        """Call ``callback(state)`` on every :class:`ConnectionState` change."""
-        self._listeners.append(self.device._link.states.listen(callback))
+    def listen_states(
+        self, callback: Callable[[ConnectionState], None], *, slow: float = SLOW_CALLBACK
+    ) -> Listener[ConnectionState]:
+        """Call ``callback(state)`` on every `ConnectionState` change; as `listen`
+        (its stream is named ``"connection_states"`` in the log and the stats).
+
+        Raises:
+            ValueError: ``slow`` is not a finite number > 0.
+        """
+        listener = self.device._link.states.listen(callback)
+        try:
+            listener._set_bound(slow)
+        except BaseException:
+            listener.close()
+            raise
+        listener.stream = "connection_states"
+        self._listeners.append(listener)
+        return listener
+
+    @property
+    def listeners(self) -> tuple[Listener[Any], ...]:
+        """The handles of every callback added by `listen` and `listen_states` until
+        `close`, in order, including those removed because they raised."""
+        return tuple(self._listeners)
+
+    @property
+    def listener_stats(self) -> list[ListenerStats]:
+        """What each callback of `listeners` has cost so far: one ``ListenerStats``
+        each (stream, callback name, calls, total and longest time in seconds, slow
+        calls, bound, and the error that removed it)."""
+        return [listener.stats for listener in self._listeners]
 
     def close(self) -> None:
         """Remove every tap and listener this notifier added (safe to call again)."""

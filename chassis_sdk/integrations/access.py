@@ -1,9 +1,9 @@
 """Who may reach a server the SDK runs for browsers and apps (the Foxglove server's
 front, the web dashboard): loopback, origins and tokens, checked one way for both.
 
-A server beyond loopback needs a token (:func:`check_token`: long enough not to be
+A server beyond loopback needs a token (`check_token`: long enough not to be
 guessed over the network, printable ASCII, compared in constant time by the caller); a
-WebSocket handshake's ``Origin`` is compared by :func:`origin_key` (RFC 6455 §10.2: a
+WebSocket handshake's ``Origin`` is compared by `origin_key` (RFC 6455 §10.2: a
 page in the operator's browser must not reach the robot unless it is let in).
 """
 
@@ -44,7 +44,7 @@ def origin_key(origin: str) -> str:
 
 
 def check_allowed_origin(origin: object) -> str:
-    """``origin`` as compared (:func:`origin_key`), if it may be let in.
+    """``origin`` as compared (`origin_key`), if it may be let in.
 
     Raises:
         ValueError: Not ``scheme://host[:port]``, or ``null`` or ``*`` (any page).
@@ -72,11 +72,12 @@ def check_token(token: object) -> str:
     """``token``, if it is one a server may require.
 
     Raises:
-        ValueError: Not a string, shorter than :data:`MIN_TOKEN_LENGTH`, or not
-            printable ASCII without spaces.
+        TypeError: Not a string.
+        ValueError: Shorter than `MIN_TOKEN_LENGTH`, or not printable ASCII
+            without spaces.
     """
     if not isinstance(token, str):
-        raise ValueError("token must be a string")
+        raise TypeError("token must be a string")
     if len(token) < MIN_TOKEN_LENGTH:
         raise ValueError(f"token must be at least {MIN_TOKEN_LENGTH} characters")
     if not all(33 <= ord(c) <= 126 for c in token):

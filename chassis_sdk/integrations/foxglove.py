@@ -1,6 +1,6 @@
 """Serve one device live to the Foxglove app over its WebSocket protocol.
 
-Every topic of :mod:`chassis_sdk.recording.sink` goes out as it happens (decoded
+Every topic of `chassis_sdk.recording.sink` goes out as it happens (decoded
 streams, odometry pose and ``/tf``, events, link state, raw bytes), and the app can:
 
 * call the services ``stop``, ``emergency_stop``, ``release_emergency_stop`` and
@@ -14,11 +14,11 @@ streams, odometry pose and ``/tf``, events, link state, raw bytes), and the app 
   than a Twist, it stops at once.
 
 A message that is not a well-formed Twist of finite numbers (read strictly by
-:func:`chassis_sdk.integrations.inbound.command_object`: UTF-8 only, no duplicate keys, bounded
+`chassis_sdk.integrations.inbound.command_object`: UTF-8 only, no duplicate keys, bounded
 size, depth and numbers) is refused, counted, logged and reported to the app as a
-warning status (rate-limited and summarised by :class:`chassis_sdk.integrations.inbound.Refusals`);
+warning status (rate-limited and summarised by `chassis_sdk.integrations.inbound.Refusals`);
 it never moves the robot. No message can make a callback fail unreported: any error in
-one is caught, counted in :attr:`FoxgloveServer.errors` and reported the same way.
+one is caught, counted in `FoxgloveServer.errors` and reported the same way.
 
 Who may connect
 ---------------
@@ -41,8 +41,8 @@ expose, to any local user or program (loopback is open to every account, and
 calls ``stop`` and ``emergency_stop``.
 
 The front relays only text frames that are JSON objects (others are refused and
-reported), and at most :data:`MAX_CLIENT_CHANNELS` client channels per connection.
-Leaving the server (``async with``, :meth:`FoxgloveServer.aclose`) first stops a robot
+reported), and at most `MAX_CLIENT_CHANNELS` client channels per connection.
+Leaving the server (``async with``, `FoxgloveServer.aclose`) first stops a robot
 a Teleop client was driving, then shuts down the front and foxglove-sdk's server in
 worker threads, so a client that does not read cannot block the event loop.
 
@@ -51,13 +51,13 @@ protocol formerly called ``foxglove.websocket.v1``; the messages are the same).
 
 How it is built
 ---------------
-:class:`FoxgloveServer` is the one object its user talks to, and it holds the server's
+`FoxgloveServer` is the one object its user talks to, and it holds the server's
 lifetime: foxglove-sdk's server on its private address, the front, the recording or
 sink, and leaving them in order. Its collaborators do the rest, by job: the front and
-the handshake's Origin and token checks (:mod:`~chassis_sdk.integrations.foxglove_front`),
-the counts and reports of what was refused (:mod:`~chassis_sdk.integrations.foxglove_reports`),
+the handshake's Origin and token checks (`foxglove_front`),
+the counts and reports of what was refused (`foxglove_reports`),
 and what the app's clients may do, the services and the Teleop channels
-(:class:`_Channels` and :class:`_Services`, here).
+(`_Channels` and `_Services`, here).
 """
 
 from __future__ import annotations
@@ -137,19 +137,19 @@ class FoxgloveServer:
     """One connected device, served live to the Foxglove app (see the module docstring).
 
     Use ``async with FoxgloveServer(robot) as server:`` inside ``async with robot:``;
-    the address to open in the app is :attr:`url`.
+    the address to open in the app is [`url`][chassis_sdk.integrations.foxglove.FoxgloveServer.url].
 
     Args:
         device: A device (connected, or about to be: the server follows its link).
         host: Address to bind; ``127.0.0.1`` (default) serves this computer only.
-        port: TCP port; 0 picks a free one (:attr:`port` says which).
+        port: TCP port; 0 picks a free one (`port` says which).
         read_only: Take no velocity and offer only ``stop`` and ``emergency_stop``.
         record: Also record the session to this ``.mcap`` file, by
-            :class:`~chassis_sdk.recording.McapRecording` (compressed, flushed every
+            [`McapRecording`][chassis_sdk.recording.mcap.McapRecording] (compressed, flushed every
             second: a hard kill loses at most the last second).
         name: The server's name, as the app shows it.
         allow_origins: ``Origin`` values let in besides no ``Origin`` and
-            :data:`APP_ORIGINS` (``scheme://host[:port]``, e.g. a self-hosted Lichtblick).
+            `APP_ORIGINS` (``scheme://host[:port]``, e.g. a self-hosted Lichtblick).
         token: A secret every client must give: as the query parameter ``token``
             (``ws://robot:8765/?token=...``: the only way the app's browser can), or as
             ``Authorization: Bearer ...``. At least 16 printable ASCII characters. It is
@@ -443,7 +443,7 @@ class _Channels:
         return driving
 
     async def close(self) -> None:
-        """:meth:`end`; if a Teleop client was driving, stop the robot now."""
+        """`end`; if a Teleop client was driving, stop the robot now."""
         if self.end() and not self._owner.read_only:
             await self._stop_robot()
             handing = self.handing
@@ -455,7 +455,7 @@ class _Channels:
                 await self._stop_robot()
 
     def close_soon(self) -> None:
-        """:meth:`end`; if a Teleop client was driving, queue a stop in the loop."""
+        """`end`; if a Teleop client was driving, queue a stop in the loop."""
         if self.end() and not self._owner.read_only:
             self._in_loop(self._stop_now)
 
@@ -634,8 +634,8 @@ class _Services:
         self._channels = channels
 
     def offered(self) -> list[Any]:
-        """foxglove-sdk's services to offer: those of :data:`SERVICES` (or, read-only,
-        :data:`SAFE_SERVICES`) that the device has."""
+        """foxglove-sdk's services to offer: those of `SERVICES` (or, read-only,
+        `SAFE_SERVICES`) that the device has."""
         wanted = SAFE_SERVICES if self._owner.read_only else SERVICES
         device = self._owner.device
         return [self._service(n) for n in wanted if callable(getattr(device, n, None))]

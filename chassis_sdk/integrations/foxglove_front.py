@@ -1,16 +1,16 @@
-"""Who may reach a :class:`~chassis_sdk.integrations.foxglove.FoxgloveServer`: the
+"""Who may reach a [`FoxgloveServer`][chassis_sdk.integrations.foxglove.FoxgloveServer]: the
 access options, the handshake's checks and the WebSocket front.
 
 foxglove-sdk's server has no hook to look at a handshake, so it is bound to a private
-loopback address (:func:`private_loopback`) and port, and :class:`Front` (on the
+loopback address (`private_loopback`) and port, and `Front` (on the
 ``websockets`` package, in a thread and event loop of its own) takes the connections on
-the address asked for. :class:`Gate` checks each handshake before anything reaches the
-protocol: the ``Origin`` header (no ``Origin``, :data:`APP_ORIGINS` and each
+the address asked for. `Gate` checks each handshake before anything reaches the
+protocol: the ``Origin`` header (no ``Origin``, `APP_ORIGINS` and each
 ``allow_origins`` entry are let in, anything else gets HTTP 403) and, with a token, the
 token (HTTP 401 without it). Then the front relays the frames both ways, keeping the
-client's channel ids honest (:func:`rewrite`), and proves each relayed connection to
-the server with a secret, on a channel of its own (:data:`HELLO_ID`). See the module
-docstring of :mod:`chassis_sdk.integrations.foxglove` for why.
+client's channel ids honest (`rewrite`), and proves each relayed connection to
+the server with a secret, on a channel of its own (`HELLO_ID`). See the module
+docstring of `chassis_sdk.integrations.foxglove` for why.
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def check_access(
     token: str | None = None,
     allow_no_token: bool = False,
 ) -> frozenset[str]:
-    """Check :class:`FoxgloveServer`'s access options (as it does), before anything
+    """Check `FoxgloveServer`'s access options (as it does), before anything
     opens; return the origins let in.
 
     Raises:
@@ -144,7 +144,7 @@ class Gate:
     """The handshake's checks: the ``Origin`` header, and the token if there is one.
 
     Args:
-        allowed: The origins let in (from :func:`check_access`), besides none.
+        allowed: The origins let in (from `check_access`), besides none.
         token: The token every client must give, or ``None``.
     """
 
@@ -226,7 +226,7 @@ class Front:
 
     def join(self, timeout: float) -> None:
         """Wait up to ``timeout`` for the front's thread to end (it closes within about
-        :data:`FRONT_TIMEOUT` of :meth:`signal_stop`, whatever the clients do)."""
+        `FRONT_TIMEOUT` of `signal_stop`, whatever the clients do)."""
         thread = self._thread
         if thread is not None:
             thread.join(timeout)
@@ -380,7 +380,7 @@ def rewrite(
     encoding or schema goes as an ``unadvertise`` of the id, then the ``advertise``:
     the server's view follows the client's (and a Twist channel that changes stops the
     robot at once). One that changes nothing is dropped, as the server would ignore it.
-    A new channel past :data:`MAX_CLIENT_CHANNELS` of the connection is refused. The
+    A new channel past `MAX_CLIENT_CHANNELS` of the connection is refused. The
     front's reserved id is taken out. Any other JSON object goes unchanged.
 
     Args:

@@ -1,7 +1,7 @@
-"""What a :class:`~chassis_sdk.integrations.foxglove.FoxgloveServer` refused, and the
+"""What a [`FoxgloveServer`][chassis_sdk.integrations.foxglove.FoxgloveServer] refused, and the
 errors caught in its callbacks: counted, logged and shown to the app as a warning
-status, rate-limited and summarised by :class:`~chassis_sdk.integrations.inbound.Refusals`
-(at most one report per :data:`REPORT_INTERVAL` of each kind, the ones in between
+status, rate-limited and summarised by `Refusals`
+(at most one report per `REPORT_INTERVAL` of each kind, the ones in between
 summarised; the front sends what is pending every so often, and on leaving).
 
 Called from foxglove-sdk's threads, the front's and the event loop's: every count and

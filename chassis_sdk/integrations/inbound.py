@@ -10,14 +10,14 @@ is lenient in ways that matter there: ``json.loads(bytes)`` guesses UTF-16 and U
 (RFC 8259 §8.1 allows UTF-8 only), takes the last of duplicate keys silently, accepts
 ``NaN`` and ``Infinity``, raises ``RecursionError`` for deep nesting and a bare
 ``ValueError`` for an integer of more than 4,300 digits (neither a ``JSONDecodeError``).
-:func:`command_object` closes every one of those: whatever the payload, it returns a
-JSON object or raises :class:`CommandError` with one line saying why, in time bounded by
+`command_object` closes every one of those: whatever the payload, it returns a
+JSON object or raises `CommandError` with one line saying why, in time bounded by
 the payload's size limit.
 
 A refusal must be reported, but a flood of junk must not turn into a flood of reports
 that throttles the commands behind it (an MQTT QoS 1 report per refusal ran at about
 1,500 a second, and 50,000 junk messages held an e-stop up for half a minute).
-:class:`Refusals` counts every refusal and says when to report: the first at once, then
+`Refusals` counts every refusal and says when to report: the first at once, then
 at most one summary per interval with the count and the reasons.
 """
 
@@ -41,10 +41,27 @@ __all__ = [
     "RefusalReport",
     "Refusals",
     "check_fresh",
+    "check_topic_level",
     "command_number",
     "command_object",
     "command_time",
 ]
+
+
+def check_topic_level(value: object, name: str) -> str:
+    """``value`` if it is one MQTT topic level a robot may be named by: letters, digits,
+    ``-`` or ``_`` (``/``, ``#`` and ``+`` would make other topics or wildcards).
+
+    Raises:
+        TypeError: Not a string.
+        ValueError: Empty, or another character.
+    """
+    if not isinstance(value, str):
+        raise TypeError(f"{name} must be a string, got {value!r}")
+    if not value or not all(c.isalnum() or c in "-_" for c in value):
+        raise ValueError(f"{name} must be letters, digits, '-' or '_', got {value!r}")
+    return value
+
 
 #: The largest command payload read, in bytes (a velocity command is about 40).
 MAX_COMMAND_BYTES = 4096
@@ -125,7 +142,7 @@ def command_object(raw: object, *, limit: int = MAX_COMMAND_BYTES) -> dict[str, 
 
 def command_number(body: dict[str, Any], key: str, name: str | None = None) -> float:
     """``body[key]`` as a finite ``float`` (checked as every number from a caller is,
-    by :func:`~chassis_sdk.core.validation.check_real`).
+    by [`check_real`][chassis_sdk.core.validation.check_real]).
 
     Raises:
         CommandError: Missing, not a number (a ``bool`` is not), or not finite; the
@@ -133,7 +150,7 @@ def command_number(body: dict[str, Any], key: str, name: str | None = None) -> f
     """
     try:
         return check_real(body.get(key), key if name is None else name)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise CommandError(str(exc)[:_MAX_REASON_CHARS]) from None
 
 
@@ -220,8 +237,8 @@ class Refusals:
     """Counts refusals and decides when to report them: the first at once, then at most
     one report per ``interval`` summarising those in between.
 
-    Call :meth:`add` for each refusal (it returns a report when one is due now), and
-    :meth:`due` from time to time (every ``interval``) to send what is pending.
+    Call `add` for each refusal (it returns a report when one is due now), and
+    `due` from time to time (every ``interval``) to send what is pending.
 
     Args:
         interval: The least time between two reports, seconds.

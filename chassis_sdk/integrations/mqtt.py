@@ -1,4 +1,4 @@
-"""Robots on an MQTT broker: :class:`MqttBridge` puts one device on a broker the user
+"""Robots on an MQTT broker: `MqttBridge` puts one device on a broker the user
 already runs, with the deadman kept end to end.
 
 Topics (``{p}`` the prefix, ``{id}`` the robot id; payloads JSON, SI units, field names
@@ -38,7 +38,7 @@ disconnects with reason 0x04, "with Will Message").
 
 Messages come from a network the robot does not control, so nothing about one may
 end the bridge, and no rate of them may delay a stop. Both are settled where a
-message enters: the client's incoming queue is a :class:`CommandInbox`, and each
+message enters: the client's incoming queue is a `CommandInbox`, and each
 message is sorted as paho hands it over, in bounded work, before anything waits:
 
 - junk, a retained command, a stale one, an unknown topic: refused there and then
@@ -60,24 +60,26 @@ process, random) that it puts in its ``connection`` payload; before it acts on a
 command it publishes ``ONLINE`` and reads the topic back (commands routed before its
 ``ONLINE`` are dropped: they may have reached the previous owner; those after it are
 held): if the message before its own says another owner is ``ONLINE``, it drops what
-it held, puts that message back and refuses to start (:class:`RobotIdTaken`), unless
+it held, puts that message back and refuses to start (`RobotIdTaken`), unless
 it was told to take over. A running bridge that sees a
 take-over stops taking commands at once (in the order the broker delivered them, so
 no command routed to the new bridge reaches the old one), stops its robot and ends
-with :class:`RobotIdTaken`.
+with `RobotIdTaken`.
 
 How it is built
 ---------------
-:class:`MqttBridge` is the one object its user talks to, and it holds the bridge's
+`MqttBridge` is the one object its user talks to, and it holds the bridge's
 lifetime: entering the client, the task group its loops run in, the stop of the robot
 whatever the end, ``OFFLINE`` on a clean stop and the disconnect with reason 0x04 on
 an error of its own. Its collaborators do the rest, by job, and read its options as
-they are: the :class:`CommandInbox` and its lanes
-(:mod:`~chassis_sdk.integrations.mqtt_inbox`), the publishing side
-(:mod:`~chassis_sdk.integrations.mqtt_publish`: the retained topics, telemetry,
-events, ``errors`` and the last will), the robot id's ownership
-(:mod:`~chassis_sdk.integrations.mqtt_ownership`) and the command side
-(:mod:`~chassis_sdk.integrations.mqtt_commands`: sorting, velocity, stop, e-stop and
+they are: the `CommandInbox` and its lanes
+(`mqtt_inbox`), the publishing side
+(`mqtt_publish`: the retained topics, telemetry,
+events, ``errors`` and the last will; what the device produces reaches it by callback,
+inside the device's read path, and one task publishes it all, however many streams),
+the robot id's ownership
+(`mqtt_ownership`) and the command side
+(`mqtt_commands`: sorting, velocity, stop, e-stop and
 requests).
 """
 
@@ -85,7 +87,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
 import logging
 from collections.abc import Callable, Coroutine
 from typing import Any
@@ -102,6 +103,7 @@ from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
 from ..errors import ChassisError
 from .inbound import CommandError as CommandError  # re-exported: it was defined here
+from .inbound import check_topic_level
 from .mqtt_commands import REQUEST_WORKERS, Commands
 from .mqtt_inbox import CommandInbox, install_inbox
 from .mqtt_ownership import Ownership, RobotIdTaken, new_owner
@@ -140,20 +142,20 @@ class MqttBridge:
             ``will=connection_will(robot_id, prefix, owner)``, MQTT 5
             (``protocol=aiomqtt.ProtocolVersion.V5``), a clean start, a client id of
             its own (two bridges must never share one) and ``queue_type=CommandInbox``:
-            the bridge enters it in :meth:`run`.
+            the bridge enters it in `run`.
         robot_id: The robot's name under the prefix (letters, digits, ``-``, ``_``).
         prefix: The first topic level.
         rate: Most telemetry messages per stream per second (the latest, never a
             backlog).
         read_only: Never subscribe to commands (requests are still answered).
         owner: This bridge's owner id, published in ``connection`` (default: a new
-            :func:`new_owner`). Keep one across reconnects of one service.
+            `new_owner`). Keep one across reconnects of one service.
         take_over: Start even if another bridge is ``ONLINE`` for this robot id; that
             bridge stops its robot and ends.
         require_timestamp: Refuse velocity commands and e-stop releases without a
             ``timestamp``.
         max_age: The oldest a command may be, by its ``timestamp`` (seconds; plus
-            :data:`chassis_sdk.integrations.inbound.TIMESTAMP_SKEW`); default the device's
+            `chassis_sdk.integrations.inbound.TIMESTAMP_SKEW`); default the device's
             ``command_timeout`` (0.5 if it has none). A stamped velocity command holds
             only until its stamp plus ``command_timeout`` (plus the skew), by this
             computer's clock: its age is never given back to it.
@@ -179,9 +181,8 @@ class MqttBridge:
         max_age: float | None = None,
         report_interval: float = 1.0,
     ) -> None:
-        for name, value in (("robot_id", robot_id), ("prefix", prefix)):
-            if not value or not all(c.isalnum() or c in "-_" for c in value):
-                raise ValueError(f"{name} must be letters, digits, '-' or '_', got {value!r}")
+        check_topic_level(robot_id, "robot_id")
+        check_topic_level(prefix, "prefix")
         rate = check_real(rate, "rate", low=0, low_open=True, high=100, unit="per second")
         #: The device's deadman: a stamped command holds until its stamp plus this.
         self.deadman = _deadman(device)
@@ -213,6 +214,13 @@ class MqttBridge:
     def rejected(self) -> int:
         """Messages refused so far (each counted; reported on ``errors``, summarised)."""
         return self._out.refusals.total
+
+    @property
+    def unpublished(self) -> int:
+        """Events and link states dropped unpublished (the oldest first) because the
+        broker fell more than the device's ``queue_size`` behind them. Telemetry is
+        never counted: each stream publishes its newest message, by design."""
+        return self._out.unpublished
 
     @property
     def online(self) -> bool:
@@ -247,7 +255,7 @@ class MqttBridge:
 
         Raises:
             aiomqtt.MqttError: The broker connection failed or was lost; the robot was
-                stopped first. Call :meth:`run` again with a new client to resume.
+                stopped first. Call `run` again with a new client to resume.
             RobotIdTaken: Another bridge is ``ONLINE`` for this robot id (this one
                 never took a command), or it took over (this one stopped its robot).
         """
@@ -305,23 +313,21 @@ class MqttBridge:
             ("commands", self._commands),
             ("owner", self._ownership.watch),
             ("errors", self._out.reporter),
-            ("link", self._out.link_states),
-            ("events", self._events),
+            # One task publishes everything that goes out (link, events, telemetry of
+            # every stream), fed by the device's callbacks: none per stream.
+            ("publish", self._events),
         ]
-        loops += [(f"requests {n}", self._in.answer_requests) for n in range(REQUEST_WORKERS)]
-        return loops + [
-            (stream, functools.partial(self._out.telemetry, stream))
-            for stream in self.profile.remote.streams
-        ]
+        return loops + [(f"requests {n}", self._in.answer_requests) for n in range(REQUEST_WORKERS)]
 
-    # The commands and events loops keep their names on the bridge: a test drives the
-    # first with a client of its own, and puts a failing second in.
+    # The commands and publishing loops keep their names on the bridge: a test drives
+    # the first with a client of its own, and puts a failing second in (``_events``:
+    # the name it had when it published only the events).
 
     async def _commands(self) -> None:
         await self._in.consume(_VELOCITY_PERIOD)
 
     async def _events(self) -> None:
-        await self._out.events()
+        await self._out.run()
 
     async def _fail_loudly(self) -> None:
         """The bridge ends on an error of its own: tell the fleet. A DISCONNECT with

@@ -1,19 +1,19 @@
 """A bridge's command side: what it does with the messages it takes in.
 
-Each message is sorted as paho hands it over (:meth:`Commands.sort`, the
-:class:`~chassis_sdk.integrations.mqtt_inbox.CommandInbox`'s ``sort``), in bounded
+Each message is sorted as paho hands it over (`Commands.sort`, the
+`CommandInbox`'s ``sort``), in bounded
 work, before anything waits: junk, a retained command, a stale one, an unknown topic
 is refused there and then (counted, reported on ``errors``), never queued; stops and
 e-stops take their lane (and cancel the velocity command before them), a velocity
 command the one slot, a request the short queue its workers serve. Then
-:meth:`Commands.consume` acts on the commands in the inbox's order (at most one
+`Commands.consume` acts on the commands in the inbox's order (at most one
 velocity command per period, each one command under the device's deadman), and
-:meth:`Commands.answer_requests` answers the requests (MQTT 5 request/response), so a
+`Commands.answer_requests` answers the requests (MQTT 5 request/response), so a
 slow request never holds a command up. Nothing is acted on before the bridge owns the
 robot id, nor after another bridge took it over
-(:class:`~chassis_sdk.integrations.mqtt_ownership.Ownership`).
+(`Ownership`).
 
-:class:`Commands` is :class:`~chassis_sdk.integrations.mqtt.MqttBridge`'s collaborator
+`Commands` is `MqttBridge`'s collaborator
 for this: it reads the bridge's client, device, profile and options (``read_only``,
 ``require_timestamp``, ``max_age``, ``deadman``) as they are when it acts.
 """

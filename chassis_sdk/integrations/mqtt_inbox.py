@@ -1,11 +1,11 @@
 """A bridge's incoming queue: each message sorted into its lane as paho hands it over.
 
-:class:`CommandInbox` is the ``queue_type`` of a bridge's ``aiomqtt.Client``; its
-:class:`Lanes` hold what is pending, by kind (stops and e-stops first, one slot for the
+`CommandInbox` is the ``queue_type`` of a bridge's ``aiomqtt.Client``; its
+`Lanes` hold what is pending, by kind (stops and e-stops first, one slot for the
 newest velocity command, a short queue of requests), so memory stays bounded and a stop
 is served before anything else, whatever the rate of messages. The sorting itself is the
-bridge's (:class:`~chassis_sdk.integrations.mqtt.MqttBridge`); see the module docstring
-of :mod:`chassis_sdk.integrations.mqtt` for what goes where.
+bridge's (`MqttBridge`); see the module docstring
+of `chassis_sdk.integrations.mqtt` for what goes where.
 """
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ class Lanes:
 
 class CommandInbox(asyncio.Queue[aiomqtt.Message]):
     """The incoming queue of a bridge's client (aiomqtt's ``queue_type``): each message
-    is sorted as it arrives, by :class:`~chassis_sdk.integrations.mqtt.MqttBridge`, so
+    is sorted as it arrives, by `MqttBridge`, so
     memory stays bounded and a stop is served before anything else, whatever the rate
     of messages.
 
@@ -166,7 +166,7 @@ class CommandInbox(asyncio.Queue[aiomqtt.Message]):
 
 
 def install_inbox(client: aiomqtt.Client) -> CommandInbox:
-    """The client's :class:`CommandInbox`: its own, or one put in place of aiomqtt's
+    """The client's `CommandInbox`: its own, or one put in place of aiomqtt's
     default queue (which must be empty: the client is not entered yet).
 
     Raises:

@@ -2,16 +2,16 @@
 ``connection`` topic afterwards.
 
 Two bridges must never drive for one robot id. Each bridge has an owner id
-(:func:`new_owner`); before it acts on any command it publishes ``ONLINE`` and reads
+(`new_owner`); before it acts on any command it publishes ``ONLINE`` and reads
 the topic back: the broker sends every subscriber a topic's messages in one order, so
 the message just before its own is the state it replaced (a retained one, or a racing
 bridge's claim). If that says another owner is ``ONLINE``, the bridge puts it back and
-refuses to start (:class:`RobotIdTaken`), unless it was told to take over. A running
+refuses to start (`RobotIdTaken`), unless it was told to take over. A running
 bridge that sees a take-over stops taking commands at once and ends with
-:class:`RobotIdTaken`; anything else published there (a racing bridge's claim, a stale
+`RobotIdTaken`; anything else published there (a racing bridge's claim, a stale
 last will) makes it say ``ONLINE`` again, at most once a second.
 
-:class:`Ownership` is :class:`~chassis_sdk.integrations.mqtt.MqttBridge`'s collaborator
+`Ownership` is `MqttBridge`'s collaborator
 for this: it reads the bridge's client, topic, owner and ``take_over`` as they are.
 """
 
@@ -84,7 +84,7 @@ class Ownership:
         self._reassert = False
 
     async def claim(self, subscribe_commands: Callable[[], Awaitable[None]]) -> None:
-        """Become the robot id's owner, or raise :class:`RobotIdTaken`.
+        """Become the robot id's owner, or raise `RobotIdTaken`.
 
         The bridge publishes its ``ONLINE`` and reads the topic back: the broker sends
         every subscriber a topic's messages in one order, so the message just before

@@ -1,19 +1,35 @@
 """What a bridge publishes under ``{prefix}/{id}/``: its state on ``connection`` (and the
 last will that says ``CONNECTIONBROKEN`` for it), the device's identity on ``info`` and
 link state on ``link`` (both retained), the latest of each stream on
-``telemetry/{stream}`` at most ``rate`` times a second, each event on ``events``, and
+``telemetry/{stream}`` at most ``rate`` times a second (a reading with the pack's
+``voltage`` with ``battery_percentage`` and ``battery_level`` beside it, ``null`` while
+the state of charge is not known or the device has no ``battery=`` model), each event
+on ``events`` (the battery's with their ``percentage``), and
 what was refused on ``errors`` (the first at once, then at most one summary per
 ``report_interval``).
 
-:class:`Publisher` is :class:`~chassis_sdk.integrations.mqtt.MqttBridge`'s publishing
+`Publisher` is `MqttBridge`'s publishing
 side: it reads the bridge's client, topic, device, profile, owner and rate as they are
 when it publishes (the bridge remains the one object its owner talks to). See the
-module docstring of :mod:`chassis_sdk.integrations.mqtt` for the topics.
+module docstring of `chassis_sdk.integrations.mqtt` for the topics.
+
+It takes the device's data by callback (`chassis_sdk.core.notifier.Notifier`), not by
+a task per stream: each callback runs inside the device's read path and only puts the
+message where the one publishing task (`Publisher.run`) finds it. Telemetry is
+state: a stream's newest message replaces the one not yet published, so a slow broker
+costs readings, never memory or a backlog. Link states and events are published each,
+in order (QoS 1), from queues bounded by the device's ``queue_size``, the oldest
+dropped and counted (`Publisher.unpublished`) if the broker falls that far behind, as
+a subscriber of the device's streams would. One task publishes everything, in this
+order: the link states, the events, then, on the rate's schedule, the telemetry; a
+broker slow to acknowledge an event holds the telemetry behind it (which then
+publishes its newest).
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 import time
@@ -24,9 +40,13 @@ import aiomqtt
 import anyio
 from paho.mqtt.properties import Properties
 
+from ..core.charge import battery_fields
+from ..core.events import RobotEvent
 from ..core.firmware import next_slot
-from ..core.plain import jsonable, plain
-from ..errors import ChassisError
+from ..core.notifier import Notifier
+from ..core.plain import outbound, plain
+from ..core.supervisor import ConnectionState
+from ..errors import ChassisError, ConnectionLostError, NotConnectedError
 from .inbound import RefusalReport, Refusals
 
 if TYPE_CHECKING:
@@ -79,6 +99,15 @@ class Publisher:
         # asyncio's event, not anyio's: the reporter clears it in the loop it wakes
         # (anyio's cannot be cleared).
         self._report_wanted = asyncio.Event()
+        # What the device's callbacks hand to `run` (see there).
+        self._latest: dict[str, Any] = {}
+        self._events: deque[RobotEvent] = deque()
+        self._states: deque[ConnectionState] = deque()
+        self._wake = asyncio.Event()
+        #: Events and link states dropped unpublished, the oldest first, because the
+        #: broker fell more than the device's ``queue_size`` behind (telemetry is the
+        #: latest by design: a message replaced by a newer one is not counted).
+        self.unpublished = 0
 
     async def publish(
         self,
@@ -130,45 +159,108 @@ class Publisher:
             except Exception as exc:
                 _log.info("%s: could not publish its state: %r", self._bridge.topic, exc)
 
-    # --- the loops (each in a task of the bridge's group) --------------------------------
+    # --- what the device hands over, and the one loop that publishes it ------------------
+    #
+    # The device calls these (and, for telemetry, a dict store: see `run`) inside its
+    # read path, as Notifier's listeners: each only puts the message where the
+    # publishing loop finds it, never waits and never raises, and only what is
+    # published at once (events, link states) wakes the loop. The loop is one task per
+    # bridge, whatever the number of streams: a bridged robot costs its bare read path
+    # plus a dict store per frame of a published stream.
 
-    async def telemetry(self, stream: str) -> None:
-        """The latest message of ``stream``, at most ``rate`` times a second."""
+    def _event(self, event: RobotEvent) -> None:
+        """An event: queued in order, the oldest dropped (and counted) past the bound."""
+        events = self._events
+        if len(events) == events.maxlen:
+            self.unpublished += 1
+        events.append(event)
+        self._wake.set()
+
+    def _state(self, state: ConnectionState) -> None:
+        """A link state change: queued in order like an event."""
+        states = self._states
+        if len(states) == states.maxlen:
+            self.unpublished += 1
+        states.append(state)
+        self._wake.set()
+
+    async def run(self) -> None:
+        """Publish, in one task, until cancelled: the link state (retained on ``link``,
+        then each change), each event on ``events`` (QoS 1), and the latest message of
+        each stream on ``telemetry/{stream}`` at most ``rate`` times a second.
+
+        Raises:
+            NotConnectedError: The device was not connected when the bridge started.
+            ConnectionLostError: The device's link was lost and it does not reconnect
+                (after its last state and events are published).
+        """
         bridge = self._bridge
-        latest: list[Any] = []
-
-        async def follow() -> None:
-            try:
-                async for message in getattr(bridge.device, stream)():
-                    latest[:] = [message]
-            except Exception as exc:  # the stream ended with an error: nothing new comes
-                _log.debug("%s: the %s stream ended: %r", bridge.topic, stream, exc)
-
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(follow, name=f"bridge follow {stream}:{bridge.topic}")
+        device = bridge.device
+        if device.connection_state is ConnectionState.DISCONNECTED:
+            raise NotConnectedError(f"{device.port} is not connected; use `async with` first")
+        # Bounded as a subscriber of the device's streams is: its ``queue_size``.
+        self._events = deque(maxlen=device.queue_size)
+        self._states = deque(maxlen=device.queue_size)
+        self._latest.clear()
+        with Notifier(device) as notifier:
+            for stream in bridge.profile.remote.streams:
+                # ``latest[stream] = message``, with no Python frame: the newest
+                # replaces the one not yet published.
+                notifier.listen(stream, functools.partial(self._latest.__setitem__, stream))
+            notifier.listen("events", self._event)
+            notifier.listen_states(self._state)
+            # Listening first: a change while this is published is queued, not missed.
+            state = device.connection_state.value
+            await self.publish("link", state_payload(state), qos=1, retain=True)
             period = 1.0 / bridge.rate
-            due = anyio.current_time()
+            due = next_slot(anyio.current_time(), period, anyio.current_time())
             while True:
-                # An absolute schedule: publishing takes time, and must not slow the rate.
-                due = next_slot(due, period, anyio.current_time())
-                await anyio.sleep(due - anyio.current_time())
-                if latest:
-                    message = latest.pop()
-                    payload = json.dumps({"type": type(message).__name__, **jsonable(message)})
-                    await self.publish(f"telemetry/{stream}", payload.encode())
+                # Cleared before the queues are read: whatever arrives from here on
+                # (also while publishing) wakes the wait below.
+                self._wake.clear()
+                await self._publish_queued()
+                now = anyio.current_time()
+                if now >= due:
+                    # An absolute schedule: publishing takes time, and must not slow
+                    # the rate; a broker that held the loop up skips the slots missed.
+                    due = next_slot(due, period, now)
+                    await self._publish_latest()
+                    continue
+                with anyio.move_on_after(due - now):
+                    await self._wake.wait()
 
-    async def link_states(self) -> None:
-        """The device's link state, retained on ``link``, as it changes."""
+    async def _publish_queued(self) -> None:
+        """The link states, then the events, that came since the last call, in order;
+        if the device is lost for good, end as its streams did."""
         device = self._bridge.device
-        await self.publish("link", state_payload(device.connection_state.value), qos=1, retain=True)
-        async for state in device.connection_states():
+        states, events = self._states, self._events
+        lost = False
+        while states:
+            state = states.popleft()
+            lost = state is ConnectionState.LOST
             await self.publish("link", state_payload(state.value), qos=1, retain=True)
-
-    async def events(self) -> None:
-        """Each of the device's events on ``events`` (QoS 1)."""
-        async for event in self._bridge.device.events():
-            payload = {**jsonable(event), "kind": event.kind.value}
+        while events:
+            event = events.popleft()
+            payload = {**outbound(event), "kind": event.kind.value}
             await self.publish("events", json.dumps(payload).encode(), qos=1)
+        if lost and device.connection_state is ConnectionState.LOST:
+            # LOST is final (``reconnect`` off, or the device's own tasks failed): its
+            # streams have ended with the loss, and so does the bridge (an error of its
+            # own: the robot is stopped and the last will tells the fleet).
+            raise ConnectionLostError(f"{device.port} was lost and does not reconnect")
+
+    async def _publish_latest(self) -> None:
+        """Each stream's newest message not yet published, if any."""
+        bridge = self._bridge
+        latest = self._latest
+        for stream in bridge.profile.remote.streams:
+            message = latest.pop(stream, None)
+            if message is None:
+                continue
+            body = {"type": type(message).__name__, **outbound(message)}
+            if "voltage" in body:  # the pack's voltage: its state of charge beside
+                body.update(battery_fields(bridge.device))
+            await self.publish(f"telemetry/{stream}", json.dumps(body).encode())
 
     # --- what was refused ----------------------------------------------------------------
 

@@ -1,10 +1,10 @@
-"""The robot on the ROS 2 graph, without ROS: :class:`Ros2Bridge` puts one device on
+"""The robot on the ROS 2 graph, without ROS: `Ros2Bridge` puts one device on
 DDS with ROS 2's names, types and QoS, so that Nav2, teleop, RViz, robot_localization
 and ``ros2 bag`` work with it as with any ROS 2 base driver. Needs the ``ros2`` extra
 (``cyclonedds``); no ROS installation.
 
 Topics (relative names go under the namespace; types in
-:mod:`chassis_sdk.recording.ros2_types`):
+`chassis_sdk.recording.ros2_types`):
 
 ===================  ==========================  ===  ==========================================
 ROS name             type                        dir  what
@@ -42,6 +42,13 @@ It keeps the contract of every surface that can move the robot (the MQTT bridge'
   deleted, so peers learn at once that it is gone);
 - stamps are wall-clock time.
 
+What goes out comes by callback (``chassis_sdk.core.Notifier(device).listen``), not by a
+task per stream: each reading is queued inside the device's read path (per stream at most
+the device's ``queue_size``; past it the oldest is dropped and counted in
+``dropped_readings``) and one task publishes every queue in order. Writes never block,
+so that task empties the queues each time it runs; a DDS reader that lags loses
+messages to its writer's history (``dropped_writes``), never holds up the device.
+
 No ROS services: between rmw_cyclonedds and rmw_fastrtps they do not interoperate
 (ros2/rmw_cyclonedds #184, #503, #577), and parameters are services. Stop and e-stop
 are topics, configuration is the CLI's.
@@ -55,6 +62,7 @@ import functools
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any
 
@@ -63,8 +71,9 @@ from cyclonedds.core import DDSException
 
 from ..core.device import Device
 from ..core.notifier import Notifier
+from ..core.supervisor import ConnectionState
 from ..core.validation import check_real
-from ..errors import ChassisError
+from ..errors import ChassisError, ConnectionLostError, NotConnectedError
 from ..recording import ros2_types as msg
 from ..recording.ros2_types import TOPICS, Ros2Options, StaticTransform, Translator
 from .inbound import CommandError, Refusals, check_fresh
@@ -87,7 +96,7 @@ class Ros2Bridge:
         device: A connected (or connecting) device; the bridge never closes it.
         namespace: Where the relative topics go (``robot1`` → ``/robot1/odom``).
         discovery: How to find peers (default: ROS 2's variables,
-            :func:`~chassis_sdk.integrations.ros2_dds.discovery_from_env`).
+            [`discovery_from_env`][chassis_sdk.integrations.ros2_dds.discovery_from_env]).
         stamped: Read ``cmd_vel`` as ``geometry_msgs/TwistStamped`` (Jazzy's
             diff_drive_controller); a stamped sample older than ``command_timeout``
             is refused.
@@ -100,7 +109,7 @@ class Ros2Bridge:
         child_frame_id: The robot's frame (``base_link``).
         imu_frame_id: A board's IMU frame.
         pose_covariance: Six variances (x, y, z, roll, pitch, yaw) for the pose;
-            default :data:`~chassis_sdk.recording.ros2_types.DEFAULT_POSE_COVARIANCE`.
+            default `DEFAULT_POSE_COVARIANCE`.
         twist_covariance: The same for the twist.
         static_transforms: What ``/tf_static`` holds (default: a board's
             ``base_link`` → ``imu_link``, identity; a chassis none).
@@ -167,7 +176,8 @@ class Ros2Bridge:
         with Notifier(device) as notifier:
             streams = notifier.stream_names
         #: What the device's readings give: the topics and each reading's messages.
-        self.translator = Translator(self.options, streams)
+        # The device's battery model (if any) gives BatteryState.percentage.
+        self.translator = Translator(self.options, streams, battery=device.battery_model)
         self._refusals = Refusals(1.0)
         self._cmd: Reader[Any] | None = None
         self._estop: Reader[Any] | None = None
@@ -183,7 +193,15 @@ class Ros2Bridge:
         self.writer_gone_stops = 0
         #: Odometry messages published.
         self.odometry_published = 0
+        #: Readings dropped before they were published (the oldest first): the
+        #: publisher fell the device's ``queue_size`` readings of one stream behind.
+        self.dropped_readings = 0
         self._writers: list[Writer[Any]] = []
+        # The readings not yet published, per stream (filled by the device's read path),
+        # the publisher's wake, and whether the link was lost for good.
+        self._queued: dict[str, deque[Any]] = {}
+        self._ready = asyncio.Event()
+        self._lost = False
 
     @property
     def refused(self) -> int:
@@ -202,8 +220,11 @@ class Ros2Bridge:
         returns or raises, unless ``read_only``; then the DDS endpoints are deleted.
 
         Raises:
-            ChassisError: DDS could not start (a bad configuration), or a device
-                stream ended for good (a link lost without ``reconnect``).
+            ChassisError: DDS could not start (a bad configuration), or the device's
+                link was lost for good (``ConnectionLostError``: lost without
+                ``reconnect``, after what came before it was published;
+                ``NotConnectedError``: the device was not open when the bridge
+                started).
             ValueError: This process has the domain configured otherwise already.
         """
         loop = asyncio.get_running_loop()
@@ -214,8 +235,9 @@ class Ros2Bridge:
             raise ChassisError(
                 f"cannot join DDS domain {self.discovery.domain_id}: {exc}"
             ) from None
+        notifier = Notifier(self.device)
         try:
-            loops = self._setup(participant, loop)
+            loops = self._setup(participant, loop, notifier)
             self.started.set()
             _log.info(
                 "on the ROS 2 graph: domain %d, %s discovery, namespace %r%s",
@@ -228,12 +250,13 @@ class Ros2Bridge:
                 for name, work in loops:
                     tg.start_soon(work, name=f"ros2 {name}")
         finally:
+            notifier.close()  # nothing more is queued
             with anyio.CancelScope(shield=True):
                 await self._stop_robot()
             participant.close()
 
     def _setup(
-        self, participant: Participant, loop: asyncio.AbstractEventLoop
+        self, participant: Participant, loop: asyncio.AbstractEventLoop, notifier: Notifier
     ) -> list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]]:
         translator = self.translator
         out = {key: participant.writer(TOPICS[key]) for key in translator.topics}
@@ -243,10 +266,16 @@ class Ros2Bridge:
             static = participant.writer(TOPICS["tf_static"])
             self._writers.append(static)
             static.write(translator.static_message(time.time()))
+        self._ready = asyncio.Event()
+        self._lost = False
+        self._queued = {}
+        for stream in translator.streams:
+            notifier.listen(stream, self._queue(stream))
+        notifier.listen_states(self._link_state)
         loops: list[tuple[str, Callable[[], Coroutine[Any, Any, None]]]] = [
-            (stream, functools.partial(self._publish, stream, out)) for stream in translator.streams
+            ("publish", functools.partial(self._publish, out)),
+            ("diagnostics", lambda: self._diagnostics(diagnostics)),
         ]
-        loops.append(("diagnostics", lambda: self._diagnostics(diagnostics)))
         if not self.read_only:
             cmd = participant.reader(TOPICS["cmd_vel_stamped" if self.stamped else "cmd_vel"], loop)
             cmd.on_no_writers = self._writer_gone
@@ -374,15 +403,55 @@ class Ros2Bridge:
 
     # --- what goes out ---------------------------------------------------------------------
 
-    async def _publish(self, stream: str, out: dict[str, Writer[Any]]) -> None:
-        """Every reading of ``stream``, as the messages the translator makes of it."""
+    def _queue(self, stream: str) -> Callable[[Any], None]:
+        """The callback that takes ``stream``'s readings, inside the device's read path:
+        it queues each (at most ``queue_size``, the oldest dropped and counted) and wakes
+        the publisher; it never raises and never waits."""
+        readings: deque[Any] = deque(maxlen=self.device.queue_size)
+        self._queued[stream] = readings
+        ready = self._ready
+
+        def queue(reading: Any) -> None:
+            if len(readings) == readings.maxlen:
+                self.dropped_readings += 1
+            readings.append(reading)
+            ready.set()
+
+        return queue
+
+    def _link_state(self, state: ConnectionState) -> None:
+        """A state change (in the read path or the supervisor): a link lost for good
+        ends the publisher, after what was queued."""
+        if state is ConnectionState.LOST:
+            self._lost = True
+            self._ready.set()
+
+    def _check_link(self) -> None:
+        state = self.device.connection_state
+        if state is ConnectionState.LOST or self._lost:
+            raise ConnectionLostError(f"lost connection to {self.device.port} (no reconnect)")
+        if state is ConnectionState.DISCONNECTED:
+            raise NotConnectedError(f"{self.device.port} is not connected; use `async with` first")
+
+    async def _publish(self, out: dict[str, Writer[Any]]) -> None:
+        """Every reading of every stream, in order, as the messages the translator makes
+        of it: one task for all the streams, woken by their callbacks (writes never
+        block, so it empties the queues each time it runs)."""
         translator = self.translator
-        subscribe = getattr(self.device, stream)  # a stream's name is its method's
-        async for reading in subscribe():
-            for key, message in translator.messages(stream, reading):
-                out[key].write(message)
-                if key == "odom":
-                    self.odometry_published += 1
+        queued = self._queued
+        ready = self._ready
+        self._check_link()
+        while True:
+            await ready.wait()
+            ready.clear()
+            for stream, readings in queued.items():
+                while readings:
+                    for key, message in translator.messages(stream, readings.popleft()):
+                        out[key].write(message)
+                        if key == "odom":
+                            self.odometry_published += 1
+            if self._lost:
+                self._check_link()
 
     async def _diagnostics(self, diagnostics: Writer[Any]) -> None:
         name = f"chassis_sdk: {self.device.device_name}"

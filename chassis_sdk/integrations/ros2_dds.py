@@ -9,13 +9,22 @@ endpoint carries ``typehash=RIHS01_…;`` in its USER_DATA and the participant
 ``enclave=/;``, as ``rmw`` puts them. Cyclone DDS's Python binding speaks all of it
 with no ROS installed.
 
-Cyclone delivers to listeners on its own receive threads. Nothing of the bridge runs
-there: a listener only schedules a wake-up on the event loop
-(``call_soon_threadsafe``), and the loop ``take()``\\ s what arrived, one sample at a
-time, so that a sample that will not decode costs only itself. No thread ever blocks
-in a wait set (``take_aiter`` leaves a pool thread blocked when cancelled). Writers
-never block either: a reliable writer whose readers lag drops the write at once (it is
-counted) rather than stalling the loop for ``max_blocking_time``.
+Cyclone delivers on its own receive threads, and nothing of the bridge runs there: no
+reader has a data listener. A Python listener for ``on_data_available`` is entered on
+the receive thread for every sample (Cyclone calls it again on each arrival), so a
+flood of samples made that thread take the GIL tens of thousands of times a second: a
+convoy with the event loop, the receive thread too slow to empty its socket (a
+reliable e-stop's DATA lost and resent a heartbeat later) and, on a loaded computer,
+the loop held off for up to a second. Instead each reader has a thread of its own,
+blocked in a Cyclone wait set (the GIL released) on a read condition: when data is
+there it wakes the loop once (``call_soon_threadsafe``) and then waits until the loop
+has taken, so it enters Python once per take however many samples arrive. The loop
+``take()``\\ s at most a slice of samples per turn, one at a time, so that a sample
+that will not decode costs only itself. Closing a reader stops its thread (a guard
+condition) before any entity is deleted. Only the rare statuses (writers matched and
+alive) are listeners. Writers never block: a reliable writer whose readers lag drops
+the write at once (it is counted) rather than stalling the loop for
+``max_blocking_time``.
 
 Discovery follows ROS 2's variables (``ROS_DOMAIN_ID``,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS``) as ``rmw_cyclonedds`` does, by
@@ -31,16 +40,30 @@ import asyncio
 import contextlib
 import ipaddress
 import logging
+import math
 import os
 import re
 import socket
+import threading
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Literal, TypeVar
 from xml.sax.saxutils import quoteattr
 
 import anyio
-from cyclonedds.core import DDSException, Listener, Policy, Qos
+from cyclonedds.core import (
+    DDSException,
+    GuardCondition,
+    InstanceState,
+    Listener,
+    Policy,
+    Qos,
+    ReadCondition,
+    SampleState,
+    ViewState,
+    WaitSet,
+)
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
@@ -64,8 +87,17 @@ Range = Literal["SUBNET", "LOCALHOST", "OFF", "SYSTEM_DEFAULT"]
 _RANGES: tuple[Range, ...] = ("SUBNET", "LOCALHOST", "OFF", "SYSTEM_DEFAULT")
 #: The most participants a static-peer configuration looks for on each peer.
 _MAX_PARTICIPANT_INDEX = 32
-#: Most samples taken per wake-up: a flood cannot hold the loop for long.
-_TAKE_BATCH = 256
+#: Most samples taken per turn of the loop: a flood cannot hold the loop for long
+#: (about 2 ms of decoding; more waiting comes back after the others had a turn).
+_TAKE_BATCH = 64
+#: How long a reader's wake thread waits in Cyclone at most before it looks again
+#: whether its reader is closing (a guard condition wakes it at once anyway), in ns.
+_WATCH_TIMEOUT_NS = 1_000_000_000
+#: Least seconds between two data wake-ups of one reader: a flood is taken at most this
+#: often (what comes in between waits in the reader's history, whose depth keeps the
+#: newest), so that it costs the loop a bounded share of its time. Traffic slower than
+#: this (Nav2's 20 Hz) is woken for at once.
+_WAKE_INTERVAL = 0.002
 
 
 @dataclass(frozen=True)
@@ -314,6 +346,7 @@ class Participant:
             raise
         self._topics: dict[str, Topic[Any]] = {}
         self._entities: list[Any] = []
+        self._readers: list[Reader[Any]] = []
         self._closed = False
 
     def _topic(self, spec: TopicSpec) -> Topic[Any]:
@@ -335,8 +368,9 @@ class Participant:
         dr = DataReader(
             self._participant, self._topic(spec), _qos(spec, writer=False), reader.listener()
         )
-        reader.attach(dr)
         self._entities.append(dr)
+        self._readers.append(reader)
+        reader.attach(dr, self._participant)
         return reader
 
     def close(self) -> None:
@@ -345,6 +379,9 @@ class Participant:
         if self._closed:
             return
         self._closed = True
+        for reader in self._readers:  # their threads out of Cyclone's waits first
+            reader.close()
+        self._readers.clear()
         for entity in reversed([*self._entities, *self._topics.values(), self._participant]):
             with contextlib.suppress(Exception):
                 entity.__del__()  # the binding's own delete; garbage collection is late
@@ -356,7 +393,7 @@ class Participant:
 
 
 class Writer(Generic[T]):
-    """A topic's writer; :meth:`write` never blocks and never raises."""
+    """A topic's writer; `write` never blocks and never raises."""
 
     def __init__(self, writer: DataWriter[T], name: str) -> None:
         self._writer = writer
@@ -379,8 +416,12 @@ class Writer(Generic[T]):
 
 
 class Reader(Generic[T]):
-    """A topic's reader, for the event loop: :meth:`wait` until something happened,
-    :meth:`take` what arrived; :attr:`writers` counts the live writers.
+    """A topic's reader, for the event loop: `wait` until something happened,
+    `take` what arrived; `writers` counts the live writers.
+
+    Data wakes the loop from a thread of the reader's own (started by `attach`,
+    stopped by `close`), blocked in a Cyclone wait set: once per take, never once
+    per sample (see the module's docstring).
 
     Args:
         name: The topic's ROS name (for the log).
@@ -398,42 +439,106 @@ class Reader(Generic[T]):
         self._armed = False  # a writer came since the last "no writer left"
         #: Samples that did not decode (refused, never acted on).
         self.undecodable = 0
+        #: Times the wake thread woke the loop for data (at most one per take).
+        self.data_wakes = 0
         #: Called on the loop when the last writer went away.
         self.on_no_writers: Callable[[], None] | None = None
         #: Called on the loop with the reason when a sample did not decode.
         self.on_undecodable: Callable[[str], None] | None = None
-        self._data_pending = False
+        # The wake thread's: set by the loop when it has taken (or the reader closes).
+        self._taken = threading.Event()
+        self._closing = False
+        self._thread: threading.Thread | None = None
+        self._waitset: WaitSet | None = None
+        self._condition: ReadCondition | None = None
+        self._guard: GuardCondition | None = None
 
     def listener(self) -> Listener:
-        """The Cyclone listener: on its threads, it only wakes the loop."""
+        """The Cyclone listener, for the writers' statuses only (rare; on Cyclone's
+        threads it only wakes the loop). There is no data callback: see `attach`."""
         return Listener(  # type: ignore[no-untyped-call]
-            on_data_available=lambda _reader: self._data(),
             on_liveliness_changed=lambda _reader, status: self._wake(int(status.alive_count)),
             on_subscription_matched=lambda _reader, status: self._wake(
                 int(status.current_count), matched=True
             ),
         )
 
-    def attach(self, reader: DataReader[T]) -> None:
-        self._reader = reader
+    def attach(self, reader: DataReader[T], participant: DomainParticipant | None = None) -> None:
+        """Read from ``reader``; with ``participant`` (the reader's), start the thread
+        that wakes the loop when data is there.
 
-    def _data(self) -> None:
-        # On Cyclone's thread: one wake-up for however many samples arrive before the
-        # loop takes them (a flood costs the loop one callback, not one a sample). The
-        # loop clears the flag before it sets the event, so a sample that comes after
-        # the clear schedules a wake of its own.
-        if not self._data_pending:
-            self._data_pending = True
+        Raises:
+            DDSException: Cyclone could not make the wait set or its conditions.
+        """
+        self._reader = reader
+        if participant is None:
+            return
+        mask = SampleState.Any | ViewState.Any | InstanceState.Any
+        self._condition = ReadCondition(reader, mask)
+        self._guard = GuardCondition(participant)
+        self._waitset = WaitSet(participant)
+        self._waitset.attach(self._condition)
+        self._waitset.attach(self._guard)
+        self._thread = threading.Thread(
+            target=self._watch, args=(self._waitset,), name=f"dds {self.name}", daemon=True
+        )
+        self._thread.start()
+
+    def _watch(self, waitset: WaitSet) -> None:
+        # On the reader's own thread. The wait is in C with the GIL released; the read
+        # condition holds while any sample is in the reader, so after one wake this
+        # waits for the loop's take before it looks again: one wake (one entry into
+        # Python here) per take, however fast samples come.
+        woke = -math.inf
+        while not self._closing:
+            try:
+                triggered = waitset.wait(_WATCH_TIMEOUT_NS)
+            except DDSException as exc:  # the wait set went: nothing more to watch
+                if not self._closing:
+                    _log.warning("%s: the data wake-up ended (%s)", self.name, exc)
+                return
+            if self._closing:
+                return
+            if not triggered:
+                continue  # a timeout (the guard is only set when closing)
+            rest = woke + _WAKE_INTERVAL - time.monotonic()
+            if rest > 0:
+                time.sleep(rest)  # a flood: let it gather in the history a moment
+            self._taken.clear()
+            self.data_wakes += 1
+            woke = time.monotonic()
             self._wake(None)
+            self._taken.wait()
+
+    def close(self) -> None:
+        """Stop the wake thread (before the reader is deleted) and delete its wait set
+        and conditions. Safe to call twice; the reader itself is the participant's."""
+        self._closing = True
+        self._taken.set()
+        guard, thread = self._guard, self._thread
+        if guard is not None:
+            with contextlib.suppress(DDSException):
+                guard.set(True)
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=2 * _WATCH_TIMEOUT_NS / 1e9)
+            if thread.is_alive():
+                _log.warning("%s: the data wake-up thread did not stop", self.name)
+                return  # its wait set is left to the participant's deletion
+        self._thread = None
+        for entity in (self._waitset, self._condition, self._guard):
+            if entity is not None:
+                with contextlib.suppress(Exception):
+                    entity.__del__()  # the binding's own delete
+        if self._waitset is not None:
+            self._waitset.attached = []
+        self._waitset = self._condition = self._guard = None
 
     def _wake(self, writers: int | None, *, matched: bool = False) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed: nobody listens
             self._loop.call_soon_threadsafe(self._on_loop, writers, matched)
 
     def _on_loop(self, writers: int | None, matched: bool) -> None:
-        if writers is None:
-            self._data_pending = False
-        else:
+        if writers is not None:
             # Matched counts every writer, liveliness the live ones: either falling to
             # zero means nobody is left to command (each is watched on its own, so one
             # status that never comes cannot hide the other), and it is told once: the
@@ -453,39 +558,43 @@ class Reader(Generic[T]):
         self._event.set()
 
     def wake(self) -> None:
-        """Wake whoever waits in :meth:`wait` (from the loop)."""
+        """Wake whoever waits in `wait` (from the loop)."""
         self._event.set()
 
     async def wait(self) -> None:
-        """Until data arrived or the writers changed since the last :meth:`take`."""
+        """Until data arrived or the writers changed since the last `take`."""
         await self._event.wait()
 
     def take(self) -> Iterator[T]:
-        """The valid samples that arrived, oldest first; an undecodable one is counted
-        and skipped (it costs only itself); an invalid sample (a writer's unregister
-        or dispose) carries no data and is skipped."""
+        """The valid samples that arrived, oldest first, at most a slice of them (more
+        waiting sets the event again: the caller comes back after yielding); an
+        undecodable one is counted and skipped (it costs only itself); an invalid
+        sample (a writer's unregister or dispose) carries no data and is skipped."""
         self._event.clear()
         reader = self._reader
         if reader is None:
             return
-        for _ in range(_TAKE_BATCH):
-            try:
-                got = reader.take(N=1)
-            except Exception as exc:  # bytes that are not this type: refused
-                self.undecodable += 1
-                if self.on_undecodable is not None:
-                    self.on_undecodable(f"a sample did not decode ({type(exc).__name__})")
-                else:
-                    _log.debug("%s: a sample did not decode (%r)", self.name, exc)
-                continue
-            if not got:
-                return
-            sample = got[0]
-            info = getattr(sample, "sample_info", None)
-            if (
-                info is not None
-                and getattr(info, "valid_data", True)
-                and hasattr(sample, "__idl_typename__")
-            ):
-                yield sample
-        self._event.set()  # more may be waiting: come back after the others had a turn
+        try:
+            for _ in range(_TAKE_BATCH):
+                try:
+                    got = reader.take(N=1)
+                except Exception as exc:  # bytes that are not this type: refused
+                    self.undecodable += 1
+                    if self.on_undecodable is not None:
+                        self.on_undecodable(f"a sample did not decode ({type(exc).__name__})")
+                    else:
+                        _log.debug("%s: a sample did not decode (%r)", self.name, exc)
+                    continue
+                if not got:
+                    return
+                sample = got[0]
+                info = getattr(sample, "sample_info", None)
+                if (
+                    info is not None
+                    and getattr(info, "valid_data", True)
+                    and hasattr(sample, "__idl_typename__")
+                ):
+                    yield sample
+            self._event.set()  # more may be waiting: come back after the others had a turn
+        finally:
+            self._taken.set()  # the wake thread may look again

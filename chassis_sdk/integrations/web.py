@@ -1,11 +1,17 @@
 """The web dashboard: one device, watched and driven by hand from a browser.
 
-:class:`WebDashboard` serves one page (``web_static/``: HTML, JavaScript, CSS and the
+`WebDashboard` serves one page (``web_static/``: HTML, JavaScript, CSS and the
 uPlot charting library, all in the package; nothing is built or fetched) and a
 WebSocket at ``/ws`` on an aiohttp server. The page shows the device live (speeds
 commanded beside measured, wheels, battery, status and faults, events, the link and the
 age of its last frame, the odometry path; a board's IMU, LED and buzzer) and drives it
 from an on-screen joystick, the keyboard or a gamepad.
+
+What it shows comes by callback (``chassis_sdk.core.Notifier(device).listen``): each
+reading is kept as it arrives, inside the device's read path, with no task per stream;
+the newest of each stream goes to every page ``rate`` times a second, and a page that
+reads slowly gets fewer states, never a backlog (memory stays bounded: one state, the
+events and notes not yet sent, per page).
 
 Driving: one contract with every other surface
 ----------------------------------------------
@@ -16,7 +22,7 @@ Driving: one contract with every other surface
   hidden sends ``stop``; a socket that closes (or misses its heartbeat) while its
   client was driving stops the robot at once.
 * Velocity is state, not a queue: of the drive messages that arrive, only the newest
-  counts, and at most one is written per :data:`VELOCITY_PERIOD`. ``stop`` and
+  counts, and at most one is written per `VELOCITY_PERIOD`. ``stop`` and
   ``estop`` are acted on as they arrive, never behind a velocity or a request, and a
   velocity taken before a stop is never written after it.
 * A drive message carries the page's clock (``t``, milliseconds of
@@ -27,7 +33,7 @@ Driving: one contract with every other surface
 * A message that is not a well-formed command (not JSON, UTF-8 only, duplicate keys,
   unknown type or keys, wrong types, non-finite, beyond ``max_linear``/``max_angular``)
   is refused, counted, logged (the first at once, then at most one summary a second,
-  by :class:`~chassis_sdk.integrations.inbound.Refusals`) and shown on the page; it
+  by `Refusals`) and shown on the page; it
   never moves the robot and never ends the server.
 * ``read_only``: the page offers only STOP and E-STOP, and the server takes nothing
   else.
@@ -67,8 +73,10 @@ from urllib.parse import urlsplit
 
 import anyio
 
+from ..core.charge import battery_fields
 from ..core.device import Device
-from ..core.plain import jsonable, wall_time
+from ..core.notifier import Notifier
+from ..core.plain import outbound
 from ..core.validation import check_int, check_real
 from ..devices import profile
 from ..errors import ChassisError
@@ -202,12 +210,12 @@ class WebDashboard:
     """One connected device, served to browsers (see the module docstring).
 
     Use ``async with WebDashboard(robot) as web:`` inside ``async with robot:``; the
-    address to open is :attr:`login_url`.
+    address to open is [`login_url`][chassis_sdk.integrations.web.WebDashboard.login_url].
 
     Args:
         device: A device (connected, or about to be: the page follows its link).
         host: Address to bind; ``127.0.0.1`` (default) serves this computer only.
-        port: TCP port; 0 picks a free one (:attr:`port` says which).
+        port: TCP port; 0 picks a free one (`port` says which).
         read_only: Take no velocity and no request: the page offers STOP and E-STOP only.
         token: The secret every request must carry (at least 16 printable ASCII
             characters). Beyond loopback a random one is made if none is given; on
@@ -218,9 +226,9 @@ class WebDashboard:
             else 0.5 s).
         max_linear: The fastest a page may ask for (m/s): the joystick's full
             deflection; more is refused. Default: the device's limit, else
-            :data:`DEFAULT_MAX_LINEAR` (slow enough to walk beside).
+            `DEFAULT_MAX_LINEAR` (slow enough to walk beside).
         max_angular: The same for turning (rad/s); default the device's limit, else
-            :data:`DEFAULT_MAX_ANGULAR`.
+            `DEFAULT_MAX_ANGULAR`.
         rate: State updates a second sent to each page (1 to 50).
         gamepad: How the page reads a gamepad.
         max_clients: The most pages served at once.
@@ -292,7 +300,8 @@ class WebDashboard:
         self._clients: set[_Client] = set()
         self._numbered = 0
         self._admitted = 0
-        #: Errors caught in the dashboard's own tasks (each logged with its traceback).
+        #: Errors caught in the dashboard's own tasks and callbacks (logged with their
+        #: traceback: each of a task, the first of each callback).
         self.errors = 0
         self._pending: tuple[float, float] | None = None
         self._pending_from: _Client | None = None
@@ -305,6 +314,7 @@ class WebDashboard:
         self._bound = 0
         self._tasks: anyio.abc.TaskGroup | None = None
         self._background: asyncio.Task[None] | None = None
+        self._notifier: Notifier | None = None
         self._closed = False
 
     # --- what it is --------------------------------------------------------------------
@@ -339,7 +349,7 @@ class WebDashboard:
 
     @property
     def login_url(self) -> str:
-        """The address to open once: :attr:`url` with the token, when one is required."""
+        """The address to open once: `url` with the token, when one is required."""
         return self.url if self._token is None else f"{self.url}?token={self._token}"
 
     def _offered(self) -> list[str]:
@@ -403,6 +413,7 @@ class WebDashboard:
         self._runner = runner
         if runner.addresses:
             self._bound = runner.addresses[0][1]
+        self._notifier = self._listen()
         # The dashboard's own tasks live in a task of their own, not in the caller's:
         # nothing of theirs can cancel the application around the dashboard.
         self._background = asyncio.get_running_loop().create_task(
@@ -415,9 +426,6 @@ class WebDashboard:
             # None of them may end the dashboard: each is guarded.
             tg.start_soon(self._guarded, "the velocity writer", self._write_velocity)
             tg.start_soon(self._guarded, "the state broadcast", self._broadcast)
-            tg.start_soon(self._guarded, "the events", self._watch_events)
-            for stream in self._profile.remote.streams:
-                tg.start_soon(self._guarded, f"the {stream} stream", self._watch, stream)
 
     async def _guarded(self, what: str, job: Callable[..., Awaitable[None]], *args: Any) -> None:
         """Run ``job``; a link lost for good (a device without ``reconnect``) ends it
@@ -441,9 +449,11 @@ class WebDashboard:
         self._closed = True
         self._pending = None
         driving = any(c.driving for c in self._clients)
+        if self._notifier is not None:
+            self._notifier.close()  # no more readings kept
         background = self._background
         if background is not None:
-            background.cancel()  # the writer, the watchers, the requests
+            background.cancel()  # the writer, the broadcast, the requests
         if driving and not self.read_only:
             with contextlib.suppress(ChassisError):
                 await self.device.stop()
@@ -768,7 +778,7 @@ class WebDashboard:
     # --- the device --------------------------------------------------------------------
 
     async def _write_velocity(self) -> None:
-        """The newest drive message, at most one per :data:`VELOCITY_PERIOD`."""
+        """The newest drive message, at most one per `VELOCITY_PERIOD`."""
         next_write = -math.inf
         while True:
             await self._velocity.wait()
@@ -797,31 +807,69 @@ class WebDashboard:
             self.commands += 1
             next_write = anyio.current_time() + VELOCITY_PERIOD
 
-    async def _watch(self, stream: str) -> None:
-        """Keep the newest reading of ``stream`` (and the odometry path)."""
-        subscribe = getattr(self.device, stream)
-        async for reading in subscribe():
-            self._latest[stream] = reading
-            if stream == "odometry":
-                x, y = float(reading.x), float(reading.y)
-                if not self._path or math.dist(self._path[-1], (x, y)) >= _PATH_STEP:
-                    self._path.append((round(x, 4), round(y, 4)))
+    def _listen(self) -> Notifier:
+        """Listen to the device's streams and events: each reading is kept as it
+        arrives, inside the device's read path (no task per stream, nothing awaited);
+        the state broadcast sends the newest."""
+        notifier = Notifier(self.device)
+        names = notifier.stream_names
+        for stream in self._profile.remote.streams:
+            if stream not in names:  # a profile naming a stream its device lacks
+                self.errors += 1
+                _log.error("web: %s has no %s stream to show", self.device.device_name, stream)
+                continue
+            keep = self._keep_odometry if stream == "odometry" else self._keeper(stream)
+            notifier.listen(stream, self._guard(f"the {stream} stream", keep))
+        notifier.listen("events", self._guard("the events", self._keep_event))
+        return notifier
 
-    async def _watch_events(self) -> None:
-        async for event in self.device.events():
-            body = jsonable(event)
-            # Wall time: the event's monotonic stamp, as this computer's clock read it.
-            body["time"] = wall_time(event.timestamp)
-            body["text"] = str(event)
-            self._events.append(body)
-            for client in self._clients:
-                client.events.append(body)
+    def _guard(self, what: str, callback: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``callback``, never raising into the device's read path: an error is counted
+        and logged (the first of each callback with its traceback)."""
+        failed = 0
+
+        def guarded(item: Any) -> None:
+            nonlocal failed
+            try:
+                callback(item)
+            except Exception:
+                self.errors += 1
+                failed += 1
+                if failed == 1:
+                    _log.exception("web: %s failed; the dashboard goes on", what)
+
+        return guarded
+
+    def _keeper(self, stream: str) -> Callable[[Any], None]:
+        latest = self._latest
+
+        def keep(reading: Any) -> None:
+            latest[stream] = reading
+
+        return keep
+
+    def _keep_odometry(self, reading: Any) -> None:
+        """Keep the newest odometry and the path (a point every `_PATH_STEP`)."""
+        self._latest["odometry"] = reading
+        x, y = float(reading.x), float(reading.y)
+        path = self._path
+        if not path or math.dist(path[-1], (x, y)) >= _PATH_STEP:
+            path.append((round(x, 4), round(y, 4)))
+
+    def _keep_event(self, event: Any) -> None:
+        """Keep an event for the pages that open later and queue it for every open one."""
+        body = outbound(event)
+        body["time"] = body["timestamp"]  # wall time (the page's name for it)
+        body["text"] = str(event)
+        self._events.append(body)
+        for client in self._clients:
+            client.events.append(body)
 
     def _state(self) -> str:
         """The state every page is sent, as JSON text (a non-finite reading as ``null``:
         JSON has none)."""
         device = self.device
-        latest = {name: jsonable(reading) for name, reading in self._latest.items()}
+        latest = {name: outbound(reading) for name, reading in self._latest.items()}
         commanded = device.commanded_velocity
         estop = self._estop_engaged
         telemetry = self._latest.get("telemetry")
@@ -835,6 +883,7 @@ class WebDashboard:
             "written": list(device.written_velocity),
             "streams": latest,
             "odometry": latest.get("odometry"),
+            "battery": self._charge(),
             "estop": estop,
             "refused": self.refusals.total,
             "commands": self.commands,
@@ -844,6 +893,15 @@ class WebDashboard:
             return json.dumps(body, default=str, allow_nan=False)
         except ValueError:
             return json.dumps(_finite_only(body), default=str)
+
+    def _charge(self) -> dict[str, Any] | None:
+        """The state of charge (``battery=BatteryModel(...)``): ``{"percentage": 63.2 |
+        None, "level": "OK" | "LOW" | "CRITICAL" | None}``, ``None`` while not known;
+        ``None`` itself when the device has no model."""
+        if self.device.battery_model is None:
+            return None
+        fields = battery_fields(self.device)
+        return {"percentage": fields["battery_percentage"], "level": fields["battery_level"]}
 
     async def _broadcast(self) -> None:
         """Every ``1/rate`` s, the state (made once) to every page."""

@@ -1,24 +1,24 @@
 """Recording: a device's session both ways, to JSON lines or MCAP, and back.
 
-* :mod:`.sink`: :class:`~.sink.FoxgloveSink`, which publishes a device's session into
+* `.sink`: `FoxgloveSink`, which publishes a device's session into
   a ``foxglove.Context`` (Foxglove JSON schemas, the session's metadata); the MCAP
   recorder and the live Foxglove server share it;
-* :mod:`.mcap`: :class:`~.mcap.McapRecording`, the one MCAP recorder (compressed,
+* `.mcap`: `McapRecording`, the one MCAP recorder (compressed,
   flushed every second);
-* :mod:`.ros2`: :class:`~.ros2.Ros2Recording`, the same session as a rosbag2 MCAP file
+* `.ros2`: `Ros2Recording`, the same session as a rosbag2 MCAP file
   (ROS 2 types in CDR, with their QoS and type hashes) for ROS 2 tools, chosen with
-  :func:`~.ros2.rosbag`; :mod:`.ros2_types`, the ROS 2 messages it and the bridge use;
-* :mod:`.jsonl`: :class:`~.jsonl.JsonlRecording` and the JSON-lines capture format,
+  `rosbag`; `.ros2_types`, the ROS 2 messages it and the bridge use;
+* `.jsonl`: `JsonlRecording` and the JSON-lines capture format,
   written and read;
-* :func:`open_recording` opens either by the file's name; the ``record=`` option of
+* `open_recording` opens either by the file's name; the ``record=`` option of
   every device opens one through it;
-* :mod:`.capture`: recording a port passively, reading captures, replaying them on a
+* `.capture`: recording a port passively, reading captures, replaying them on a
   pty or into a device, detecting the device in a capture;
-* :mod:`.export`: a capture as CSV tables; :mod:`.columns`: a capture decoded into
+* `.export`: a capture as CSV tables; `.columns`: a capture decoded into
   arrays (for plots of hours of frames).
 
 Recorders see a device only through its public observation API
-(:class:`~chassis_sdk.core.notifier.Notifier`, ``feed``, ``command_decoder``).
+([`Notifier`][chassis_sdk.core.notifier.Notifier], ``feed``, ``command_decoder``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ __all__ = ["JsonlRecording", "McapRecording", "Recording", "open_recording"]
 
 
 class Recording(Protocol):
-    """A device's session being written to a file (see :func:`open_recording`)."""
+    """A device's session being written to a file (see `open_recording`)."""
 
     path: Path
 
@@ -65,14 +65,14 @@ def open_recording(
     """Start recording ``device``'s session to ``path``: an MCAP file for ``.mcap``
     (needs the ``foxglove`` extra), a JSON-lines capture for any other name; with
     ``ros2``, a rosbag2 MCAP file for ROS 2 tools (needs the ``ros2`` extra; see
-    :mod:`chassis_sdk.recording.ros2`).
+    `chassis_sdk.recording.ros2`).
 
     Args:
         path: The file (overwritten).
         device: The device whose session this is.
         ros2: Write the ROS 2 profile (``.mcap`` only) instead of Foxglove's.
-        **options: The recorder's: :class:`~.mcap.McapRecording`'s, or with ``ros2``
-            those of :func:`~.ros2.rosbag` (``namespace``, frames, ...).
+        **options: The recorder's: `McapRecording`'s, or with ``ros2``
+            those of `rosbag` (``namespace``, frames, ...).
 
     Raises:
         ImportError: ``.mcap`` without foxglove-sdk installed (with ``ros2``: without

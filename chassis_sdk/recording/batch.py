@@ -1,4 +1,4 @@
-"""Recording work done after the frame's own: :class:`AfterFrame`, which both recorders
+"""Recording work done after the frame's own: `AfterFrame`, which both recorders
 (the Foxglove sink and the rosbag2 recorder) use.
 
 A recorder hears of a frame synchronously, in the link's ``data_received``, before the
@@ -39,7 +39,7 @@ class AfterFrame:
             self._loop = None
 
     def later(self, work: Callable[..., None], *args: Any) -> None:
-        """Queue ``work(*args)`` (dropped once :meth:`close` was called)."""
+        """Queue ``work(*args)`` (dropped once `close` was called)."""
         if self._closed:
             return
         pending = self._pending

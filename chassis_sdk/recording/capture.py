@@ -1,8 +1,8 @@
 """Captures: record a port's raw bytes with timestamps, decode them later, detect the
 protocol on a port.
 
-A capture is a JSON-lines file (the format: :mod:`chassis_sdk.recording.jsonl`) or an
-MCAP recording (:mod:`chassis_sdk.recording.mcap`); every reader here takes both.
+A capture is a JSON-lines file (the format: `chassis_sdk.recording.jsonl`) or an
+MCAP recording (`chassis_sdk.recording.mcap`); every reader here takes both.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from .columns import Columns
 
 __all__ = [
+    "SILENCE_WARNING",
     "Capture",
     "CaptureFirmware",
     "Progress",
@@ -79,6 +80,10 @@ class Capture:
             ``{"t": ..., "event": "disconnected"}`` in the file, and a reopen that
             worked is ``"reconnected"``).
         connected: Whether the link was up when the recording ended.
+        device: The device whose frames the recording holds: the one named, once a
+            frame of it arrived, else the one heard; ``None`` when no frame of it (or,
+            with none named, of any known device) arrived: a wrong ``--device``, a
+            silent port, the wrong baud rate.
     """
 
     path: Path
@@ -87,10 +92,53 @@ class Capture:
     seconds: float
     disconnects: int = 0
     connected: bool = True
+    device: str | None = None
 
 
 #: What a recording's progress callback gets: (bytes so far, seconds so far, link up).
 Progress = Callable[[int, float, bool], None]
+#: Seconds into a recording after which no frame of its device is warned about.
+SILENCE_WARNING = 3.0
+
+
+class _FrameWatch:
+    """Whether a frame of ``device`` (of any known device when ``None``) has arrived:
+    the bytes are decoded only until the first frame, and the first 64 KiB kept to
+    say what else they look like."""
+
+    _KEEP = 1 << 16
+
+    def __init__(self, device: str | None) -> None:
+        self.wanted = device
+        names = [device] if device is not None else list(profiles())
+        self._decoders = [(name, profile(name).codec.decoder()) for name in names]
+        self._head = bytearray()
+        #: The device a frame arrived of, once one did.
+        self.heard: str | None = None
+
+    def feed(self, data: bytes) -> None:
+        if self.heard is not None:
+            return
+        if len(self._head) < self._KEEP:
+            self._head += data[: self._KEEP - len(self._head)]
+        for name, decoder in self._decoders:
+            decoder.feed(data)
+            if decoder.stats.frames:
+                self.heard = name
+                return
+
+    def why(self, port: str, total: int) -> str:
+        """What arrived instead of a frame, for a warning or an error."""
+        what = f"{self.wanted} frame" if self.wanted else "frame of any known device"
+        if not total:
+            return f"no {what} from {port}: nothing arrived"
+        other = detect_in(bytes(self._head)) if self.wanted else None
+        if other is not None and other != self.wanted:
+            return (
+                f"no {what} in {total:,} bytes from {port}: they look like a {other}; "
+                f"try --device {other}"
+            )
+        return f"no {what} in {total:,} bytes from {port} (the wrong baud rate?)"
 
 
 async def _open_raw(
@@ -123,22 +171,27 @@ async def record(
     writes to the port.
 
     The format is the file's suffix: ``.mcap`` (raw bytes with receive times, every
-    stream decoded, odometry and events; see :mod:`chassis_sdk.recording.sink`; needs
+    stream decoded, odometry and events; see `chassis_sdk.recording.sink`; needs
     the ``foxglove`` extra and the device's protocol, heard on the port if not given),
     or a JSON-lines capture (raw bytes with receive times) for any other name. A
     recording chosen with its options, such as
-    :func:`chassis_sdk.recording.ros2.rosbag` (a rosbag2 file for ROS 2 tools), is
+    `chassis_sdk.recording.ros2.rosbag` (a rosbag2 file for ROS 2 tools), is
     made as it says, from the same decoded streams:
     ``record(port, rosbag("run.mcap", namespace="robot1"), seconds=60)``.
 
     If the link drops (the cable is pulled), the recording goes on: the drop is written
     to the file, the port is reopened with backoff until ``seconds`` are up, and a
-    reopen is written too; :attr:`Capture.connected` says how it ended.
+    reopen is written too; `Capture.connected` says how it ended.
+
+    If no frame of ``device`` (of any known device, when none is named) has arrived
+    `SILENCE_WARNING` seconds in, a warning is logged (``chassis_sdk.recording.capture``)
+    naming what came instead, and the recording goes on; `Capture.device` is
+    ``None`` for a recording that never got one.
 
     Args:
         port: Device path, pty path or ``socket://host:port``.
         path: The capture file to write (``.mcap``, else JSON lines), or a
-            :class:`~chassis_sdk.core.session.RecordTarget` (``rosbag(...)``).
+            `RecordTarget` (``rosbag(...)``).
         seconds: How long to listen.
         baudrate: Serial speed.
         progress: Called about twice a second, and at once when the link drops or
@@ -168,6 +221,8 @@ async def record(
     start = time.monotonic()
     end = start + seconds
     total = chunks = disconnects = 0
+    watch = _FrameWatch(device)
+    warned = False
     lost = anyio.Event()
     writer: Recording
     if decoding is not None:
@@ -184,6 +239,7 @@ async def record(
             total += len(data)
             chunks += 1
             feed(data, t)
+            watch.feed(data)
 
         def report() -> None:
             if progress is not None:
@@ -201,6 +257,9 @@ async def record(
 
             while (now := time.monotonic()) < end:
                 report()
+                if not warned and watch.heard is None and now - start >= SILENCE_WARNING:
+                    warned = True
+                    _log.warning("after %g s, %s", SILENCE_WARNING, watch.why(port, total))
                 if link is not None:
                     with anyio.move_on_after(min(0.5, end - now)):
                         await lost.wait()
@@ -224,7 +283,13 @@ async def record(
     finally:
         writer.close()
     return Capture(
-        path, chunks, total, time.monotonic() - start, disconnects, connected=link is not None
+        path,
+        chunks,
+        total,
+        time.monotonic() - start,
+        disconnects,
+        connected=link is not None,
+        device=watch.heard,
     )
 
 
@@ -241,9 +306,19 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def is_mcap(path: str | Path) -> bool:
-    """Whether ``path`` is an MCAP file (by its first bytes, whatever its name)."""
-    with Path(path).open("rb") as f:
-        return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    """Whether ``path`` is an MCAP file (by its first bytes, whatever its name).
+
+    Raises:
+        FileNotFoundError: ``no such file: PATH``.
+        IsADirectoryError: ``not a file but a directory: PATH``.
+    """
+    try:
+        with Path(path).open("rb") as f:
+            return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no such file: {path}") from None
+    except IsADirectoryError:
+        raise IsADirectoryError(f"not a file but a directory: {path}") from None
 
 
 def read_capture(path: str | Path, *, sent: bool = False) -> Iterator[tuple[float, bytes]]:
@@ -287,8 +362,19 @@ def _read_mcap_bytes(path: Path, suffix: str) -> Iterator[tuple[float, bytes]]:
                         yield (record.log_time - t0) / 1e9, unpack(record.data)
                 elif isinstance(record, McapChannel) and record.topic.endswith(suffix):
                     wanted[record.id] = _raw_bytes(record.message_encoding)
-        except McapError as exc:
-            _log.warning("%s ends early (%s): read up to there", path, exc)
+        except (McapError, struct.error, EOFError) as exc:  # a torn record: struct.error
+            if path.resolve() not in _CUT:  # once per file, however often it is read
+                _CUT.add(path.resolve())
+                _log.warning(
+                    "%s ends early (%s): read up to there (cut by a hard kill? "
+                    "`mcap recover` rewrites it whole)",
+                    path,
+                    str(exc) or type(exc).__name__,
+                )
+
+
+#: Files found cut short, warned about once.
+_CUT: set[Path] = set()
 
 
 def _from_json(data: bytes) -> bytes:
@@ -298,7 +384,7 @@ def _from_json(data: bytes) -> bytes:
 def _raw_bytes(encoding: str) -> Callable[[bytes], bytes]:
     """How to get the bytes out of a raw-bytes message: JSON with base64 (the Foxglove
     recording), or CDR of ``std_msgs/msg/UInt8MultiArray`` (the rosbag2 one,
-    :mod:`chassis_sdk.recording.ros2`)."""
+    `chassis_sdk.recording.ros2`)."""
     return uint8_multiarray_data if encoding == "cdr" else _from_json
 
 
@@ -355,7 +441,7 @@ def _need_mcap() -> None:
 
 def mcap_metadata(path: str | Path) -> dict[str, str]:
     """The ``chassis_sdk`` metadata of an MCAP recording (device, port, baud rate,
-    versions; see :func:`chassis_sdk.recording.sink.session_metadata`), or ``{}``."""
+    versions; see `chassis_sdk.recording.sink.session_metadata`), or ``{}``."""
     _need_mcap()
     from mcap.exceptions import McapError
     from mcap.records import Metadata
@@ -366,7 +452,7 @@ def mcap_metadata(path: str | Path) -> dict[str, str]:
             for record in StreamReader(f, record_size_limit=1 << 30).records:
                 if isinstance(record, Metadata) and record.name == "chassis_sdk":
                     return dict(record.metadata)
-        except McapError:
+        except (McapError, struct.error, EOFError):
             pass
     return {}
 
@@ -378,7 +464,7 @@ def decode_capture(
 
     Args:
         path: The capture (JSON lines or MCAP).
-        device: The device's name (see :func:`chassis_sdk.devices.profiles`).
+        device: The device's name (see `chassis_sdk.devices.profiles`).
         commands: Decode what the *host* sent instead: the frames written where the
             recording holds them (an application's ``record=``), else the received
             bytes (a capture taken on a tap that sees both directions).
@@ -408,7 +494,7 @@ def _chunks(path: str | Path, commands: bool) -> Iterator[tuple[float, bytes]]:
 def capture_columns(path: str | Path, device: str, *, commands: bool = False) -> Columns:
     """Decode a whole capture into arrays (numpy): a column per field, in SI units.
 
-    The frames :func:`decode_capture` finds, decoded 10-27 times faster (reading the
+    The frames `decode_capture` finds, decoded 10-27 times faster (reading the
     file then takes most of the time). The high-rate types (telemetry, power; IMU,
     velocity, battery) come out as a table of columns each, ``t`` (seconds since the
     start) first; every other frame is in ``messages`` as an object:
@@ -421,8 +507,8 @@ def capture_columns(path: str | Path, device: str, *, commands: bool = False) ->
 
     Args:
         path: The capture (JSON lines or MCAP).
-        device: The device's name (see :func:`chassis_sdk.devices.profiles`).
-        commands: What the host sent instead (see :func:`decode_capture`).
+        device: The device's name (see `chassis_sdk.devices.profiles`).
+        commands: What the host sent instead (see `decode_capture`).
 
     Raises:
         ValueError: An unknown device, a file that is not a capture, or numpy missing.
@@ -441,7 +527,7 @@ def capture_columns(path: str | Path, device: str, *, commands: bool = False) ->
 
 def _joined(path: str | Path, *, sent: bool) -> tuple[list[float], list[int], bytes]:
     """``(times, sizes, bytes)`` of one direction of a capture, every chunk's bytes
-    joined (what :func:`chassis_sdk.recording.columns.decode_joined` takes)."""
+    joined (what `chassis_sdk.recording.columns.decode_joined` takes)."""
     times, parts = [], []
     for t, chunk in read_capture(path, sent=sent):
         if chunk:
@@ -464,7 +550,7 @@ def detect_in(data: bytes) -> str | None:
 
 async def detect_device(port: str, *, seconds: float = 1.0, baudrate: int = 115200) -> str | None:
     """Listen to ``port`` for ``seconds`` and say which device's protocol it speaks
-    (a name from :func:`chassis_sdk.devices.profiles`).
+    (a name from [`chassis_sdk.devices.profiles`][chassis_sdk.devices.profiles]).
 
     Devices send telemetry unprompted (the chassis 0x81 at 50 Hz, the board its IMU
     at 100 Hz), so a second of listening is plenty. Returns ``None`` if nothing
@@ -489,12 +575,12 @@ async def detect_device(port: str, *, seconds: float = 1.0, baudrate: int = 1152
 
 class CaptureFirmware:
     """A capture played back as a device: the firmware model of a
-    :class:`~chassis_sdk.sim.server.SimulatorServer` that sends the recorded bytes
+    [`SimulatorServer`][chassis_sdk.sim.server.SimulatorServer] that sends the recorded bytes
     at the recorded times (``speed`` times faster), so an unmodified application runs
     against what a real robot sent. What the application writes is counted and decoded
     (``commands``), never acted on.
 
-    Timing starts with :meth:`on_connect`: when the server starts (a pty, after
+    Timing starts with `on_connect`: when the server starts (a pty, after
     ``start_after`` seconds, so the application has time to open it) or when a TCP
     client connects.
 
@@ -502,7 +588,7 @@ class CaptureFirmware:
         path: The capture file.
         device: The device's name, to decode what the application writes.
         speed: Playback speed (2: twice as fast).
-        start_after: Seconds between :meth:`on_connect` and the first chunk.
+        start_after: Seconds between `on_connect` and the first chunk.
         on_done: Called once the last chunk has been played.
     """
 
@@ -521,7 +607,8 @@ class CaptureFirmware:
         self._decoder = profile(device).codec.command_decoder()
         #: What the application wrote, decoded, in order.
         self.commands: list[object] = []
-        #: Bytes the application wrote; bytes and chunks played so far.
+        #: Bytes the application wrote; bytes of the capture played since the last
+        #: (re)start of playback.
         self.bytes_written = 0
         self.bytes_played = 0
         self._next = 0
@@ -534,8 +621,19 @@ class CaptureFirmware:
         return self._next >= len(self.chunks)
 
     def on_connect(self, now: float) -> None:
+        """Start playing (again) from the first chunk: ``bytes_played`` counts this
+        playback, so it never exceeds the capture's bytes."""
         self._t0 = now + self.start_after
         self._next = 0
+        self.bytes_played = 0
+
+    def hold(self) -> None:
+        """Play nothing until the next `on_connect`: on TCP, where the server's
+        start calls it too, playback then waits for the first client instead of
+        playing to nobody."""
+        self._t0 = None
+        self._next = 0
+        self.bytes_played = 0
 
     def receive(self, data: bytes, now: float) -> bytes:
         self.bytes_written += len(data)

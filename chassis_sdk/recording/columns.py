@@ -2,7 +2,7 @@
 
 Why it exists
 -------------
-The decoders in :mod:`.framing` serve a live link: bytes come in chunks and each frame
+The decoders in `.framing` serve a live link: bytes come in chunks and each frame
 becomes an object, about 3 µs apiece. A recorded hour is 180,000 frames that are all
 there already, and analysis (plots, CSV, numpy and pandas users) wants a column per
 field, not 180,000 objects. This module finds every frame of the whole byte string with
@@ -10,7 +10,7 @@ array operations and reads the fields of the high-rate frame types straight into
 arrays; the rare types go through the codec's own parser, one object each.
 
 It finds the frames the streaming decoder finds, by the same rules, given as data by
-the codec (:class:`~.framing.FrameLayout`):
+the codec (`FrameLayout`):
 
 * a candidate is a head whose type is known, whose length is possible, whose frame fits
   in the data, whose check and tail hold, whose parser accepts it, and (protocol B) in
@@ -49,7 +49,7 @@ _Ints = npt.NDArray[np.int64]
 
 @dataclass
 class Columns:
-    """What :func:`decode_columns` found.
+    """What [`decode_columns`][chassis_sdk.recording.columns.decode_columns] found.
 
     Attributes:
         tables: By message class name (``"Telemetry"``, ``"ImuSample"``): column name ->
@@ -91,7 +91,7 @@ def decode_columns(chunks: Iterable[tuple[float, bytes]], decoder: FrameDecoder[
 def decode_joined(
     raw: bytes, times: Sequence[float], sizes: Sequence[int], decoder: FrameDecoder[Any]
 ) -> Columns:
-    """:func:`decode_columns` of chunks already joined: ``raw`` is every chunk's bytes
+    """`decode_columns` of chunks already joined: ``raw`` is every chunk's bytes
     in order, chunk ``i`` arrived at ``times[i]`` and holds ``sizes[i]`` bytes."""
     cls = type(decoder)
     layout = cls.layout

@@ -34,7 +34,7 @@ class JsonlRecording:
         path: The file (overwritten).
         port: For the header.
         baudrate: For the header.
-        device: The device whose links to tap (``None``: the caller feeds :meth:`rx`).
+        device: The device whose links to tap (``None``: the caller feeds `rx`).
     """
 
     def __init__(
@@ -103,8 +103,12 @@ def read_jsonl(path: str | Path, *, sent: bool = False) -> Iterator[tuple[float,
     """
     key = "tx" if sent else "data"
     with Path(path).open(encoding="utf-8") as f:
-        if not _header_ok(f.readline()):
-            raise ValueError(f"{path} is not a chassis-sdk capture or MCAP file")
+        try:
+            header = f.readline(1 << 16)
+        except UnicodeDecodeError:
+            header = ""
+        if not _header_ok(header):
+            raise ValueError(f"not a chassis-sdk capture (neither JSON lines nor MCAP): {path}")
         for n, line in enumerate(f, start=2):
             if not line.strip():
                 continue

@@ -1,12 +1,12 @@
 """A device's session recorded to an MCAP file, by the Foxglove sink
-(:mod:`chassis_sdk.recording.sink`: see it for the topics).
+([`chassis_sdk.recording.sink`][chassis_sdk.recording.sink]: see it for the topics).
 
 What a hard kill loses: the MCAP writer finishes a chunk and flushes it to the file
 every ``flush_interval`` seconds (1 s), so ``kill -9`` or a power cut loses at most the
 last second, and the file lacks its summary (``chassis-sdk replay``, ``export`` and the
 ``mcap`` tools' ``recover`` read such a file up to where it stops). A normal exit,
-an exception, Ctrl-C and SIGTERM (via :func:`chassis_sdk.run`) close it properly.
-Every MCAP recording goes through :class:`McapRecording`: an application's
+an exception, Ctrl-C and SIGTERM (via [`chassis_sdk.run`][chassis_sdk.run]) close it properly.
+Every MCAP recording goes through `McapRecording`: an application's
 ``record=``, ``chassis-sdk record`` and ``chassis-sdk serve --record``.
 """
 
@@ -30,16 +30,16 @@ FLUSH_INTERVAL = 1.0
 
 
 class McapRecording:
-    """A session written to an MCAP file by a :class:`FoxgloveSink`; see the module
+    """A session written to an MCAP file by a `FoxgloveSink`; see the module
     docstring for what it holds and what a hard kill can lose.
 
     Args:
         path: The file (overwritten).
         device: The device whose session this is.
         flush_interval: Seconds between two flushes of the file.
-        metadata: Added to the :func:`session_metadata` record.
+        metadata: Added to the `session_metadata` record.
         context: The ``foxglove.Context`` to publish in (default: a new one). Give a
-            live server's, and the recording's :attr:`sink` is the server's too: one
+            live server's, and the recording's `sink` is the server's too: one
             sink, whose every message both the file and the server get.
     """
 

@@ -4,7 +4,7 @@
 
 Topics, for a device named ``chassis`` (relative names go under the namespace, as the
 live ROS 2 bridge's do; types and QoS from
-:data:`~chassis_sdk.recording.ros2_types.TOPICS`)::
+`TOPICS`)::
 
     odom                           nav_msgs/msg/Odometry     the odometry, odom -> base_link
     /tf                            tf2_msgs/msg/TFMessage    the same sample as a transform
@@ -18,9 +18,9 @@ live ROS 2 bridge's do; types and QoS from
 
 What makes it a rosbag2 file, as ``rosbag2_storage_mcap`` writes one: the header's
 profile ``ros2``; per type a ``ros2msg`` schema (the full definition text,
-:func:`~chassis_sdk.recording.ros2_types.definition`); per topic a channel with message
+`definition`); per topic a channel with message
 encoding ``cdr`` (what ``serialize()`` gives: plain CDR after the encapsulation header
-``00 01 00 00``) and the metadata ``offered_qos_profiles`` (:func:`offered_qos_profiles`,
+``00 01 00 00``) and the metadata ``offered_qos_profiles`` (`offered_qos_profiles`,
 rosbag2's v9 YAML) and ``topic_type_hash`` (REP 2011). Log and publish times are the
 receive time in epoch nanoseconds; header stamps are wall-clock time. It is written
 with ``mcap``'s own writer: ``mcap_ros2``'s writes neither QoS nor type hashes.
@@ -31,12 +31,12 @@ which this YAML is). The session's ``chassis_sdk`` record (device, port, version
 there, as in the Foxglove recording, so the device is known when reading back.
 
 What a hard kill loses: the chunk is finished and flushed every ``flush_interval``
-(1 s), as :class:`~chassis_sdk.recording.mcap.McapRecording` does.
+(1 s), as [`McapRecording`][chassis_sdk.recording.mcap.McapRecording] does.
 
-The recorder is chosen with :func:`rosbag` (``record=rosbag("run.mcap")`` on a device,
+The recorder is chosen with `rosbag` (``record=rosbag("run.mcap")`` on a device,
 ``capture.record(port, rosbag(...))``), with
-:func:`~chassis_sdk.recording.open_recording` (``ros2=True``) or by building a
-:class:`Ros2Recording`. Needs the ``ros2`` extra (``cyclonedds``, ``mcap``).
+[`open_recording`][chassis_sdk.recording.open_recording] (``ros2=True``) or by building a
+`Ros2Recording`. Needs the ``ros2`` extra (``cyclonedds``, ``mcap``).
 """
 
 from __future__ import annotations
@@ -100,15 +100,15 @@ def offered_qos_profiles(spec: TopicSpec) -> str:
 @dataclass(frozen=True, eq=False)
 class Rosbag:
     """A rosbag2 recording to be made: the file and the options, checked when made (see
-    :func:`rosbag`, which makes one). It is a path (``os.fspath`` gives the file), so it
+    `rosbag`, which makes one). It is a path (``os.fspath`` gives the file), so it
     goes wherever a recording's file does, and it opens its recorder itself
-    (:meth:`open_recorder`): the device's ``record`` option and
-    :func:`chassis_sdk.recording.capture.record` take it as they take a file name.
+    (`open_recorder`): the device's ``record`` option and
+    `chassis_sdk.recording.capture.record` take it as they take a file name.
 
     Attributes:
         path: The ``.mcap`` file (overwritten).
         ros: The names, frames, static transforms and covariances, as the live ROS 2
-            bridge takes them (:class:`~chassis_sdk.recording.ros2_types.Ros2Options`).
+            bridge takes them (`Ros2Options`).
         flush_interval: Seconds between two flushes of the file (what a kill can lose).
         metadata: Added to the session's ``chassis_sdk`` metadata record.
     """
@@ -145,7 +145,7 @@ class Rosbag:
         return str(self.path)
 
     def open_recorder(self, device: Device[Any, Any]) -> Ros2Recording:
-        """Start recording ``device``'s session to :attr:`path` (what a device's
+        """Start recording ``device``'s session to `path` (what a device's
         ``record`` option calls as it connects)."""
         return Ros2Recording(self.path, device, options=self)
 
@@ -164,7 +164,7 @@ def rosbag(
     metadata: Mapping[str, str] | None = None,
 ) -> Rosbag:
     """Choose a rosbag2 recording (the ROS 2 profile of MCAP) where a recording's file
-    goes: a device's ``record`` option or :func:`chassis_sdk.recording.capture.record`.
+    goes: a device's ``record`` option or `chassis_sdk.recording.capture.record`.
 
     ```python
     from chassis_sdk.recording.ros2 import rosbag
@@ -179,9 +179,9 @@ def rosbag(
         namespace: Where the relative topics go (``robot1`` → ``/robot1/odom``).
         frame_id, child_frame_id, imu_frame_id, static_transforms, pose_covariance,
             twist_covariance: See
-            :class:`~chassis_sdk.recording.ros2_types.Ros2Options` (``/tf_static``
+            `Ros2Options` (``/tf_static``
             is written once at the start, and only when it holds something).
-        flush_interval, metadata: See :class:`Rosbag`.
+        flush_interval, metadata: See `Rosbag`.
 
     Raises:
         TypeError: An option of the wrong type.
@@ -227,7 +227,7 @@ class _Channel:
 class Ros2Recording:
     """A session written as a rosbag2 MCAP file (see the module docstring for the
     topics and what makes it one). It watches the device through a
-    :class:`~chassis_sdk.core.notifier.Notifier` (every byte both ways, every message
+    [`Notifier`][chassis_sdk.core.notifier.Notifier] (every byte both ways, every message
     of its odometry, IMU, battery and telemetry streams, synchronously, so nothing is
     missed); the serialising and writing are done in one batch after the application's
     tasks woken by the same frame have run, as the Foxglove recorder does.
@@ -235,11 +235,11 @@ class Ros2Recording:
     Args:
         path: The ``.mcap`` file (overwritten).
         device: The device whose session this is.
-        options: The options, checked (:func:`rosbag` makes them); or give them as
-            keywords (those of :func:`rosbag`), not both.
+        options: The options, checked (`rosbag` makes them); or give them as
+            keywords (those of `rosbag`), not both.
 
     Raises:
-        TypeError, ValueError, ImportError: As :func:`rosbag`.
+        TypeError, ValueError, ImportError: As `rosbag`.
     """
 
     def __init__(
@@ -320,7 +320,11 @@ class Ros2Recording:
                                                depth=_RAW_DEPTH))  # fmt: skip
         self._tx = self._channel(msg.TopicSpec(f"{raw}/tx", msg.UInt8MultiArray, "out",
                                                depth=_RAW_DEPTH))  # fmt: skip
-        translator = self._translator = msg.Translator(self.options.ros, notifier.stream_names)
+        translator = self._translator = msg.Translator(
+            self.options.ros,
+            notifier.stream_names,
+            battery=self.device.battery_model,
+        )
         self._channels = {key: self._channel(msg.TOPICS[key]) for key in translator.topics}
         for stream in translator.streams:
             notifier.listen(stream, self._queued(stream))

@@ -7,17 +7,17 @@ and its fields are the ``.msg`` file's, in order), so the same class is what the
 bridge puts on the wire (plain CDR, encapsulation ``00 01 00 00``) and what a rosbag2
 MCAP file holds. From the fields alone this module derives what ROS 2 tools check:
 
-* :func:`definition`: the full message definition text that rosbag2 stores as a
+* `definition`: the full message definition text that rosbag2 stores as a
   ``ros2msg`` schema (the type's ``.msg`` fields and constants, then every type it uses
   under ``MSG: pkg/Type`` separators);
-* :func:`type_hash`: the ``RIHS01_…`` type hash of REP 2011 that Jazzy and newer put in
+* `type_hash`: the ``RIHS01_…`` type hash of REP 2011 that Jazzy and newer put in
   every endpoint's USER_DATA (``typehash=…;``) and in a bag's ``topic_type_hash``.
 
 Both are checked against an independent source (``rosbags``' Jazzy type store) by
 ``tests/test_ros2_types.py``, as are the bytes of each serialised message.
 
-:data:`TOPICS` names every topic the bridge offers and the recorder writes, with its
-type and QoS; the converters (:func:`odometry_message`, :func:`transform_message`, ...)
+`TOPICS` names every topic the bridge offers and the recorder writes, with its
+type and QoS; the converters (`odometry_message`, `transform_message`, ...)
 turn what a device reports into these messages. Stamps are wall-clock time, as ROS
 expects (``wall_time`` converts a reading's ``time.monotonic()`` timestamp).
 
@@ -36,11 +36,13 @@ from typing import Any, Final, Literal
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
 
+from ..core.battery import OCV_CURVES, BatteryModel
 from ..core.plain import wall_time
 
 __all__ = [
     "BATTERY_PERIOD",
     "BATTERY_STATUS_UNKNOWN",
+    "BATTERY_TECHNOLOGY",
     "DEFAULT_POSE_COVARIANCE",
     "DEFAULT_TWIST_COVARIANCE",
     "DIAGNOSTIC_ERROR",
@@ -76,6 +78,7 @@ __all__ = [
     "UInt8MultiArray",
     "Vector3",
     "battery_message",
+    "charge_message",
     "check_frame",
     "check_namespace",
     "covariance",
@@ -268,7 +271,7 @@ class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
 
 @dataclass
 class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
-    """``diagnostic_msgs/msg/DiagnosticStatus`` (``level``: :data:`DIAGNOSTIC_OK`, ...)."""
+    """``diagnostic_msgs/msg/DiagnosticStatus`` (``level``: `DIAGNOSTIC_OK`, ...)."""
 
     level: _octet = 0
     name: str = ""
@@ -312,6 +315,10 @@ class UInt8MultiArray(IdlStruct, typename="std_msgs::msg::dds_::UInt8MultiArray_
 
 #: ``sensor_msgs/msg/BatteryState.POWER_SUPPLY_STATUS_UNKNOWN``.
 BATTERY_STATUS_UNKNOWN: Final = 0
+#: ``BatteryState.power_supply_technology`` of a :class:`~chassis_sdk.BatteryModel`'s
+#: chemistry (``POWER_SUPPLY_TECHNOLOGY_LION`` = 2, ``_LIFE`` = 4); lead-acid has none
+#: (``VRLA`` is only the sealed kind), so it stays ``UNKNOWN`` (0), as does a custom curve.
+BATTERY_TECHNOLOGY: Final[dict[str, int]] = {"li-ion": 2, "lifepo4": 4}
 #: ``diagnostic_msgs/msg/DiagnosticStatus`` levels.
 DIAGNOSTIC_OK: Final = 0
 DIAGNOSTIC_WARN: Final = 1
@@ -629,15 +636,15 @@ def odometry_message(
     pose_covariance: Sequence[float] | None = None,
     twist_covariance: Sequence[float] | None = None,
 ) -> Odometry:
-    """``nav_msgs/Odometry`` of a :class:`~chassis_sdk.core.odometry.Odometry` sample.
+    """``nav_msgs/Odometry`` of a [`Odometry`][chassis_sdk.Odometry] sample.
 
     Args:
         odom: The sample (``x``, ``y``, ``heading``, ``linear``, ``angular``).
         epoch: Its stamp (wall-clock seconds).
         frame_id: The pose's frame (REP 105: ``odom``).
         child_frame_id: The twist's frame (``base_link``).
-        pose_covariance: 36 numbers (see :func:`covariance`); default
-            :data:`DEFAULT_POSE_COVARIANCE` on the diagonal.
+        pose_covariance: 36 numbers (see `covariance`); default
+            `DEFAULT_POSE_COVARIANCE` on the diagonal.
         twist_covariance: The same for the twist.
     """
     return Odometry(
@@ -672,28 +679,63 @@ def transform_message(
 
 
 def battery_message(
-    voltage: float, epoch: float, *, frame_id: str = "", percentage: float | None = None
+    voltage: float,
+    epoch: float,
+    *,
+    frame_id: str = "",
+    percentage: float | None = None,
+    technology: int = 0,
+    design_capacity: float | None = None,
 ) -> BatteryState:
     """``sensor_msgs/BatteryState`` of a voltage; every field not measured is NaN and the
-    status, health and technology are UNKNOWN (0), as the message documents.
+    status and health are UNKNOWN (0), as the message documents.
 
     Args:
         voltage: Volts.
         epoch: The stamp (wall-clock seconds).
         frame_id: The header's frame.
-        percentage: Charge from 0 to 1, if known.
+        percentage: Charge from 0 to 1, if known (NaN: not known).
+        technology: ``POWER_SUPPLY_TECHNOLOGY_*`` (0: unknown).
+        design_capacity: Ah, if known (NaN: not known).
     """
     return BatteryState(
         header=Header(stamp=stamp(epoch), frame_id=frame_id),
         voltage=float(voltage),
         percentage=math.nan if percentage is None else float(percentage),
+        design_capacity=math.nan if design_capacity is None else float(design_capacity),
         power_supply_status=BATTERY_STATUS_UNKNOWN,
+        power_supply_technology=technology,
         present=True,
     )
 
 
+def charge_message(
+    voltage: float, epoch: float, model: BatteryModel | None, *, frame_id: str = ""
+) -> BatteryState:
+    """`battery_message` with what a [`BatteryModel`][chassis_sdk.BatteryModel] knows: its
+    state of charge as ``percentage`` (0..1; NaN while not known, or with no model), its
+    chemistry as ``power_supply_technology`` and its capacity as ``design_capacity``.
+
+    ``power_supply_health`` stays UNKNOWN: it is the pack's health (overheat, dead, ...),
+    not its charge; a low or critical charge reaches ROS 2 through the percentage and
+    ``/diagnostics`` (whose status the device's diagnosis makes a fault then).
+    """
+    if model is None:
+        return battery_message(voltage, epoch, frame_id=frame_id)
+    percentage = model.percentage
+    default_curve = model.curve == OCV_CURVES.get(model.chemistry)
+    return battery_message(
+        voltage,
+        epoch,
+        frame_id=frame_id,
+        percentage=None if percentage is None else percentage / 100.0,
+        technology=BATTERY_TECHNOLOGY.get(model.chemistry, 0) if default_curve else 0,
+        design_capacity=model.capacity_ah,
+    )
+
+
 def imu_message(sample: Any, epoch: float, *, frame_id: str = "imu_link") -> Imu:
-    """``sensor_msgs/Imu`` of a board's :class:`~chassis_sdk.devices.board.ImuSample`:
+    """``sensor_msgs/Imu`` of a board's `ImuSample`:
     acceleration from g to m/s², rates from degrees to radians per second, and no
     orientation (``orientation_covariance[0] = -1``, as the message documents)."""
     accel, gyro = sample.accel, sample.gyro
@@ -724,7 +766,7 @@ def diagnostics_message(
         epoch: The stamp (wall-clock seconds).
         name: The status's name (``chassis_sdk: chassis``).
         hardware_id: The device (its port, or its serial number).
-        level: :data:`DIAGNOSTIC_OK`, ``WARN``, ``ERROR`` or ``STALE``.
+        level: `DIAGNOSTIC_OK`, ``WARN``, ``ERROR`` or ``STALE``.
         message: One line.
         values: Key and value pairs (faults, notes, counters).
     """
@@ -793,8 +835,8 @@ class Ros2Options:
         static_transforms: What ``/tf_static`` holds; ``None``: a device with an IMU
             gets ``child_frame_id`` → ``imu_frame_id`` (identity), others none.
         pose_covariance: Six variances (x, y, z, roll, pitch, yaw) for the odometry's
-            pose; ``None``: :data:`DEFAULT_POSE_COVARIANCE`.
-        twist_covariance: The same for its twist (``None``: :data:`DEFAULT_TWIST_COVARIANCE`).
+            pose; ``None``: `DEFAULT_POSE_COVARIANCE`.
+        twist_covariance: The same for its twist (``None``: `DEFAULT_TWIST_COVARIANCE`).
         tf: Publish odom → base_link on ``/tf`` too (``False`` when an EKF does).
 
     Raises:
@@ -856,19 +898,34 @@ class Ros2Options:
 
 class Translator:
     """A device's readings as ROS 2 messages, for the streams it has: which topics (keys
-    of :data:`TOPICS`) they give, and the messages of each reading.
+    of `TOPICS`) they give, and the messages of each reading.
 
     ``odometry`` gives ``odom`` (and ``/tf``), ``imu`` ``imu/data_raw``, ``battery``
     ``battery_state``; without a ``battery`` stream, ``telemetry`` that carries a
-    ``voltage`` gives ``battery_state`` at most once per :data:`BATTERY_PERIOD`.
+    ``voltage`` gives ``battery_state`` at most once per `BATTERY_PERIOD`.
 
     Args:
         options: The names, frames and covariances.
         streams: The device's stream names (``Notifier.stream_names``).
+        battery: The device's ``battery_model`` (``None``: none): ``battery_state``
+            then carries its state of charge (see `charge_message`).
+
+    Raises:
+        TypeError: ``battery`` is not a ``BatteryModel`` or ``None``.
     """
 
-    def __init__(self, options: Ros2Options, streams: Iterable[str]) -> None:
+    def __init__(
+        self,
+        options: Ros2Options,
+        streams: Iterable[str],
+        *,
+        battery: BatteryModel | None = None,
+    ) -> None:
+        if battery is not None and not isinstance(battery, BatteryModel):
+            raise TypeError(f"battery must be a BatteryModel or None, got {battery!r}")
         self.options = options
+        #: The state-of-charge estimator read for each ``battery_state``, or ``None``.
+        self.battery = battery
         names = set(streams)
         self._pose_cov = covariance(options.pose_covariance or DEFAULT_POSE_COVARIANCE)
         self._twist_cov = covariance(options.twist_covariance or DEFAULT_TWIST_COVARIANCE)
@@ -892,7 +949,7 @@ class Translator:
 
     def messages(self, stream: str, reading: Any) -> list[tuple[str, Any]]:
         """The ``(topic key, message)`` pairs of one reading of ``stream`` (none for a
-        stream not in :attr:`streams`, or a telemetry frame between two batteries)."""
+        stream not in `streams`, or a telemetry frame between two batteries)."""
         entry = self._table.get(stream)
         if entry is None:
             return []
@@ -930,8 +987,10 @@ class Translator:
         return [("imu", imu_message(sample, epoch, frame_id=self.options.imu_frame_id))]
 
     def _battery(self, reading: Any, epoch: float) -> list[tuple[str, Any]]:
-        message = battery_message(reading.voltage, epoch, frame_id=self.options.child_frame_id)
-        return [("battery_state", message)]
+        frame = self.options.child_frame_id
+        return [
+            ("battery_state", charge_message(reading.voltage, epoch, self.battery, frame_id=frame))
+        ]
 
     def _telemetry(self, telemetry: Any, epoch: float) -> list[tuple[str, Any]]:
         voltage = getattr(telemetry, "voltage", None)

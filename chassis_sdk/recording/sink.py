@@ -1,11 +1,11 @@
 """The Foxglove sink: one device's session published into a ``foxglove.Context``, for a
 recording and a live view alike.
 
-:class:`FoxgloveSink` publishes everything one device does into a ``foxglove.Context``
+`FoxgloveSink` publishes everything one device does into a ``foxglove.Context``
 (the `foxglove-sdk <https://docs.foxglove.dev/docs/sdk>`_): the raw bytes both ways,
 every named stream decoded, the commands the host wrote decoded, odometry as a pose
 and a transform, events as log lines, the link state. Whatever listens to that context
-gets it: an MCAP file (:class:`chassis_sdk.recording.mcap.McapRecording`) or the
+gets it: an MCAP file (`chassis_sdk.recording.mcap.McapRecording`) or the
 Foxglove WebSocket server (``chassis-sdk serve``), or both at once.
 
 Topics, for a device named ``chassis``::
@@ -13,7 +13,10 @@ Topics, for a device named ``chassis``::
     /chassis/raw/rx      bytes as they arrived, with their receive time  (JSON, base64)
     /chassis/raw/tx      every frame the host wrote, when it began to leave
     /chassis/commands    those frames decoded
-    /chassis/{stream}    each stream (telemetry, power, odometry, events, ...) as JSON
+    /chassis/{stream}    each stream (telemetry, power, odometry, events, ...) as JSON;
+                         a reading with the pack's ``voltage`` of a device given
+                         ``battery=BatteryModel(...)`` with ``battery_percentage`` and
+                         ``battery_level`` beside it (``null`` while not known)
     /chassis/pose        foxglove.PoseInFrame in frame "odom"
     /tf                  foxglove.FrameTransforms odom -> base_link
     /chassis/log         events as foxglove.Log
@@ -37,6 +40,7 @@ import typing
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from ..core.charge import battery_fields
 from ..core.notifier import Notifier
 from ..core.plain import plain
 from .batch import AfterFrame
@@ -57,7 +61,12 @@ _BYTES_SCHEMA = {
 }
 _LINK_SCHEMA = {"type": "object", "properties": {"state": {"type": "string"}}}
 #: Event kinds logged as warnings (the rest are information).
-_WARNINGS = ("engaged", "hit", "offline", "error", "low", "stale", "lost")
+_WARNINGS = ("engaged", "hit", "offline", "error", "low", "critical", "stale", "lost")
+#: The JSON schema of the state of charge beside a voltage (``battery_fields``).
+_CHARGE_SCHEMA = {
+    "battery_percentage": {"type": ["number", "null"], "minimum": 0, "maximum": 100},
+    "battery_level": {"enum": ["OK", "LOW", "CRITICAL", None]},
+}
 
 
 def _needs_foxglove(what: str) -> ImportError:
@@ -70,7 +79,7 @@ def _needs_foxglove(what: str) -> ImportError:
 
 
 def json_schema(tp: Any) -> dict[str, Any]:
-    """A JSON schema for how :func:`~chassis_sdk.core.plain.plain` renders a value of
+    """A JSON schema for how `plain` renders a value of
     type ``tp`` (a message dataclass, a NamedTuple, an enum, a number, ...)."""
     if tp is bool:
         return {"type": "boolean"}
@@ -151,7 +160,7 @@ def session_metadata(device: Device[Any, Any]) -> dict[str, str]:
 
 class FoxgloveSink:
     """Publishes one device's session into a ``foxglove.Context`` (see the module
-    docstring for the topics). It is the device's :class:`~chassis_sdk.core.transport.Tap`
+    docstring for the topics). It is the device's `Tap`
     and listens to its streams synchronously, so nothing is missed and nothing waits;
     encoding is skipped on a channel nobody listens to.
 
@@ -224,11 +233,11 @@ class FoxgloveSink:
     # --- what is logged -----------------------------------------------------------------------
 
     def rx(self, data: bytes, now: float) -> None:
-        """Bytes arrived (the device's :class:`Tap`)."""
+        """Bytes arrived (the device's `Tap`)."""
         self._later(self._bytes, self._rx, data, now)
 
     def tx(self, data: bytes, now: float) -> None:
-        """A frame began to leave (the device's :class:`Tap`)."""
+        """A frame began to leave (the device's `Tap`)."""
         self._later(self._sent, data, now)
 
     def link_state(self, state: str, now: float) -> None:
@@ -259,11 +268,19 @@ class FoxgloveSink:
 
         def log(msg: Any, now: float) -> None:
             channel = self._channels.get(stream)
+            # A reading of the pack's voltage, of a device with a model: the charge too.
+            charge = self.device.battery_model is not None and hasattr(msg, "voltage")
             if channel is None:
+                schema = _message_schema(msg)
+                if charge:
+                    schema = {**schema, "properties": {**schema["properties"], **_CHARGE_SCHEMA}}
                 channel = self._channels[stream] = self._json_channel(
-                    stream, _message_schema(msg), _schema_name(self.device.device_name, msg)
+                    stream, schema, _schema_name(self.device.device_name, msg)
                 )
-            self._json(channel, _fields(msg), now)
+            payload = _fields(msg)
+            if charge:
+                payload.update(battery_fields(self.device))
+            self._json(channel, payload, now)
             if stream == "odometry":
                 self._odometry(msg, now)
             elif stream == "events":

@@ -105,6 +105,7 @@ function onState(s) {
     }
   }
   showStatus(s.streams);
+  showCharge(s.battery);
   showStreams(s.streams);
   const sp = state.speed;
   sp.t.push(s.time); sp.linCmd.push(cmd[0]); sp.angCmd.push(cmd[1]);
@@ -140,12 +141,24 @@ function flagsOf(value) {
   return String(value).split("|");
 }
 
+// The state of charge (a device given battery=BatteryModel(...)): the number and a bar
+// coloured by level, "—" while it is not known; nothing without a model.
+function showCharge(charge) {
+  const box = $("charge");
+  box.hidden = !charge;
+  if (!charge) return;
+  const known = typeof charge.percentage === "number";
+  const level = known && charge.level ? charge.level.toLowerCase() : "unknown";
+  box.dataset.level = level;
+  $("charge-text").textContent = !known ? "—"
+    : `${charge.percentage.toFixed(0)} %${level === "ok" ? "" : ` ${charge.level}`}`;
+  $("charge-bar").style.width = known ? `${Math.min(100, Math.max(0, charge.percentage))}%` : "0%";
+}
+
 function showStatus(streams) {
   const t = streams.telemetry;
   const battery = streams.battery || t;
-  let text = battery ? `${fixed(battery.voltage, 1)} V` : "-";
-  if (battery && typeof battery.percentage === "number") text += ` (${battery.percentage.toFixed(0)} %)`;
-  $("battery").textContent = text;
+  $("battery").textContent = battery ? `${fixed(battery.voltage, 1)} V` : "-";
   const flags = $("flags");
   if (t) {
     const names = flagsOf(t.status);
