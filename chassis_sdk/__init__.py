@@ -2,12 +2,12 @@
 
 Two devices are supported:
 
-* :class:`Chassis`, a four-wheel skid-steer chassis (protocol A, ``ED DE`` frames);
-* :class:`Board`, a controller board with IMU, LED, buzzer, motors and servos
+* [`Chassis`][chassis_sdk.Chassis], a four-wheel skid-steer chassis (protocol A, ``ED DE`` frames);
+* [`Board`][chassis_sdk.Board], a controller board with IMU, LED, buzzer, motors and servos
   (protocol B, ``FE CE`` / ``AB BC`` frames).
 
-Example::
-
+Example:
+    ```python
     import chassis_sdk
     from chassis_sdk import Chassis
 
@@ -19,12 +19,13 @@ Example::
                 print(t.linear, t.voltage)
 
     chassis_sdk.run(main())  # asyncio.run, with SIGTERM/SIGHUP stopping the robot too
+    ```
 
-The sans-IO codecs live in :mod:`chassis_sdk.protocol`; the simulators in
-:mod:`chassis_sdk.sim`; recording in :mod:`chassis_sdk.recording`; the MQTT bridge and
-the Foxglove server in :mod:`chassis_sdk.integrations`. Underneath,
-:mod:`chassis_sdk.core` knows no protocol and each device is a package in
-:mod:`chassis_sdk.devices`, found through a registry (:func:`chassis_sdk.devices.profiles`)
+The sans-IO codecs live in `chassis_sdk.protocol`; the simulators in
+`chassis_sdk.sim`; recording in `chassis_sdk.recording`; the MQTT bridge and
+the Foxglove server in `chassis_sdk.integrations`. Underneath,
+`chassis_sdk.core` knows no protocol and each device is a package in
+`chassis_sdk.devices`, found through a registry (`chassis_sdk.devices.profiles`)
 that installed packages can extend.
 
 Every name here is imported on first use (PEP 562): ``import chassis_sdk`` loads
@@ -48,9 +49,12 @@ from .errors import (
 )
 
 if TYPE_CHECKING:
+    from .core.battery import BatteryLevel, BatteryModel
+    from .core.calibration import Calibration
     from .core.diagnosis import Diagnosis
-    from .core.dispatch import Subscription
+    from .core.dispatch import Listener, ListenerStats, Subscription
     from .core.events import EventKind, RobotEvent
+    from .core.notifier import Notifier
     from .core.odometry import Odometry
     from .core.run import run
     from .core.stats import LinkStats
@@ -80,19 +84,30 @@ if TYPE_CHECKING:
         WheelDriver,
         WheelSpeeds,
     )
+    from .devices.config import Profile, ProfileError, load_profile, open_robot
 
 #: Where each lazily imported name lives.
 _LAZY = {
     "ConnectionState": ".core.supervisor",
     "LinkStats": ".core.stats",
     "Diagnosis": ".core.diagnosis",
+    "BatteryLevel": ".core.battery",
+    "BatteryModel": ".core.battery",
+    "Calibration": ".core.calibration",
     "Subscription": ".core.dispatch",
+    "Listener": ".core.dispatch",
+    "ListenerStats": ".core.dispatch",
+    "Notifier": ".core.notifier",
     "EventKind": ".core.events",
     "RobotEvent": ".core.events",
     "Odometry": ".core.odometry",
     "run": ".core.run",
     "MotionLimits": ".core.watchdog",
     "Board": ".devices.board.device",
+    "Profile": ".devices.config",
+    "ProfileError": ".devices.config",
+    "load_profile": ".devices.config",
+    "open_robot": ".devices.config",
     "Chassis": ".devices.chassis.device",
     "BatteryReading": ".devices.board.messages",
     "ImuSample": ".devices.board.messages",
@@ -119,8 +134,11 @@ _LAZY = {
 _logging.getLogger("chassis_sdk").addHandler(_logging.NullHandler())
 
 __all__ = [
+    "BatteryLevel",
+    "BatteryModel",
     "BatteryReading",
     "Board",
+    "Calibration",
     "Chassis",
     "ChassisError",
     "ChassisInfo",
@@ -135,13 +153,18 @@ __all__ = [
     "ImuSample",
     "ImuScale",
     "LinkStats",
+    "Listener",
+    "ListenerStats",
     "MotionLimits",
     "Motor",
     "MotorStatus",
     "NotConnectedError",
+    "Notifier",
     "Odometry",
     "PortOpenError",
     "PowerTelemetry",
+    "Profile",
+    "ProfileError",
     "ProtocolError",
     "RequestTimeoutError",
     "RobotEvent",
@@ -154,6 +177,8 @@ __all__ = [
     "WheelDriver",
     "WheelSpeeds",
     "__version__",
+    "load_profile",
+    "open_robot",
     "run",
 ]
 

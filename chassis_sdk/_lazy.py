@@ -18,9 +18,10 @@ def lazy(
     are ``table`` (name -> the module, relative to ``package``, that defines it);
     ``namespace`` is the package's ``globals()``, where each name is kept once imported.
 
-    Example::
-
+    Example:
+        ```python
         __getattr__, __dir__ = lazy(__name__, {"Chassis": ".device"}, globals())
+        ```
     """
 
     def __getattr__(name: str) -> Any:

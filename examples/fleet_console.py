@@ -6,7 +6,8 @@
 Each robot runs `chassis-sdk bridge PORT --robot-id ID` (see docs/mqtt.md). The console
 listens for `--seconds` (the retained connection, link and info topics arrive at once,
 telemetry within a tenth of a second), prints one line per robot, and with
-`--stop-all` sends every robot `cmd/stop`.
+`--stop-all` sends every robot `cmd/stop`. A robot whose bridge is not ONLINE shows its
+link as `unknown`: the retained link message is the last thing the bridge said.
 """
 
 from __future__ import annotations
@@ -31,7 +32,25 @@ class Robot:
     connection: str = "-"
     link: str = "-"
     battery: float | None = None
+    charge: float | None = None  # percent, when the bridge's device has a battery model
     device: str = "-"
+
+    @property
+    def link_now(self) -> str:
+        """The link as the bridge last said, while the bridge is ONLINE; once it is not,
+        its retained link message is history, not news: ``unknown``."""
+        return self.link if self.connection == "ONLINE" else "unknown"
+
+
+COLUMNS = f"{'robot':<8}{'device':<9}{'connection':<18}{'link':<14}battery"
+
+
+def row(robot_id: str, r: Robot) -> str:
+    """One robot's line, under :data:`COLUMNS`."""
+    battery = "-" if r.battery is None else f"{r.battery:.1f} V"
+    if r.battery is not None and r.charge is not None:
+        battery += f"  {r.charge:.0f} %"
+    return f"{robot_id:<8}{r.device:<9}{r.connection:<18}{r.link_now:<14}{battery}".rstrip()
 
 
 async def listen(client: aiomqtt.Client, prefix: str, seconds: float) -> dict[str, Robot]:
@@ -57,6 +76,7 @@ async def listen(client: aiomqtt.Client, prefix: str, seconds: float) -> dict[st
                     robot.device = payload.get("device", "?")
                 elif "voltage" in payload:  # chassis telemetry or board battery
                     robot.battery = payload["voltage"]
+                    robot.charge = payload.get("battery_percentage")
     except TimeoutError:
         pass
     return robots
@@ -79,10 +99,9 @@ async def main(broker: str, prefix: str, seconds: float, stop: bool) -> None:
         )
         async with client:
             robots = await listen(client, prefix, seconds)
-            print(f"{'robot':<8}{'device':<9}{'connection':<18}{'link':<14}battery")
+            print(COLUMNS)
             for robot_id, r in sorted(robots.items()):
-                battery = "-" if r.battery is None else f"{r.battery:.1f} V"
-                print(f"{robot_id:<8}{r.device:<9}{r.connection:<18}{r.link:<14}{battery}")
+                print(row(robot_id, r))
             if not robots:
                 print(f"(no robot under {prefix}/ on {broker})")
             if stop and robots:

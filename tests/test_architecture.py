@@ -24,10 +24,14 @@ ROOT = Path(chassis_sdk.__file__).parent
 #: The pure parts of the core: no asyncio, no clock of their own, no runtime.
 PURE_CORE = {
     "chassis_sdk.core.backoff",
+    "chassis_sdk.core.battery",
     "chassis_sdk.core.construct",
     "chassis_sdk.core.enums",
     "chassis_sdk.core.firmware",
     "chassis_sdk.core.framing",
+    "chassis_sdk.core.pack",
+    "chassis_sdk.core.calibration",
+    "chassis_sdk.core.charge",
     "chassis_sdk.core.plain",
     "chassis_sdk.core.validation",
     "chassis_sdk.core.writequeue",

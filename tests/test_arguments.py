@@ -1,7 +1,8 @@
-"""Bad numbers are ``ValueError``, always: NaN, infinities, huge numbers, bools,
-strings and ``None`` are refused before a byte is written, for every call of both
-devices, and by the settings that take a number without a device to talk to (the
-timeouts, ``MotionLimits``, ``reset_odometry``) (field hardening, issue 11).
+"""Bad numbers are refused before a byte is written, for every call of both devices,
+and by the settings that take a number without a device to talk to (the timeouts,
+``MotionLimits``, ``reset_odometry``) (field hardening, issue 11): as the standard
+library does, a wrong type (a bool, a string, ``None``) is a ``TypeError`` and a bad
+value (NaN, infinities, huge numbers) a ``ValueError`` (issue 28 row 18).
 """
 
 from __future__ import annotations
@@ -27,6 +28,16 @@ BAD = [
     pytest.param("1", id="str"),
     pytest.param(None, id="None"),
 ]
+
+#: What each bad value raises: the wrong types a TypeError, the rest a ValueError.
+WRONG_TYPES = (True, "1", None)
+
+
+def _error_of(bad: Any, allows: str = "") -> type[Exception]:
+    """A wrong type is a TypeError; so is a float where an integer is wanted ("int")."""
+    wrong = any(bad is t for t in WRONG_TYPES) or ("int" in allows and isinstance(bad, float))
+    return TypeError if wrong else ValueError
+
 
 #: (name, call, what a valid value of the argument may also be): a large positive
 #: number is a valid time or factor, ``None`` a valid "not given".
@@ -54,10 +65,10 @@ _BOARD_CALLS: list[tuple[str, Callable[[Board, Any], Awaitable[Any]], str]] = [
     ("set_velocity linear", lambda b, x: b.set_velocity(x, 0.0), ""),
     ("set_velocity angular", lambda b, x: b.set_velocity(0.0, x), ""),
     ("set_velocity duration", lambda b, x: b.set_velocity(0.1, 0.0, duration=x), "large none"),
-    ("set_motor_pwm pwm", lambda b, x: b.set_motor_pwm(1, x), ""),
-    ("set_motor_pwm motor", lambda b, x: b.set_motor_pwm(x, 10), ""),
+    ("set_motor_pwm pwm", lambda b, x: b.set_motor_pwm(1, x), "int"),
+    ("set_motor_pwm motor", lambda b, x: b.set_motor_pwm(x, 10), "int"),
     ("set_servo angle", lambda b, x: b.set_servo(1, x), ""),
-    ("set_servo servo", lambda b, x: b.set_servo(x, 10.0), ""),
+    ("set_servo servo", lambda b, x: b.set_servo(x, 10.0), "int"),
     ("configure_odometry gap", lambda b, x: b.configure_odometry(max_gap=x), "large"),
 ]
 _MAKERS: list[tuple[str, Callable[[Any], object], str]] = [
@@ -77,7 +88,7 @@ def _valid_anyway(bad: Any, allows: str) -> bool:
 
 
 @pytest.mark.parametrize("bad", BAD)
-async def test_every_bad_number_is_a_value_error_before_a_byte_is_written(bad: Any) -> None:
+async def test_every_bad_number_is_refused_before_a_byte_is_written(bad: Any) -> None:
     async with (
         ChassisStandIn(noise=False) as cdev,
         BoardStandIn(noise=False) as bdev,
@@ -92,13 +103,15 @@ async def test_every_bad_number_is_a_value_error_before_a_byte_is_written(bad: A
             if _valid_anyway(bad, allows):
                 continue
             sent = device.stats.frames_sent
-            with pytest.raises(ValueError, match=r"must be|out of range|unknown"):
+            error = _error_of(bad, allows)
+            with pytest.raises(error, match=r"must be|out of range|unknown") as info:
                 await call(device, bad)
+            assert type(info.value) is error, name  # exactly, not a subclass
             assert device.stats.frames_sent == sent, name
         # Nothing was written for any of them (the stand-ins heard no command at all).
         assert drive_frames(cdev.frames) == []
         assert bdev.frames == []
     for _name, make, allows in _MAKERS:
         if not _valid_anyway(bad, allows):
-            with pytest.raises(ValueError, match="must be"):
+            with pytest.raises(_error_of(bad), match="must be"):
                 make(bad)

@@ -212,5 +212,5 @@ async def test_a_board_imu_scale_applies_to_samples_and_the_diagnosis() -> None:
         assert sample.accel.z == pytest.approx(sample.raw.accel_z / 16384.0)
         report = await board.diagnose()
         assert any(f.startswith("IMU reads |a| = 0.01 g") for f in report.faults)
-        with pytest.raises(ValueError, match="ImuScale"):
+        with pytest.raises(TypeError, match="ImuScale"):
             board.imu_scale = 164.0  # type: ignore[assignment]

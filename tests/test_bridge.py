@@ -23,10 +23,10 @@ import pytest
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
-from chassis_sdk import Board, Chassis
+from chassis_sdk import BatteryModel, Board, Chassis
 from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
 from chassis_sdk.protocol import DriveVelocity
-from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator, ChassisSpec, PackSpec
 
 from .support.mqtt_broker import Broker, broker
 
@@ -336,6 +336,45 @@ async def test_a_board_is_bridged_with_its_own_streams() -> None:
         await obs.publish("robots/b1/cmd/estop", {"engaged": True})
         await obs.wait(lambda: bool(obs.on("robots/b1/errors")))
         assert "a board has no e-stop; it was stopped" in obs.on("robots/b1/errors")[0]["error"]
+
+
+async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_events() -> None:
+    # A pack at 5 %: null while the model warms up (3 s), then the charge, CRITICAL,
+    # and battery_low then battery_critical on events with their percentage.
+    pack = PackSpec("li-ion", cells=7, charge=5.0)
+    model = BatteryModel("li-ion", cells=7, warmup=3.0, min_readings=3)
+    async with broker() as b, Observer(b) as obs, ChassisSimulator(ChassisSpec(pack=pack)) as sim:
+        async with Chassis(sim.port, battery=model) as robot, bridged(b, robot, rate=10.0):
+            topic = "robots/r1/telemetry/telemetry"
+            await obs.wait(
+                lambda: any(e["kind"] == "battery_critical" for e in obs.on("robots/r1/events")),
+                timeout=10.0,
+            )
+            await obs.wait(lambda: obs.on(topic)[-1]["battery_percentage"] is not None)
+            truth = sim.firmware.battery_charge
+        frames = obs.on(topic)
+        assert frames[0]["battery_percentage"] is None  # unknown: null, never a number
+        assert frames[0]["battery_level"] is None
+        known = [f for f in frames if f["battery_percentage"] is not None]
+        assert all(0.0 <= f["battery_percentage"] <= 100.0 for f in known)
+        assert truth is not None
+        assert abs(known[-1]["battery_percentage"] - truth) <= 3
+        assert known[-1]["battery_level"] == "CRITICAL"
+        events = [e for e in obs.on("robots/r1/events") if e["kind"].startswith("battery")]
+        assert [e["kind"] for e in events] == ["battery_low", "battery_critical"]
+        assert all(e["percentage"] < model.critical and e["voltage"] > 0 for e in events)
+    async with (  # a board's battery stream; no model: null beside the voltage
+        broker() as b,
+        BoardSimulator() as board_sim,
+        Board(board_sim.port) as board,
+        Observer(b) as obs,
+        bridged(b, board, "b1"),
+    ):
+        await obs.wait(lambda: bool(obs.on("robots/b1/telemetry/battery")))
+        reading = obs.on("robots/b1/telemetry/battery")[-1]
+        assert reading["voltage"] > 0
+        assert (reading["battery_percentage"], reading["battery_level"]) == (None, None)
+        assert "battery_percentage" not in obs.on("robots/b1/telemetry/imu")[-1]
 
 
 async def test_the_last_will_says_connectionbroken_when_the_bridge_vanishes() -> None:

@@ -58,5 +58,7 @@ def test_a_bad_line_is_an_error_naming_it(tmp_path: Path, line: str) -> None:
 def test_a_file_that_is_not_a_capture(tmp_path: Path) -> None:
     path = tmp_path / "other.jsonl"
     path.write_text('{"hello": 1}\n')
-    with pytest.raises(ValueError, match="is not a chassis-sdk capture or MCAP file"):
+    with pytest.raises(
+        ValueError, match=r"not a chassis-sdk capture \(neither JSON lines nor MCAP\)"
+    ):
         list(read_capture(path))

@@ -348,7 +348,7 @@ async def test_record_reports_an_unplug_and_a_replug_and_writes_them_down(tmp_pa
     assert [e for e in events if e] == ["disconnected", "reconnected"]
     code, out, err = await cli("replay", str(path))
     assert code == 0, err
-    assert "Telemetry(" in out
+    assert "Telemetry: " in out
 
 
 async def test_record_fails_when_the_link_is_not_restored(tmp_path: Path) -> None:
@@ -415,18 +415,25 @@ async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path, su
     assert "DriveVelocity" in out
 
 
-async def test_monitor_shows_any_device_from_its_profile_streams() -> None:
+async def test_monitor_shows_any_device_from_its_profile_streams(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A device with no monitor of its own gets the generic one: the board's, taken away.
+    from chassis_sdk.cli import devices as device_commands
+    from chassis_sdk.cli.monitor_command import monitor
+    from chassis_sdk.devices import profile
+
+    monkeypatch.delitem(device_commands.BUILTIN, "board")
+    assert device_commands.commands("board").monitor is None
     async with BoardSimulator() as board:
-        code, out, err = await cli("monitor", board.port, "--protocol", "board", "--seconds", "1.2")
-        assert code == 0, err
+        await monitor(profile("board"), board.port, 115200, 1.2, False)
+        out = capsys.readouterr().out
         assert "imu: accel=" in out
         assert "velocity: linear=" in out
         lines = out.splitlines()
         assert len([line for line in lines if line.startswith("imu:")]) <= 8  # 5/s at most
-        code, out, err = await cli(
-            "monitor", board.port, "--protocol", "board", "--seconds", "1", "--json"
-        )
-    assert code == 0, err
+        await monitor(profile("board"), board.port, 115200, 1.0, True)
+        out = capsys.readouterr().out
     rows = [json.loads(line) for line in out.splitlines()]
     assert sum(r["type"] == "ImuSample" for r in rows) >= 50  # every sample at 100 Hz
     assert {"VelocityFeedback", "BatteryReading"} <= {r["type"] for r in rows}

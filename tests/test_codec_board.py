@@ -108,7 +108,6 @@ def test_si_builders_scale_and_check() -> None:
         pytest.param(lambda: motor_pwm_command(0, 10), "unknown motor", id="motor-0"),
         pytest.param(lambda: motor_pwm_command(5, 10), "unknown motor", id="motor-5"),
         pytest.param(lambda: motor_pwm_command(1, 40000), "out of range", id="pwm-overflow"),
-        pytest.param(lambda: motor_pwm_command(1, 1.5), "integer", id="pwm-float"),  # type: ignore[arg-type]
         pytest.param(lambda: servo_command(3, 10), "unknown servo", id="servo-3"),
         pytest.param(lambda: servo_command(1, 3276.8), "out of range", id="servo-overflow"),
         pytest.param(lambda: servo_command(1, math.nan), "finite", id="servo-nan"),
@@ -117,6 +116,13 @@ def test_si_builders_scale_and_check() -> None:
 def test_builders_reject_bad_arguments(build: object, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         build()  # type: ignore[operator]
+
+
+def test_builders_refuse_a_wrong_type_with_a_type_error() -> None:
+    with pytest.raises(TypeError, match="pwm must be an integer"):
+        motor_pwm_command(1, 1.5)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="unknown servo '1' \\(not an integer\\)"):
+        servo_command("1", 10)  # type: ignore[arg-type]
 
 
 # --- round trips --------------------------------------------------------------------------------

@@ -314,11 +314,17 @@ def test_unknown_drive_mode_is_malformed() -> None:
 @pytest.mark.parametrize(
     ("linear", "angular"),
     [(math.nan, 0.0), (0.0, math.nan), (math.inf, 0.0), (0.0, -math.inf), (32.768, 0.0),
-     (-32.769, 0.0), (0.0, 1e39), ("1", 0.0), (True, 0.0)],
+     (-32.769, 0.0), (0.0, 1e39)],
 )  # fmt: skip
 def test_velocity_command_rejects_bad_values(linear: float, angular: float) -> None:
     with pytest.raises(ValueError, match="linear|angular"):
         velocity_command(linear, angular)
+
+
+@pytest.mark.parametrize("linear", ["1", True, None])
+def test_velocity_command_refuses_a_wrong_type_with_a_type_error(linear: object) -> None:
+    with pytest.raises(TypeError, match="linear must be a number"):
+        velocity_command(linear, 0.0)  # type: ignore[arg-type]
 
 
 def test_velocity_command_scales_to_mm() -> None:

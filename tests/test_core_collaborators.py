@@ -256,26 +256,28 @@ def test_findings_name_every_set_bit_faults_apart_from_notes() -> None:
 
 
 @pytest.mark.parametrize(
-    ("check", "value", "match"),
+    ("check", "value", "error", "match"),
     [
-        pytest.param(lambda v: check_real(v, "x"), True, "x must be a number", id="real-bool"),
-        pytest.param(lambda v: check_real(v, "x"), "1", "x must be a number", id="real-str"),
-        pytest.param(lambda v: check_real(v, "x"), float("nan"), "finite", id="real-nan"),
-        pytest.param(lambda v: check_real(v, "x"), 10**400, "finite", id="real-huge-int"),
-        pytest.param(lambda v: check_real(v, "x", low=0, low_open=True), 0, "> 0", id="real-open"),
-        pytest.param(lambda v: check_int(v, "n", low=1), 1.0, "n must be an integer", id="int-float"),
-        pytest.param(lambda v: check_int(v, "n", low=1), False, "n must be an integer", id="int-bool"),
-        pytest.param(lambda v: check_int(v, "n", low=0, high=9), 10, "0 to 9", id="int-range"),
-        pytest.param(lambda v: check_probability(v, "p"), 1.5, "0 to 1", id="probability"),
-        pytest.param(lambda v: check_member(Mode, v, "mode", "use 0 or 1"), True, "unknown mode", id="member-bool"),
-        pytest.param(lambda v: check_member(Mode, v, "mode", "use 0 or 1"), 2, "use 0 or 1", id="member-unknown"),
+        pytest.param(lambda v: check_real(v, "x"), True, TypeError, "x must be a number", id="real-bool"),
+        pytest.param(lambda v: check_real(v, "x"), "1", TypeError, "x must be a number", id="real-str"),
+        pytest.param(lambda v: check_real(v, "x"), float("nan"), ValueError, "finite", id="real-nan"),
+        pytest.param(lambda v: check_real(v, "x"), 10**400, ValueError, "finite", id="real-huge-int"),
+        pytest.param(lambda v: check_real(v, "x", low=0, low_open=True), 0, ValueError, "> 0", id="real-open"),
+        pytest.param(lambda v: check_int(v, "n", low=1), 1.0, TypeError, "n must be an integer", id="int-float"),
+        pytest.param(lambda v: check_int(v, "n", low=1), False, TypeError, "n must be an integer", id="int-bool"),
+        pytest.param(lambda v: check_int(v, "n", low=0, high=9), 10, ValueError, "0 to 9", id="int-range"),
+        pytest.param(lambda v: check_probability(v, "p"), 1.5, ValueError, "0 to 1", id="probability"),
+        pytest.param(lambda v: check_member(Mode, v, "mode", "use 0 or 1"), True, TypeError, "unknown mode", id="member-bool"),
+        pytest.param(lambda v: check_member(Mode, v, "mode", "use 0 or 1"), 2, ValueError, "use 0 or 1", id="member-unknown"),
     ],
 )  # fmt: skip
 def test_every_bad_number_gets_one_kind_of_message(
-    check: object, value: object, match: str
+    check: object, value: object, error: type[Exception], match: str
 ) -> None:
-    with pytest.raises(ValueError, match=match):
+    # As the standard library does: a wrong type is a TypeError, a bad value a ValueError.
+    with pytest.raises(error, match=match) as info:
         check(value)  # type: ignore[operator]
+    assert type(info.value) is error
 
 
 # --- enums that print as what they mean ---------------------------------------------------

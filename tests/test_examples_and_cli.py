@@ -94,7 +94,7 @@ async def test_info_against_a_running_simulator() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await run("-m", "chassis_sdk.cli", "info", sim.port)
     assert code == 0, err
-    assert "firmware     103" in out
+    assert "firmware     v1.0.3 (103)" in out
     assert "2024-01-02" in out
 
 
@@ -142,7 +142,7 @@ async def test_record_replay_and_detect(tmp_path: Path) -> None:
         assert "recorded" in out
     code, out, err = await run("-m", "chassis_sdk.cli", "replay", str(cap))
     assert code == 0, err
-    assert out.count("Telemetry(") >= 15  # 50 Hz for 0.5 s
+    assert out.count("Telemetry: ") >= 15  # 50 Hz for 0.5 s
     code, out, err = await run("-m", "chassis_sdk.cli", "replay", str(cap), "--json")
     first = json.loads(out.splitlines()[0])
     assert first["type"] == "Telemetry"
@@ -228,13 +228,13 @@ def test_permission_denied_names_the_group_to_join() -> None:
 
 async def test_the_cli_page_documents_every_command_and_no_other() -> None:
     page = (ROOT / "docs" / "cli.md").read_text()
-    documented = set(re.findall(r"^chassis-sdk (\w+)", page, re.M))
+    documented = set(re.findall(r"^chassis-sdk ([\w-]+)", page, re.M))
     code, out, _ = await run("-m", "chassis_sdk.cli", "--help")
     assert code == 0
-    listed = re.search(r"\{([\w,]+)\}", out)
+    listed = re.search(r"\{([\w,-]+)\}", out)
     commands = set(listed.group(1).split(",")) if listed else set()
     if not commands:  # argparse prints each command on its own line with metavar COMMAND
-        commands = set(re.findall(r"^    (\w+)\s", out, re.M))
+        commands = set(re.findall(r"^    ([\w-]+)\s", out, re.M))
     assert documented == commands
     for command in commands:
         assert f"**{command}**" in page, f"docs/cli.md says nothing of {command}"

@@ -195,7 +195,7 @@ async def test_a_hard_kill_leaves_a_file_readable_up_to_the_last_second(tmp_path
     assert 0 < len(sent) <= killed_at
     code, out, err = await cli("replay", str(path))
     assert code == 0, err
-    assert "Telemetry(" in out
+    assert "Telemetry: " in out
 
 
 # --- the CLI: record .mcap, replay, export, plot ------------------------------------------

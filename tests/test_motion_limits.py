@@ -48,24 +48,28 @@ def test_ramp_step(
 
 
 @pytest.mark.parametrize(
-    "kwargs",
+    ("kwargs", "error"),
     [
-        {"max_linear": 0},
-        {"max_angular": -1.0},
-        {"linear_acceleration": math.nan},
-        {"angular_deceleration": math.inf},
-        {"max_linear": True},
-        {"linear_deceleration": "1"},
+        ({"max_linear": 0}, ValueError),
+        ({"max_angular": -1.0}, ValueError),
+        ({"linear_acceleration": math.nan}, ValueError),
+        ({"angular_deceleration": math.inf}, ValueError),
+        ({"max_linear": True}, TypeError),
+        ({"linear_deceleration": "1"}, TypeError),
     ],
     ids=["zero", "negative", "nan", "inf", "bool", "string"],
 )
-def test_bad_limits_raise_value_error(kwargs: dict[str, object]) -> None:
-    with pytest.raises(ValueError, match=next(iter(kwargs))):
+def test_bad_limits_raise_value_or_type_error(
+    kwargs: dict[str, object], error: type[Exception]
+) -> None:
+    # A bad value is a ValueError, a wrong type a TypeError (as the standard library).
+    with pytest.raises(error, match=next(iter(kwargs))) as info:
         MotionLimits(**kwargs)  # type: ignore[arg-type]
+    assert type(info.value) is error
 
 
 def test_limits_must_be_motion_limits() -> None:
-    with pytest.raises(ValueError, match="MotionLimits"):
+    with pytest.raises(TypeError, match="MotionLimits"):
         Chassis("/dev/null", limits={"max_linear": 1.0})  # type: ignore[arg-type]
 
 

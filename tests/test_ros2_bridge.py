@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -332,6 +333,33 @@ async def test_odometry_tf_battery_and_diagnostics_from_a_chassis() -> None:
 
 @pytest.mark.netns
 @pytest.mark.timeout(60)
+async def test_battery_state_percentage_is_the_models_charge_once_known() -> None:
+    from chassis_sdk import BatteryModel
+
+    model = BatteryModel("lifepo4", cells=8, warmup=0.2, min_readings=1)
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, battery=model) as robot,
+        bridged(robot, namespace="robot1") as (_b, _),
+    ):
+        battery = Graph().reader("rt/robot1/battery_state", m.BatteryState)
+        got: list[Any] = []
+
+        def known() -> bool:
+            got.extend(s for s in battery.take(N=100) if hasattr(s, "__idl_typename__"))
+            return any(not math.isnan(s.percentage) for s in got)
+
+        await until(known, 10.0)
+        charge = robot.battery_percentage
+    latest = next(s for s in reversed(got) if not math.isnan(s.percentage))
+    assert charge is not None
+    assert 0.0 <= latest.percentage <= 1.0
+    assert latest.percentage == pytest.approx(charge / 100, abs=0.05)
+    assert latest.power_supply_technology == m.BATTERY_TECHNOLOGY["lifepo4"]
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
 async def test_a_board_publishes_imu_and_a_latched_tf_static_for_late_joiners() -> None:
     async with BoardSimulator() as sim, Board(sim.port) as board, bridged(board) as (_b, _):
         g = Graph()
@@ -392,6 +420,8 @@ async def test_the_bridge_ending_stops_the_robot_and_leaves_the_graph() -> None:
         async with asyncio.timeout(2.0):
             await left.wait()
         assert counts[-1] == 0
+        # The readers' wake threads (out of Cyclone's wait sets) went with the bridge.
+        assert not [t.name for t in threading.enumerate() if t.name.startswith("dds ")]
         assert kept is not None
 
 

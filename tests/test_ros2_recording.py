@@ -240,6 +240,28 @@ async def test_a_chassis_session_is_a_rosbag2_file_both_readers_open(tmp_path: P
     assert int(out_bytes) == sum(len(d) for _, d in capture.read_capture(fox))
 
 
+async def test_a_battery_model_gives_the_recorded_battery_state_its_percentage(
+    tmp_path: Path,
+) -> None:
+    from chassis_sdk import BatteryModel
+
+    bag = tmp_path / "charge.mcap"
+    model = BatteryModel("lifepo4", cells=8, warmup=0.2, min_readings=1)
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port, record=rosbag(bag), battery=model) as robot,
+    ):
+        await drive(robot, 150)  # 3 s: three BatteryState at 1 Hz, the later ones known
+        charge = robot.battery_percentage
+    _, messages = with_rosbags(bag)
+    battery = of(messages, "/battery_state")
+    assert len(battery) >= 2
+    known = [b.percentage for b in battery if not math.isnan(b.percentage)]
+    assert known, [b.percentage for b in battery]
+    assert charge is not None
+    assert known[-1] == pytest.approx(charge / 100, abs=0.05)
+
+
 # --- a board: its IMU, and the static transform to it -------------------------------------
 
 
@@ -385,7 +407,7 @@ async def test_cli_records_a_rosbag2_file_passively(tmp_path: Path) -> None:
     assert len(every_message_decodes_with_mcap_ros2(bag)["/r1/odom"]) == len(telemetry)
     code, out, err = await cli("replay", str(bag))
     assert code == 0, err
-    assert "Telemetry(" in out
+    assert "Telemetry: " in out
 
 
 @pytest.mark.parametrize(
@@ -419,7 +441,7 @@ async def test_a_hard_kill_leaves_a_bag_readable_up_to_the_last_second(tmp_path:
     assert capture.mcap_metadata(bag)["device"] == "chassis"
     code, out, err = await cli("replay", str(bag))
     assert code == 0, err
-    assert "Telemetry(" in out
+    assert "Telemetry: " in out
 
 
 async def test_record_takes_any_target_that_opens_its_own_recorder(tmp_path: Path) -> None:

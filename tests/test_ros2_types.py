@@ -25,7 +25,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
+from chassis_sdk import BatteryModel, Chassis
 from chassis_sdk.recording import ros2_types as r
+from chassis_sdk.sim import ChassisSimulator, ChassisSpec, PackSpec
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -189,6 +191,107 @@ def test_battery_is_rosbags_bytes_with_nan_for_what_is_not_measured() -> None:
     decoded: Any = STORE.deserialize_cdr(with_percentage, "sensor_msgs/msg/BatteryState")
     assert decoded.percentage == 0.5
     assert math.isnan(decoded.current)
+
+
+def rb_battery(voltage: float, **fields: Any) -> Any:
+    nan = math.nan
+    values: dict[str, Any] = {
+        "header": rb_header("base_link"), "voltage": voltage, "temperature": nan,
+        "current": nan, "charge": nan, "capacity": nan, "design_capacity": nan,
+        "percentage": nan, "power_supply_status": 0, "power_supply_health": 0,
+        "power_supply_technology": 0, "present": True,
+        "cell_voltage": np.array([], dtype=np.float32),
+        "cell_temperature": np.array([], dtype=np.float32),
+        "location": "", "serial_number": "",
+    }  # fmt: skip
+    return rb("sensor_msgs/msg/BatteryState")(**{**values, **fields})
+
+
+def warm_model(chemistry: str, voltage: float, **options: Any) -> BatteryModel:
+    model = BatteryModel(chemistry, warmup=0.0, min_readings=1, **options)  # type: ignore[arg-type]
+    model.update(voltage, now=0.0)
+    return model
+
+
+def test_a_battery_model_gives_percentage_0_to_1_technology_and_capacity() -> None:
+    # li-ion 7S at 3.82 V a cell is 50 % (the curve's own point): percentage 0.5.
+    model = warm_model("li-ion", 7 * 3.82, cells=7, capacity_ah=2.5)
+    ours = r.charge_message(26.7, EPOCH, model, frame_id="base_link")
+    theirs = rb_battery(26.7, percentage=0.5, power_supply_technology=2, design_capacity=2.5)
+    assert ours.serialize() == cdr(theirs, "sensor_msgs/msg/BatteryState")
+    # LiFePO4 at 3.30 V a cell is 70 %: technology LIFE (4); no capacity: NaN.
+    model = warm_model("lifepo4", 8 * 3.30, cells=8)
+    decoded: Any = STORE.deserialize_cdr(
+        r.charge_message(26.4, EPOCH, model).serialize(), "sensor_msgs/msg/BatteryState"
+    )
+    assert decoded.percentage == pytest.approx(0.70, abs=1e-6)
+    assert decoded.power_supply_technology == 4
+    assert math.isnan(decoded.design_capacity)
+    assert decoded.power_supply_health == 0  # health is not charge
+    # Lead-acid and a custom curve name no technology (UNKNOWN).
+    lead = warm_model("lead-acid", 12 * 2.01, cells=12)
+    assert r.charge_message(24.1, EPOCH, lead).power_supply_technology == 0
+    custom = warm_model("li-ion", 7.0, cells=2, curve=[(3.0, 0.0), (4.0, 100.0)])
+    message = r.charge_message(7.0, EPOCH, custom)
+    assert message.power_supply_technology == 0
+    assert message.percentage == pytest.approx(0.5)
+
+
+def test_without_a_model_or_before_it_knows_the_percentage_is_nan() -> None:
+    assert r.charge_message(24.5, EPOCH, None, frame_id="base_link").serialize() == cdr(
+        rb_battery(24.5), "sensor_msgs/msg/BatteryState"
+    )
+    cold = BatteryModel("li-ion", cells=7)  # warm-up 3 s, 5 readings
+    cold.update(26.7, now=0.0)
+    assert cold.percentage is None
+    ours = r.charge_message(26.7, EPOCH, cold, frame_id="base_link")
+    theirs = rb_battery(26.7, power_supply_technology=2)
+    assert ours.serialize() == cdr(theirs, "sensor_msgs/msg/BatteryState")
+
+
+def test_the_translator_reads_the_model_for_each_battery_state() -> None:
+    model = BatteryModel("li-ion", cells=7, warmup=0.0, min_readings=1)
+    options = r.Ros2Options()
+    board = r.Translator(options, ["imu", "battery"], battery=model)
+    reading = SimpleNamespace(voltage=7 * 3.82, timestamp=time.monotonic())
+    ((key, before),) = board.messages("battery", reading)
+    assert key == "battery_state"
+    assert math.isnan(before.percentage)
+    model.update(reading.voltage, now=0.0)
+    ((_, after),) = board.messages("battery", reading)
+    assert after.percentage == pytest.approx(0.5)
+    assert after.header.frame_id == "base_link"
+    assert math.isnan(
+        r.Translator(options, ["battery"]).messages("battery", reading)[0][1].percentage
+    )
+    with pytest.raises(TypeError, match="BatteryModel"):
+        r.Translator(options, ["battery"], battery=50.0)  # type: ignore[arg-type]
+
+
+async def test_battery_state_of_a_chassis_on_the_simulated_pack() -> None:
+    # Through a real pty: the chassis's 0x81 voltage at 1 Hz, the percentage its model
+    # makes of it, against the pack's true charge.
+    pack = PackSpec("li-ion", cells=7, charge=40.0)
+    model = BatteryModel("li-ion", cells=7, warmup=0.5, min_readings=3)
+    async with (
+        ChassisSimulator(ChassisSpec(pack=pack)) as sim,
+        Chassis(sim.port, battery=model) as robot,
+    ):
+        translator = r.Translator(r.Ros2Options(), ["telemetry"], battery=robot.battery_model)
+        states = []
+        async for t in robot.telemetry():
+            states += [m for _, m in translator.messages("telemetry", t)]
+            if robot.battery_percentage is not None and len(states) >= 2:
+                break
+        truth = sim.firmware.battery_charge
+    assert math.isnan(states[0].percentage)  # the first, before the model knew
+    last = states[-1]
+    assert truth is not None
+    assert abs(last.percentage * 100 - truth) <= 3
+    assert 0.0 <= last.percentage <= 1.0
+    assert last.voltage == pytest.approx(7 * 3.79, abs=0.3)  # 40 % on the curve, 0.1 V
+    decoded: Any = STORE.deserialize_cdr(last.serialize(), "sensor_msgs/msg/BatteryState")
+    assert decoded.percentage == pytest.approx(last.percentage)
 
 
 def test_imu_is_rosbags_bytes_in_si_units_without_orientation() -> None:

@@ -22,10 +22,10 @@ pytest.importorskip("aiohttp", reason="the dashboard's extra: pip install '.[web
 import websockets
 from websockets.typing import Origin
 
-from chassis_sdk import Chassis, MotionLimits
+from chassis_sdk import BatteryModel, Chassis, MotionLimits
 from chassis_sdk.integrations.web import GamepadMapping, WebDashboard
 from chassis_sdk.protocol import DriveVelocity
-from chassis_sdk.sim import ChassisSimulator
+from chassis_sdk.sim import ChassisSimulator, ChassisSpec, PackSpec
 
 from .support.dashboard import moving, served, until
 from .test_cli_operator import cli, running
@@ -169,6 +169,34 @@ async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
         assert await robot.get_led() is True
         await p.send(type="estop")  # a board has no e-stop: it stops
         await p.wait(lambda: any("has no e-stop" in n.get("done", "") for n in p.notes))
+
+
+async def test_the_state_of_charge_null_until_known_then_the_percentage_and_level() -> None:
+    # A pack at 15 %: the model warms up for a second (null), then knows it: LOW.
+    pack = PackSpec("li-ion", cells=7, charge=15.0)
+    model = BatteryModel("li-ion", cells=7, warmup=1.0, min_readings=3)
+    async with (
+        ChassisSimulator(ChassisSpec(pack=pack)) as sim,
+        Chassis(sim.port, battery=model) as robot,
+        WebDashboard(robot, port=0) as web,
+        page(web) as p,
+    ):
+        await p.wait(lambda: bool(p.states))
+        assert p.states[0]["battery"] == {"percentage": None, "level": None}
+        await p.wait(lambda: p.states[-1]["battery"]["percentage"] is not None, timeout=5.0)
+        charge = p.states[-1]["battery"]
+        truth = sim.firmware.battery_charge
+        assert truth is not None
+        assert abs(charge["percentage"] - truth) <= 3
+        assert charge["level"] == "LOW"
+        assert p.states[-1]["streams"]["telemetry"]["voltage"] < 7 * 3.74  # below 20 %
+        await p.wait(lambda: any(e["kind"] == "BATTERY_LOW" for e in p.hello["events"] + p.events))
+        low = next(e for e in p.hello["events"] + p.events if e["kind"] == "BATTERY_LOW")
+        assert low["percentage"] < model.low
+        assert "battery low" in low["text"]
+    async with served() as (_sim, robot, web), page(web) as p:  # no model: no charge
+        await p.wait(lambda: bool(p.states))
+        assert p.states[-1]["battery"] is None
 
 
 # --- driving -------------------------------------------------------------------------------

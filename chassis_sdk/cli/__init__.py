@@ -3,18 +3,21 @@
 Every command prints one clear line and exits non-zero on the everyday failures (no
 such port, permission denied, nothing answering, the wrong device on the port, the
 cable pulled) instead of a traceback. Commands loop over
-:func:`chassis_sdk.devices.profiles`: a device registered or installed as a package is
+`chassis_sdk.devices.profiles`: a device registered or installed as a package is
 simulated, detected, recorded, replayed and driven like the built-in ones, and a
 device's own commands (``demo``, ``info``, ``monitor``, ``plot``) come from its
 profile.
 
 Each command is a module with an ``add_parser(sub, names)`` that registers its
-subparser and its ``func`` (see :mod:`chassis_sdk.cli.arguments`); :func:`main` calls
+subparser and its ``func`` (see `chassis_sdk.cli.arguments`); `main` calls
 ``args.func`` and nothing else, so no command can fall through to another.
 
 ``CHASSIS_SDK_PORT`` and ``CHASSIS_SDK_DEVICE`` give the defaults of the port and of
 ``--device`` (``--protocol`` and ``CHASSIS_SDK_PROTOCOL`` are their old names, still
-taken), so a robot's service file or a shell profile sets them once.
+taken), so a robot's service file or a shell profile sets them once. The robot profile
+(``--config FILE``, ``$CHASSIS_SDK_CONFIG``, ``./chassis-sdk.toml``, the user config
+dir; `chassis_sdk.cli.profile`) gives every command's defaults below those: a flag
+beats the environment, the environment beats the file, the file beats the default.
 """
 
 from __future__ import annotations
@@ -27,12 +30,18 @@ from typing import Any
 
 from ..core.run import run
 from ..devices import profiles
+from ..devices.config import ProfileError, load_profile
 from ..errors import ChassisError, RequestTimeoutError
 from . import (
     bridge_args,
+    calibrate_command,
+    clear_faults_command,
+    config_command,
     demo_command,
     detect_command,
+    dock_command,
     drive_command,
+    estop_command,
     export_command,
     info_command,
     monitor_command,
@@ -47,8 +56,9 @@ from . import (
     web_args,
 )
 from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, Command, UsageError, device_from_env
+from .profile import apply, config_argument, config_from_argv
 
-__all__ = ["ENV_BROKER", "ENV_DEVICE", "ENV_PORT", "build_parser", "main"]
+__all__ = ["ENV_BROKER", "ENV_DEVICE", "ENV_PORT", "build_parser", "main", "parse"]
 
 #: Every command's module, in the order ``--help`` lists them.
 COMMANDS = (
@@ -58,7 +68,11 @@ COMMANDS = (
     sim_command,
     info_command,
     monitor_command,
+    estop_command,
+    clear_faults_command,
+    dock_command,
     drive_command,
+    calibrate_command,
     teleop_args,
     bridge_args,
     ros2_args,
@@ -68,7 +82,30 @@ COMMANDS = (
     serve_args,
     replay_command,
     plot_command,
+    config_command,
 )
+
+
+class _Version(argparse.Action):
+    """``--version``: the package's version, Python's, and which decoders run (the
+    compiled fast path, or the pure code and why), then exit 0."""
+
+    def __init__(self, option_strings: list[str], version: str, dest: str = "version") -> None:
+        super().__init__(option_strings, dest, nargs=0, help="print the version and exit")
+        self.version = version
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: Any) -> None:
+        import platform
+
+        from ..core import compiled
+        from ..devices.board import protocol as _board  # noqa: F401  (each reports its path)
+        from ..devices.chassis import protocol as _chassis  # noqa: F401
+
+        print(
+            f"chassis-sdk {self.version} (Python {platform.python_version()}, "
+            f"decoders: {compiled.status()})"
+        )
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,12 +119,19 @@ def build_parser() -> argparse.ArgumentParser:
         prog="chassis-sdk",
         description="Talk to robot chassis and controller boards, or simulate them.",
         epilog="devices: " + "; ".join(f"{n}: {d.summary}" for n, d in known.items()),
+        allow_abbrev=False,
     )
-    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    p.add_argument("--version", action=_Version, version=__version__)
     p.add_argument("-v", "--verbose", action="store_true", help="DEBUG logs with frame hex dumps")
+    config_argument(p, top=True)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in COMMANDS:
         module.add_parser(sub, names)
+    for command in sub.choices.values():
+        config_argument(command)
+        # No abbreviations: `--conf F` must not parse as --config while the profile,
+        # read before parsing, was never found (nor `--max-lin` pass for another).
+        command.allow_abbrev = False
     return p
 
 
@@ -104,10 +148,30 @@ def _sole(group: BaseExceptionGroup[Any]) -> BaseException | None:
     return leaves[0] if len(leaves) == 1 else None
 
 
+def parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """``argv`` parsed with the robot profile's settings as the defaults (the file is
+    read first, since it gives the parsers their defaults); ``args.profile`` is the
+    profile.
+
+    Raises:
+        ProfileError: The profile cannot be used (one line naming file and key).
+    """
+    words = list(sys.argv[1:] if argv is None else argv)
+    profile = load_profile(config_from_argv(words))
+    apply(parser, profile)
+    args = parser.parse_args(words)
+    args.profile = profile
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``chassis-sdk`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parse(parser, argv)
+    except ProfileError as exc:
+        print(f"chassis-sdk: {exc}", file=sys.stderr)
+        return 2
     # The CLI says what went wrong itself, in one line; the library's warnings (a
     # stale link, a reconnect) would only come first with a timestamp. -v shows all.
     logging.basicConfig(

@@ -1,20 +1,57 @@
 """``chassis-sdk bridge``'s arguments; the command itself is
-:mod:`chassis_sdk.cli.bridge_command`, imported only when it runs."""
+`chassis_sdk.cli.bridge_command`, imported only when it runs."""
 
 from __future__ import annotations
 
 import argparse
 import os
-from collections.abc import Sequence
+import urllib.parse
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
-from .arguments import ENV_BROKER, device_arg, port_args, positive, require_port
+from ..integrations.inbound import check_topic_level
+from .arguments import ENV_BROKER, arg_type, device_arg, port_args, require_port
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
-__all__ = ["add_parser"]
+__all__ = ["BROKER", "RATE", "add_parser", "broker_url", "topic_level"]
+
+
+def broker_url(url: str) -> str:
+    """``url`` if it is ``mqtt://HOST[:PORT]`` or ``mqtts://HOST[:PORT]`` with a port
+    from 1 to 65535.
+
+    Raises:
+        ValueError: Anything else (``http://x``, no host, a bad port), in one line.
+    """
+    parsed = urllib.parse.urlsplit(url)
+    if parsed.scheme not in ("mqtt", "mqtts") or not parsed.hostname:
+        raise ValueError(f"must be mqtt://HOST:PORT or mqtts://HOST:PORT, got {url!r}")
+    try:
+        port = parsed.port
+    except ValueError:
+        port = -1
+    if port is not None and not 1 <= port <= 65535:
+        raise ValueError(f"has a bad port (1 to 65535): {url!r}")
+    return url
+
+
+def topic_level(name: str) -> Callable[[str], str]:
+    """One MQTT topic level, named ``name`` in the refusal (the rule
+    `MqttBridge` applies, checked while parsing so
+    nothing is opened or printed first)."""
+    return arg_type(str, lambda value: check_topic_level(value, name))
+
+
+#: ``--broker``: checked while parsing, like its default from ``$CHASSIS_SDK_BROKER``.
+BROKER = arg_type(str, broker_url)
+#: ``--rate``: telemetry messages a second, as the bridge takes them (above 0, at most 100).
+RATE = arg_type(
+    float, lambda v: check_real(v, "rate", low=0, low_open=True, high=100, unit="per second")
+)
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
@@ -24,12 +61,23 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     device_arg(p, names)
     p.add_argument(
         "--broker",
+        type=BROKER,
         default=os.environ.get(ENV_BROKER) or "mqtt://127.0.0.1:1883",
         help=f"mqtt://HOST:PORT or mqtts://HOST:PORT (default: ${ENV_BROKER})",
     )
-    p.add_argument("--robot-id", required=True, help="the robot's name under the prefix")
-    p.add_argument("--prefix", default="robots", help="the first topic level")
-    p.add_argument("--rate", type=positive("rate"), default=10.0, help="telemetry per second")
+    p.add_argument(
+        "--robot-id",
+        required=True,
+        type=arg_type(str, topic_level("robot_id")),
+        help="the robot's name under the prefix (letters, digits, '-', '_')",
+    )
+    p.add_argument(
+        "--prefix",
+        type=arg_type(str, topic_level("prefix")),
+        default="robots",
+        help="the first topic level (letters, digits, '-', '_')",
+    )
+    p.add_argument("--rate", type=RATE, default=10.0, help="telemetry per second (at most 100)")
     p.add_argument("--read-only", action="store_true", help="never take a command")
     p.add_argument(
         "--take-over", action="store_true", help="start even if another bridge has this robot id"

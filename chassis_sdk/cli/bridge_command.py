@@ -20,6 +20,7 @@ from ..core.backoff import Backoff
 from ..devices import DeviceProfile
 from ..errors import ChassisError
 from .common import first_frame, out, read_secret_file
+from .profile import device_options
 
 __all__ = ["bridge"]
 
@@ -61,7 +62,7 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     context = None
     if tls or args.tls:
         context = ssl.create_default_context(cafile=args.cafile)
-    async with device.device(port, baudrate=args.baudrate, reconnect=True) as dev:
+    async with device.device(port, **device_options(args, reconnect=True)) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         where = f"{args.prefix}/{args.robot_id}"
         out(f"bridging {port} ({device.name}) as {where} on {args.broker}")

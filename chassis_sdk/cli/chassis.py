@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import collections
 import json
-import math
-import sys
-import time
 from typing import TYPE_CHECKING, Any
 
 import anyio
 
+from ..core.charge import HasBattery, battery_fields, battery_level, battery_text
 from ..devices.chassis.device import Chassis
+from ..devices.chassis.health import explain_drivers, explain_status
 from ..devices.chassis.messages import DriveVelocity, Telemetry
 from ..errors import ChassisError, RequestTimeoutError
 from .common import (
@@ -20,11 +18,13 @@ from .common import (
     explain_silence,
     first,
     first_frame,
-    jsonable,
     out,
+    port_lines,
     simulated,
 )
 from .devices import DeviceCommands
+from .info_command import verdict
+from .live import LiveView
 from .plotting import layout, path_panel, series, velocity_panels
 
 if TYPE_CHECKING:
@@ -40,37 +40,81 @@ def _status_names(t: Telemetry) -> str:
     )
 
 
-def format_telemetry(t: Telemetry) -> str:
-    """One line of telemetry for a terminal."""
+def format_telemetry(t: Telemetry, battery: HasBattery | None = None) -> str:
+    """One line of telemetry for a terminal; with ``battery`` (the device), the state of
+    charge beside the voltage (``24.6 V  63 %``, ``--`` while not known)."""
     status = _status_names(t) or "ok"
     w = t.wheels
+    volts = f"{t.voltage:.1f} V" if battery is None else battery_text(t.voltage, battery)
     return (
         f"  v={t.linear:+.3f} m/s  w={t.angular:+.3f} rad/s  "
         f"wheels=[{w.front_left:+.2f} {w.front_right:+.2f} {w.rear_left:+.2f} "
-        f"{w.rear_right:+.2f}]  {t.voltage:.1f} V  docking={t.docking.name}  status={status}"
+        f"{w.rear_right:+.2f}]  {volts}  docking={t.docking.name}  status={status}"
     )
 
 
-async def _print_info(robot: Chassis) -> None:
-    firmware = await robot.get_firmware_version()
-    hardware = await robot.get_hardware_version()
-    info = await robot.get_chassis_info()
-    shipped = await robot.get_ship_date()
-    out(f"firmware     {firmware}")
-    out(f"hardware     {hardware}")
-    out(
-        f"geometry     track {info.track_width:.3f} m, wheelbase {info.wheelbase:.3f} m, "
-        f"wheel {info.wheel_diameter:.3f} m, gear {info.gear_ratio}:1, "
-        f"encoder {info.encoder_resolution} lines"
+def firmware_text(version: int) -> str:
+    """The 0x87 firmware number as the vendor writes versions, with the number itself:
+    ``103`` is ``"v1.0.3 (103)"`` (hundreds, tens, units: major, minor, patch)."""
+    return f"v{version // 100}.{version // 10 % 10}.{version % 10} ({version})"
+
+
+def status_sentences(status: int) -> list[str]:
+    """One sentence per set status bit, for the first place a status is shown
+    (``status REMOTE_OFFLINE: the remote control is off ...: normal under host control``)."""
+    return [f"status {flag.name}: {flag.meaning}" for flag in explain_status(status)]
+
+
+async def _print_info(robot: Chassis) -> list[str]:
+    """Print each of the chassis's answers; a request it does not answer is marked and
+    the others still asked. Returns what went unanswered.
+
+    Raises:
+        RequestTimeoutError: Nothing answered at all (so nothing was printed).
+    """
+    missing: list[str] = []
+    lines: list[str] = []
+    silence: list[RequestTimeoutError] = []
+
+    async def ask(label: str, request: Any, show: Any) -> None:
+        try:
+            value = await request()
+        except RequestTimeoutError as exc:
+            if not robot.stats.frames:  # not a frame yet: a silent port, or another device
+                raise
+            missing.append(label)
+            silence.append(exc)
+            lines.append(f"{label:<13}(no reply: {exc})")
+        else:
+            lines.append(f"{label:<13}{show(value)}")
+
+    await ask("firmware", robot.get_firmware_version, firmware_text)
+    await ask("hardware", robot.get_hardware_version, str)
+    await ask(
+        "geometry",
+        robot.get_chassis_info,
+        lambda info: (
+            f"track {info.track_width:.3f} m, wheelbase {info.wheelbase:.3f} m, "
+            f"wheel {info.wheel_diameter:.3f} m, gear {info.gear_ratio}:1, "
+            f"encoder {info.encoder_resolution} lines"
+        ),
     )
-    out(f"ship date    {shipped.isoformat()}")
+    await ask("ship date", robot.get_ship_date, lambda date: date.isoformat())
+    if len(silence) == len(lines):  # nothing answered: a silent port, or another device
+        raise silence[0]
+    for line in lines:
+        out(line)
+    return missing
 
 
 async def demo() -> None:
     """Drive the chassis simulator through the real serial stack, narrating."""
     async with simulated("chassis", Chassis) as robot:
         await _print_info(robot)
-        await anext(robot.telemetry())
+        first_frame = await anext(robot.telemetry())
+        out(format_telemetry(first_frame))
+        for sentence in status_sentences(first_frame.status):
+            out(f"  ({sentence})")
 
         def show() -> None:
             t = robot.latest_telemetry
@@ -102,91 +146,65 @@ async def demo() -> None:
 
 
 async def info(port: str, baudrate: int, timeout: float) -> None:
-    """Versions, geometry, one telemetry frame and a diagnosis."""
+    """Versions, geometry, one telemetry frame, what each set status flag means and a
+    diagnosis; exit status 4 on a fault (`verdict`)."""
     async with Chassis(port, baudrate=baudrate, request_timeout=timeout) as robot:
-        out(f"port         {port}")
+        port_lines(port)
         try:
-            await _print_info(robot)
+            missing = await _print_info(robot)
         except RequestTimeoutError as exc:
             explain_silence(robot, exc)
         await first(robot.telemetry(), timeout, "telemetry (0x81)")
-        out(str(await robot.diagnose()))
+        report = await robot.diagnose()
+        flags = explain_status(report.status or 0)
+        flags += () if report.drivers is None else explain_drivers(report.drivers)
+        for i, flag in enumerate(flags):
+            out(f"{'flags' if i == 0 else '':<13}{flag}")
+        if not flags:
+            out("flags        none")
+        out(str(report))
+    verdict(report, missing)
 
 
-async def monitor(port: str, baudrate: int, seconds: float | None, as_json: bool) -> None:
+async def monitor(
+    port: str, baudrate: int, seconds: float | None, as_json: bool, **options: Any
+) -> None:
     """A live view of the telemetry, the link, faults and events that lives through an
     unplug (it reconnects and says so). Plain lines when piped (rich on a terminal);
-    ``as_json``: one JSON object per telemetry frame, state change and event."""
-    async with Chassis(port, baudrate=baudrate, reconnect=True) as robot:
+    ``as_json``: one JSON object per telemetry frame, state change and event.
+
+    ``options`` are the `Chassis` keyword options (``battery=BatteryModel(...)``
+    adds the state of charge beside the voltage: ``battery_percentage`` and
+    ``battery_level`` in each JSON frame, ``null`` while not known)."""
+    options = {"reconnect": True, **options}
+    async with Chassis(port, baudrate=baudrate, **options) as robot:
         # A silent port, or another device's, is a one-line error, not an empty screen.
         await first_frame(robot, 3.0, "0x81 chassis telemetry")
         view = _View(robot, port, as_json)
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(view.follow_telemetry)
-            tg.start_soon(view.follow_states)
-            tg.start_soon(view.follow_events)
-            tg.start_soon(view.check_health)
-            if view.live is not None:
-                tg.start_soon(view.render_loop)
-            elif not as_json:
-                print("Ctrl-C to quit", file=sys.stderr)
-            with anyio.move_on_after(math.inf if seconds is None else seconds):
-                await anyio.sleep_forever()
-            tg.cancel_scope.cancel()
-        view.close()
+        await view.run(seconds, view.follow_telemetry, view.check_health)
 
 
-class _View:
+class _View(LiveView):
     """What ``monitor`` shows, in whichever of its three forms."""
 
     def __init__(self, robot: Chassis, port: str, as_json: bool) -> None:
+        super().__init__(robot, port, as_json)
         self.robot = robot
-        self.port = port
-        self.as_json = as_json
-        self.recent: collections.deque[str] = collections.deque(maxlen=4)
         self.faults: tuple[str, ...] | None = None
-        self.live: Any = None
         self._last_line = 0.0
-        if not as_json and sys.stdout.isatty():
-            try:
-                from rich.live import Live
-
-                self.live = Live(auto_refresh=False)
-                self.live.start()
-            except ImportError:
-                pass
-
-    def close(self) -> None:
-        if self.live is not None:
-            self.live.stop()
+        self._explained: set[str] = set()
 
     async def follow_telemetry(self) -> None:
         async for t in self.robot.telemetry():
             if self.as_json:
-                out(json.dumps({"type": "Telemetry", **jsonable(t)}))
+                self.emit("Telemetry", t, **battery_fields(self.robot))
             elif self.live is None and t.timestamp - self._last_line >= 0.2:
-                out(format_telemetry(t))
+                out(format_telemetry(t, self.robot))
                 self._last_line = t.timestamp
-
-    async def follow_states(self) -> None:
-        async for state in self.robot.connection_states():
-            if self.as_json:
-                out(json.dumps({"type": "link", "state": state.value}))
-            else:
-                self.recent.append(f"{time.strftime('%H:%M:%S')} link {state.value}")
-                if self.live is None:
-                    out(f"link: {state.value}")
-
-    async def follow_events(self) -> None:
-        async for event in self.robot.events():
-            if event.kind.value.startswith("link_"):
-                continue  # follow_states tells these
-            if self.as_json:
-                out(json.dumps({"type": "event", **jsonable(event)}))
-            else:
-                self.recent.append(f"{time.strftime('%H:%M:%S')} {event}")
-                if self.live is None:
-                    out(f"event: {event}")
+                for flag in explain_status(t.status):  # said once, where it first shows
+                    if flag.name not in self._explained:
+                        self._explained.add(flag.name)
+                        out(f"  (status {flag.name}: {flag.meaning})")
 
     async def check_health(self) -> None:  # diagnose() reads 0xB0: once a second is plenty
         while True:
@@ -203,11 +221,6 @@ class _View:
                         out("faults: " + (", ".join(report.faults) or "none"))
             await anyio.sleep(1.0)
 
-    async def render_loop(self) -> None:
-        while True:
-            self.live.update(self.render(), refresh=True)
-            await anyio.sleep(0.1)
-
     def render(self) -> Any:
         from rich.table import Table
 
@@ -220,7 +233,10 @@ class _View:
         table.add_row("link", f"[{style}]{state}[/], {fresh}")
         t = robot.latest_telemetry
         if t is not None:
-            table.add_row("voltage", f"{t.voltage:.1f} V")
+            level = battery_level(robot)
+            colour = {"LOW": "yellow", "CRITICAL": "bold red"}.get(level.name if level else "")
+            volts = battery_text(t.voltage, robot)
+            table.add_row("battery", f"[{colour}]{volts}[/]" if colour else volts)
             table.add_row("velocity", f"{t.linear:+.3f} m/s   {t.angular:+.3f} rad/s")
             w = t.wheels
             table.add_row(
@@ -233,13 +249,7 @@ class _View:
         if self.faults is not None:
             table.add_row("faults", "\n".join(self.faults) or "none")
         table.add_row("events", "\n".join(self.recent) or "-")
-        s = robot.stats
-        table.add_row(
-            "counters",
-            f"{s.frames} frames, {s.bytes_dropped} bytes dropped, "
-            f"{s.checksum_errors} checksum errors, {s.sequence_gaps} gaps, "
-            f"{s.reconnects} reconnects",
-        )
+        table.add_row("counters", self.counters())
         return table
 
 

@@ -14,10 +14,11 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import anyio
 
+from ..core import compiled
 from ..core.device import Device
 from ..core.plain import jsonable
-from ..core.watchdog import MotionLimits
 from ..errors import ChassisError, ProtocolError, RequestTimeoutError
+from .profile import device_options
 
 if TYPE_CHECKING:
     import argparse
@@ -61,7 +62,7 @@ def out(text: str = "") -> None:
 
 
 async def first(stream: AsyncIterator[Any], timeout: float, what: str) -> Any:
-    """The first item of ``stream``, or :class:`RequestTimeoutError` naming ``what``."""
+    """The first item of ``stream``, or `RequestTimeoutError` naming ``what``."""
     with anyio.move_on_after(timeout):
         return await anext(stream)
     raise RequestTimeoutError(f"no {what} within {timeout:g} s")
@@ -84,6 +85,13 @@ async def drive_for(
             show()
             next_show = now + 0.2
         await anyio.sleep(0.1)
+
+
+def port_lines(port: str) -> None:
+    """The first lines of every ``info``: the port, and which decoders run (the
+    compiled fast path, or the pure Python code and why)."""
+    out(f"port         {port}")
+    out(f"decoders     {compiled.status()}")
 
 
 @contextlib.asynccontextmanager
@@ -172,12 +180,12 @@ class ProgressLine:
 
 
 def progress_line(label: str) -> ProgressLine:
-    """A :class:`ProgressLine` for ``label``."""
+    """A `ProgressLine` for ``label``."""
     return ProgressLine(label)
 
 
 def explain_silence(device: Device[Any, Any], exc: RequestTimeoutError) -> None:
-    """Re-raise a request's timeout, as :class:`WrongProtocolError` if bytes arrived
+    """Re-raise a request's timeout, as `WrongProtocolError` if bytes arrived
     but none formed a frame of this device's protocol."""
     stats = device.stats
     if stats.bytes_received and not stats.frames:
@@ -236,17 +244,11 @@ async def driven(
 ) -> AsyncIterator[Device[Any, Any]]:
     """The device a surface that moves the robot (``serve``, ``ros2``) drives, for the
     block: reconnecting through unplugs, within ``--max-linear``/``--max-angular``, under
-    ``--command-timeout`` (``arguments.limit_args``, ``deadman_args``), and proven to be
-    this device (:func:`first_frame`) before anything is done to it. ``read_only``: a
-    viewer's, which writes nothing."""
-    limits = MotionLimits(max_linear=args.max_linear, max_angular=args.max_angular)
-    async with device.device(
-        port,
-        baudrate=args.baudrate,
-        reconnect=True,
-        limits=limits,
-        command_timeout=args.command_timeout,
-        read_only=read_only,
-    ) as dev:
+    ``--command-timeout`` (``arguments.limit_args``, ``deadman_args``), with the
+    profile's limits, calibration and battery (`.profile.device_options`), and
+    proven to be this device (`first_frame`) before anything is done to it.
+    ``read_only``: a viewer's, which writes nothing."""
+    options = device_options(args, reconnect=True, read_only=read_only)
+    async with device.device(port, **options) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         yield dev

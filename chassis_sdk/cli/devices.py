@@ -1,9 +1,9 @@
 """Each device's own part of ``chassis-sdk``: its demo, ``info``, ``monitor`` and
 ``plot``, found by device name like the devices themselves.
 
-The built-in devices' parts are :mod:`chassis_sdk.cli.chassis` and
-:mod:`chassis_sdk.cli.board`; an installed package adds one by declaring an entry point
-in the group ``chassis_sdk.cli`` whose object is a :class:`DeviceCommands`. A device
+The built-in devices' parts are `chassis_sdk.cli.chassis` and
+`chassis_sdk.cli.board`; an installed package adds one by declaring an entry point
+in the group ``chassis_sdk.cli`` whose object is a `DeviceCommands`. A device
 without one gets the generic commands (info from its first frame, a monitor of its
 streams, a plot of every numeric field).
 """
@@ -14,14 +14,14 @@ import logging
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from importlib import metadata
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..devices import DeviceProfile, profile, resolve
 
 if TYPE_CHECKING:
     from ..recording.columns import Columns
 
-__all__ = ["ENTRY_POINT_GROUP", "DeviceCommands", "checked", "commands"]
+__all__ = ["ENTRY_POINT_GROUP", "DeviceCommands", "MonitorCommand", "checked", "commands"]
 
 #: Where installed packages declare their devices' commands.
 ENTRY_POINT_GROUP = "chassis_sdk.cli"
@@ -32,6 +32,15 @@ BUILTIN = {
 _log = logging.getLogger("chassis_sdk.cli")
 
 
+class MonitorCommand(Protocol):
+    """A device's own ``monitor``: follow the device on ``port`` for ``seconds``
+    (``None``: until cancelled), as lines or JSON, opening it with ``options``."""
+
+    def __call__(
+        self, port: str, baudrate: int, seconds: float | None, as_json: bool, **options: Any
+    ) -> Coroutine[Any, Any, None]: ...
+
+
 @dataclass(frozen=True, slots=True)
 class DeviceCommands:
     """A device's own commands; ``None`` for any it leaves to the generic one.
@@ -40,16 +49,17 @@ class DeviceCommands:
         demo: ``chassis-sdk demo --device NAME``: drives the simulator, narrating.
         info: ``chassis-sdk info PORT``: ``info(port, baudrate, timeout)``.
         monitor: ``chassis-sdk monitor PORT``: ``monitor(port, baudrate, seconds,
-            as_json)``.
+            as_json, **options)``, the options being the device constructor's (the
+            profile's battery model, ``read_only=True``, ...).
         plot: ``chassis-sdk plot``: ``plot(data, commands, figure)`` draws the capture
-            decoded into arrays (:class:`~chassis_sdk.recording.columns.Columns`), and
+            decoded into arrays ([`Columns`][chassis_sdk.recording.columns.Columns]), and
             the host's commands if the capture holds any, into a matplotlib figure.
             Both of the device's decoders must describe their ``layout``.
     """
 
     demo: Callable[[], Coroutine[Any, Any, None]] | None = None
     info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
-    monitor: Callable[[str, int, float | None, bool], Coroutine[Any, Any, None]] | None = None
+    monitor: MonitorCommand | None = None
     plot: Callable[[Columns, Columns, Any], None] | None = None
 
 

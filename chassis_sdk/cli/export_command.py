@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from .arguments import device_arg
 from .captures import detect_file, no_messages
-from .common import out
+from .common import out, show_warnings
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -27,6 +27,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 
 def _start(args: argparse.Namespace) -> Job:
+    show_warnings("chassis_sdk.recording.capture", "export")  # a capture cut short
     export(args.file, args.csv, args.device)
     return None
 

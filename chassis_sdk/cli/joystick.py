@@ -1,10 +1,10 @@
 """``chassis-sdk teleop --joystick``: a gamepad on the robot computer, read through
 Linux evdev (the optional extra ``joystick``).
 
-:class:`JoyState` is the mapping, sans-IO (events and ``now`` in, a command out), as
+`JoyState` is the mapping, sans-IO (events and ``now`` in, a command out), as
 teleop_twist_joy's: an enable button that must be held (a deadman: released, the robot
 stops), a linear and an angular axis normalised from the axis's own ``absinfo`` range
-to -1..1, a deadzone, and a scale per axis (negative inverts). :class:`Pad` reads a
+to -1..1, a deadzone, and a scale per axis (negative inverts). `Pad` reads a
 device from the event loop (``add_reader``, no thread) and feeds it.
 
 When a pad stops the robot:
@@ -336,7 +336,7 @@ class Pad:
         self._loop: asyncio.AbstractEventLoop | None = None
 
     def start(self, clock: Callable[[], float], changed: Callable[[], None]) -> None:
-        """Read from the running loop: each batch of events is fed to :attr:`state`
+        """Read from the running loop: each batch of events is fed to `state`
         with ``clock()``'s time, then ``changed()`` is called (also when it is gone)."""
         self._loop = asyncio.get_running_loop()
         fd = self._device.fd

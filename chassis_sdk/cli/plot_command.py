@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..devices import profile
@@ -12,7 +13,7 @@ from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg
 from .captures import detect_file, no_messages
-from .common import jsonable, out
+from .common import jsonable, out, show_warnings
 from .devices import commands
 
 if TYPE_CHECKING:
@@ -25,14 +26,23 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``plot``."""
     p = sub.add_parser("plot", help="plot a capture: velocities, wheel speeds, voltage, ...")
     p.add_argument("file")
-    p.add_argument("-o", "--output", default="capture.png")
+    p.add_argument(
+        "-o", "--output", help="the PNG to write (default: beside FILE, as FILE's name .png)"
+    )
     device_arg(p, names, detected=True)
     p.set_defaults(func=_start)
 
 
 def _start(args: argparse.Namespace) -> Job:
-    plot(args.file, args.output, args.device)
+    show_warnings("chassis_sdk.recording.capture", "plot")  # a capture cut short
+    plot(args.file, args.output or beside(args.file), args.device)
     return None
+
+
+def beside(path: str) -> str:
+    """Where a plot of the capture ``path`` goes by default: next to it, named like
+    it (``rec/run.jsonl`` -> ``rec/run.png``), not in the current directory."""
+    return str(Path(path).with_suffix(".png"))
 
 
 def plot(path: str, output: str, device: str | None) -> None:

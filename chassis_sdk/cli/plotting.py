@@ -2,7 +2,7 @@
 on the right), measured against commanded, the odometry path, and saying so when a
 panel has nothing to show.
 
-A plot draws from :class:`~chassis_sdk.recording.columns.Columns`: the capture decoded into
+A plot draws from [`Columns`][chassis_sdk.recording.columns.Columns]: the capture decoded into
 arrays (``capture_columns``), so an hour's 180,000 frames are drawn without building
 an object per frame."""
 

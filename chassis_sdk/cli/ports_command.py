@@ -1,5 +1,6 @@
-"""``chassis-sdk ports``: every serial port, with its USB ids and whether this user may
-open it (no port is opened)."""
+"""``chassis-sdk ports``: every serial port, with its USB ids, whether this user may
+open it (no port is opened), and the names of it that survive renumbering (its
+``usb:VID:PID[:SERIAL]`` identity and udev's ``/dev/serial/by-id`` link)."""
 
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ def _start(args: argparse.Namespace) -> Job:
 
 
 def ports(as_json: bool) -> None:
-    """Print the serial ports, one a line, or as one JSON array."""
+    """Print the serial ports, one a line (with a second line for a USB port's stable
+    names), or as one JSON array."""
     found = list_serial_ports()
     if as_json:
         out(json.dumps([p.as_dict() for p in found]))
@@ -43,3 +45,10 @@ def ports(as_json: bool) -> None:
         who = ", ".join(x for x in (p.manufacturer, p.description) if x)
         serial_no = f"  serial {p.serial_number}" if p.serial_number else ""
         out(f"{p.device:<16}{usb}  {who or '-'}{serial_no}  [{p.access}]")
+        if p.identity:
+            by_id = f"  by-id {p.by_id}" if p.by_id else ""
+            out(f"{'':<16}  id {p.identity}{by_id}")
+    named = [p.identity for p in found if p.identity]
+    unique = [i for i in named if named.count(i) == 1]
+    if unique:
+        out(f"use PORT={unique[0]} (a device's id above) to survive renumbering")

@@ -1,5 +1,5 @@
 """``chassis-sdk ros2``'s arguments; the command itself is
-:mod:`chassis_sdk.cli.ros2_command`, imported only when it runs (it needs cyclonedds)."""
+`chassis_sdk.cli.ros2_command`, imported only when it runs (it needs cyclonedds)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``chassis-sdk serve``'s arguments; the command itself is
-:mod:`chassis_sdk.cli.serve_command`, imported only when it runs."""
+`chassis_sdk.cli.serve_command`, imported only when it runs."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from ..devices import DeviceProfile, profile
-from .arguments import deadman_args, device_arg, limit_args, port_args, require_port
+from .arguments import TCP_PORT, deadman_args, device_arg, limit_args, port_args, require_port
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -21,7 +21,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p = sub.add_parser("serve", help="serve the device live to the Foxglove app (WebSocket)")
     port_args(p)
     device_arg(p, names)
-    p.add_argument("--foxglove-port", type=int, default=8765, help="TCP port (default 8765)")
+    p.add_argument("--foxglove-port", type=TCP_PORT, default=8765, help="TCP port (default 8765)")
     p.add_argument(
         "--host", default="127.0.0.1", help="address to bind (default: this computer only)"
     )

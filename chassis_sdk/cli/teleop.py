@@ -12,7 +12,7 @@ a key counts as held until no repeat of it has arrived for a *key timeout*, and 
 released (the robot is stopped). That timeout adapts:
 
 - **Before the first repeat** of a press, it is the initial delay plus a margin:
-  ``--key-timeout`` (default :data:`KEY_TIMEOUT`, 0.75 s, which covers X11's 660 ms)
+  ``--key-timeout`` (default `KEY_TIMEOUT`, 0.75 s, which covers X11's 660 ms)
   until one hold has shown the terminal's delay; from then on
   ``min(key_timeout, 1.25 * delay + 0.05)`` with ``delay`` the longest initial delay
   seen (0.675 s for a 500 ms desktop, 0.36 s on the console). A delay counts as seen
@@ -28,7 +28,7 @@ released (the robot is stopped). That timeout adapts:
   loaded machine.
 
 So a released key stops the robot within that timeout of its last arrival (no tick
-adds to it: :attr:`KeyTeleop.deadline` is when to look again). A key timeout shorter
+adds to it: `KeyTeleop.deadline` is when to look again). A key timeout shorter
 than the terminal's initial delay makes a held key stutter once at the start (it stops,
 then the first repeat drives again): safe, but pass a larger ``--key-timeout``.
 
@@ -124,7 +124,7 @@ _ESC = 0x1B
 
 
 class KeyDecoder:
-    """Terminal bytes to :class:`Key` s, whatever the reads cut them into.
+    """Terminal bytes to `Key` s, whatever the reads cut them into.
 
     Arrows come as ``ESC [ A`` (normal mode, with modifiers ``ESC [ 1 ; 2 A`` taken as
     the plain arrow) or ``ESC O A`` (application mode); a sequence split across reads
@@ -184,7 +184,7 @@ class KeyDecoder:
 
 
 class Effect(enum.Enum):
-    """What the I/O around :class:`KeyTeleop` must do next."""
+    """What the I/O around `KeyTeleop` must do next."""
 
     DRIVE = "drive"  #: Write :attr:`KeyTeleop.velocity` (it changed, or was refreshed).
     STOP = "stop"  #: Write zero.
@@ -284,7 +284,7 @@ class KeyTeleop:
     @property
     def deadline(self) -> float | None:
         """When the held key counts as released unless it repeats (``now`` units), or
-        ``None``: the time to call :meth:`poll` next."""
+        ``None``: the time to call `poll` next."""
         hold = self._hold
         timeout = self.timeout
         return None if hold is None or timeout is None else hold.last + timeout

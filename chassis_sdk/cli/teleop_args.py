@@ -1,5 +1,5 @@
 """``chassis-sdk teleop``'s arguments; the command itself is
-:mod:`chassis_sdk.cli.teleop_command`."""
+`chassis_sdk.cli.teleop_command`."""
 
 from __future__ import annotations
 

@@ -1,18 +1,18 @@
 """``chassis-sdk teleop``: drive from a terminal's keys, or a gamepad on the robot
 computer, with a status line.
 
-The keys' meaning and timing are :class:`chassis_sdk.cli.teleop.KeyTeleop` (sans-IO);
+The keys' meaning and timing are `chassis_sdk.cli.teleop.KeyTeleop` (sans-IO);
 this is the I/O around it: the terminal in cbreak mode with signals and flow control
 off (Ctrl-C, Ctrl-Z and Ctrl-S arrive as bytes: Ctrl-C quits, the others are ignored,
 so the process is never suspended with the robot moving), stdin read from the event
-loop, the device opened by :func:`~chassis_sdk.cli.common.driven` (reconnecting,
+loop, the device opened by `driven` (reconnecting,
 within the limits, under the deadman), and a loop that sleeps until the next thing due:
 a key, the held key's release deadline, the pad's, a refresh of the command (20 Hz) or
 of the status line (10 Hz).
 
 Every way out writes zero: ``q``/Ctrl-C (exit 0), ``--seconds``, the terminal gone
 (end of file or EIO on stdin: at once, exit 1), SIGHUP or SIGTERM (through
-:func:`chassis_sdk.run`), an exception. The terminal's mode is restored on every one.
+[`chassis_sdk.run`][chassis_sdk.run]), an exception. The terminal's mode is restored on every one.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """``chassis-sdk web``'s arguments; the command itself is
-:mod:`chassis_sdk.cli.web_command`, imported only when it runs (it needs aiohttp)."""
+`chassis_sdk.cli.web_command`, imported only when it runs (it needs aiohttp)."""
 
 from __future__ import annotations
 
@@ -9,15 +9,21 @@ from typing import TYPE_CHECKING
 
 from ..core.validation import check_int, check_real
 from ..devices import DeviceProfile, profile
-from .arguments import arg_type, deadman_args, device_arg, limit_args, port_args, require_port
+from .arguments import (
+    TCP_PORT,
+    arg_type,
+    deadman_args,
+    device_arg,
+    limit_args,
+    port_args,
+    require_port,
+)
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
 __all__ = ["add_parser"]
 
-#: A TCP port to serve on (0: any free one).
-TCP_PORT = arg_type(int, lambda v: check_int(v, "port", low=0, high=65535))
 #: A gamepad's axis or button index.
 INDEX = arg_type(int, lambda v: check_int(v, "index", low=0, high=63))
 

@@ -3,29 +3,32 @@
 Nothing here imports a device, a recorder, an integration or the command line.
 Modules, bottom up. The pure parts (no asyncio, no clock of their own):
 
-* :mod:`.validation`: the one check of numbers from a caller, and SI-to-wire scaling;
-* :mod:`.framing`: the incremental frame scanner every codec builds on;
-* :mod:`.construct`: fast construction of frozen message types (decoders' hot path);
-* :mod:`.enums`: enums and flags that print their names; :mod:`.plain`: messages as
+* `.validation`: the one check of numbers from a caller, and SI-to-wire scaling;
+* `.framing`: the incremental frame scanner every codec builds on;
+* `.construct`: fast construction of frozen message types (decoders' hot path);
+* `.enums`: enums and flags that print their names; `.plain`: messages as
   plain data (JSON, CSV);
-* :mod:`.firmware`: the base of the sans-IO firmware models the simulators serve;
-* :mod:`.writequeue`: the link's write discipline (velocity as state, the final zero);
-* :mod:`.alarm`, :mod:`.backoff`: a wakeable sleep, and reconnect delays.
+* `.firmware`: the base of the sans-IO firmware models the simulators serve;
+* `.writequeue`: the link's write discipline (velocity as state, the final zero);
+* `.alarm`, `.backoff`: a wakeable sleep, and reconnect delays;
+* `.battery`, `.charge`, `.pack`: the state of charge from voltage (and
+  current), how every surface shows it, and the simulated pack;
+* `.calibration`: the odometry's calibration factors.
 
 The runtime:
 
-* :mod:`.transport`: the link (one per port) and opening ports of every kind (the
-  serial backend is chosen at the first open); :mod:`.ports`: listing serial ports;
-* :mod:`.dispatch`: streams with their latest value, and the table of requests;
-* :mod:`.requests`: writing requests, retries, matching replies;
-* :mod:`.supervisor`: lifetime, the close fence, reconnect, link health;
-* :mod:`.watchdog`: the velocity watchdog, deadman and limits; :mod:`.motion`: a
+* `.transport`: the link (one per port) and opening ports of every kind (the
+  serial backend is chosen at the first open); `.ports`: listing serial ports;
+* `.dispatch`: streams with their latest value, and the table of requests;
+* `.requests`: writing requests, retries, matching replies;
+* `.supervisor`: lifetime, the close fence, reconnect, link health;
+* `.watchdog`: the velocity watchdog, deadman and limits; `.motion`: a
   device's motion commands over it;
-* :mod:`.odometry`, :mod:`.events`, :mod:`.diagnosis`, :mod:`.stats`: what a device
-  reports, generically; :mod:`.observation`: a device's streams and reports;
-* :mod:`.session`, :mod:`.device`: the :class:`Device` base that a device subclasses
-  (its port side, and its robot side); :mod:`.notifier`: watching a device from outside;
-* :mod:`.run`: ``chassis_sdk.run``, SIGTERM-safe ``asyncio.run``.
+* `.odometry`, `.events`, `.diagnosis`, `.stats`: what a device
+  reports, generically; `.observation`: a device's streams and reports;
+* `.session`, `.device`: the `Device` base that a device subclasses
+  (its port side, and its robot side); `.notifier`: watching a device from outside;
+* `.run`: ``chassis_sdk.run``, SIGTERM-safe ``asyncio.run``.
 
 The names below are what a device package is written with (see "Adding a device");
 each is imported on first use, so ``chassis_sdk.core.framing`` loads alone.
@@ -40,7 +43,7 @@ from .._lazy import lazy as _lazy
 if TYPE_CHECKING:
     from .device import Device
     from .diagnosis import Diagnosis, Findings
-    from .dispatch import Broadcast, Subscription
+    from .dispatch import Broadcast, Listener, ListenerStats, Subscription
     from .events import EdgeDetector, EventKind, RobotEvent
     from .firmware import Firmware, FirmwareModel, next_slot
     from .framing import INVALID, NEED_DATA, DecoderStats, FrameDecoder, FrameTable
@@ -60,6 +63,8 @@ _LAZY = {
     "Findings": ".diagnosis",
     "Broadcast": ".dispatch",
     "Subscription": ".dispatch",
+    "Listener": ".dispatch",
+    "ListenerStats": ".dispatch",
     "EdgeDetector": ".events",
     "EventKind": ".events",
     "RobotEvent": ".events",
@@ -90,6 +95,8 @@ __all__ = [
     "FrameDecoder",
     "FrameTable",
     "LinkStats",
+    "Listener",
+    "ListenerStats",
     "MotionLimits",
     "Notifier",
     "RobotEvent",

@@ -8,7 +8,7 @@ __all__ = ["Alarm"]
 
 
 class Alarm:
-    """Sleep until a delay passes or :meth:`wake` is called, whichever comes first.
+    """Sleep until a delay passes or `wake` is called, whichever comes first.
 
     One future and one timer handle per sleep: lighter and more punctual than
     ``asyncio.wait_for(event.wait(), ...)``, which creates a task each time (and, on
@@ -27,7 +27,7 @@ class Alarm:
             waiter.set_result(None)
 
     async def sleep(self, delay: float | None) -> None:
-        """Sleep ``delay`` seconds (forever if ``None``) or until :meth:`wake`."""
+        """Sleep ``delay`` seconds (forever if ``None``) or until `wake`."""
         loop = asyncio.get_running_loop()
         self._waiter = waiter = loop.create_future()
         handle = None if delay is None else loop.call_later(delay, self.wake)

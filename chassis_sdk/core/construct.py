@@ -6,10 +6,10 @@ building the Python objects the large one (a frozen dataclass's ``__init__`` cal
 ``object.__setattr__`` per field; ``IntFlag(value)`` goes through ``EnumType.__call__``;
 a dataclass ``repr`` passes a recursion guard): the figures are in docs/figures.md.
 
-So: :func:`frozen_builder` makes a constructor that fills a frozen, slotted dataclass
+So: `frozen_builder` makes a constructor that fills a frozen, slotted dataclass
 through its slot descriptors (the same result as ``__init__``, with the same
-immutability afterwards, in half the time), :class:`MemberCache` maps wire integers to
-enum members with one dict lookup, and :func:`fast_repr` gives a message class a
+immutability afterwards, in half the time), `MemberCache` maps wire integers to
+enum members with one dict lookup, and `fast_repr` gives a message class a
 ``repr`` that prints exactly the same text with one f-string (messages are immutable,
 so they cannot contain themselves and need no guard). All plain Python.
 """

@@ -2,16 +2,16 @@
 
 A device is its protocol plus these, each in its own module and testable alone:
 
-* :class:`~chassis_sdk.core.session.Session` (the base): the port side, that is the
-  link (:class:`~chassis_sdk.core.supervisor.LinkSupervisor`: lifetime, writes, the
+* [`Session`][chassis_sdk.core.session.Session] (the base): the port side, that is the
+  link (`LinkSupervisor`: lifetime, writes, the
   close fence, reconnect, link health), requests
-  (:class:`~chassis_sdk.core.requests.Requester`), streams, recording, and the public
+  (`Requester`), streams, recording, and the public
   observation API (taps and listeners);
-* :class:`~chassis_sdk.core.motion.Motion`: the velocity watchdog and the commands
+* `Motion`: the velocity watchdog and the commands
   over it (deadman, ``duration``, limits and ramps);
-* :class:`~chassis_sdk.core.observation.Reports`: events, odometry, the battery watch.
+* `Reports`: events, odometry, the battery watch.
 
-A device package subclasses :class:`Device` and implements its abstract methods (the
+A device package subclasses `Device` and implements its abstract methods (the
 "hooks" below); everything else is here, once.
 """
 
@@ -28,6 +28,8 @@ import anyio
 import anyio.lowlevel
 
 from ..errors import NotConnectedError, ProtocolError, RequestTimeoutError
+from .battery import BatteryModel
+from .calibration import Calibration
 from .diagnosis import Diagnosis, Findings
 from .dispatch import Subscription
 from .events import EventKind, RobotEvent
@@ -58,18 +60,18 @@ _LINK_EVENTS = {
 
 
 class Device(Session[M, K]):
-    """Base of every device (:class:`~chassis_sdk.Chassis`, :class:`~chassis_sdk.Board`,
+    """Base of every device ([`Chassis`][chassis_sdk.Chassis], [`Board`][chassis_sdk.Board],
     and any a device package adds). See those classes for the arguments.
 
     ``M`` is the device's message type, ``K`` the key a reply is matched by.
 
-    A subclass implements the hooks: :meth:`_make_decoder`, :meth:`_init_protocol`
-    (its encoder, streams and :attr:`_handlers`), :meth:`_zero_frame` and
-    :meth:`_velocity_builder`; it may override :meth:`_on_link_up`,
-    :meth:`_sequence_gaps`, :meth:`_reply_quarantine` and :meth:`_on_odometry_reset`.
-    From the base it uses :meth:`_stream`, :meth:`_send`, :meth:`_request`,
-    :meth:`_reply`, :meth:`_drive`, :meth:`_emit`, :meth:`_battery`, :meth:`_integrate`
-    and :meth:`_findings`.
+    A subclass implements the hooks: `_make_decoder`, `_init_protocol`
+    (its encoder, streams and `_handlers`), `_zero_frame` and
+    `_velocity_builder`; it may override `_on_link_up`,
+    `_sequence_gaps`, `_reply_quarantine` and `_on_odometry_reset`.
+    From the base it uses `_stream`, `_send`, `_request`,
+    `_reply`, `_drive`, `_emit`, `_battery`, `_charge`,
+    `_integrate` and `_findings`.
     """
 
     def __init__(
@@ -86,14 +88,18 @@ class Device(Session[M, K]):
         link_timeout: float | None = 1.0,
         limits: MotionLimits | None = None,
         battery_low: float | None = None,
+        battery: BatteryModel | None = None,
+        calibration: Calibration | None = None,
         connect_timeout: float = 2.0,
         close_linger: float = 5.0,
         logger: logging.Logger | None = None,
         record: str | os.PathLike[str] | None = None,
         read_only: bool = False,
     ) -> None:
-        if not isinstance(port, str) or not port:
-            raise ValueError(f"port must be a device path or URL string, got {port!r}")
+        if not isinstance(port, str):
+            raise TypeError(f"port must be a device path or URL string, got {port!r}")
+        if not port:
+            raise ValueError("port must be a device path or URL string, got ''")
         check_int(baudrate, "baudrate", low=1)
         request_timeout = check_real(request_timeout, "request_timeout", **_POSITIVE)
         check_int(retries, "retries", low=0)
@@ -103,6 +109,11 @@ class Device(Session[M, K]):
         link_timeout = check_optional(link_timeout, "link_timeout", **_POSITIVE)
         connect_timeout = check_real(connect_timeout, "connect_timeout", **_POSITIVE)
         close_linger = check_real(close_linger, "close_linger", low=0, unit="s")
+        if battery is not None and not isinstance(battery, BatteryModel):
+            raise TypeError(f"battery must be a BatteryModel or None, got {battery!r}")
+        if calibration is not None and not isinstance(calibration, Calibration):
+            raise TypeError(f"calibration must be a Calibration or None, got {calibration!r}")
+        self._calibration = Calibration() if calibration is None else calibration
         log = logger if logger is not None else logging.getLogger("chassis_sdk")
         self._motion = Motion(
             self._write_velocity,
@@ -130,7 +141,7 @@ class Device(Session[M, K]):
         )
         self.limits = limits
         odometry = self._stream("odometry")  # the first named streams, in this order
-        self._reports = Reports(port, log, self._stream("events"), odometry, battery_low)
+        self._reports = Reports(port, log, self._stream("events"), odometry, battery_low, battery)
         self._pose = self._reports.pose
         self._init_protocol()
 
@@ -141,7 +152,7 @@ class Device(Session[M, K]):
 
     @abc.abstractmethod
     def _init_protocol(self) -> None:
-        """Set up the encoder, streams and :attr:`_handlers` (end of ``__init__``)."""
+        """Set up the encoder, streams and `_handlers` (end of ``__init__``)."""
 
     @abc.abstractmethod
     def _velocity_builder(self, linear: float, angular: float) -> FrameBuilder:
@@ -173,7 +184,7 @@ class Device(Session[M, K]):
         The frame is written at once and re-sent every ``resend_interval``. Without
         ``duration`` it stays active until ``command_timeout`` after the *last* call
         (keep calling, as with ROS ``cmd_vel``); with ``duration`` it holds exactly that
-        long. Then one zero frame is written. With :attr:`limits`, what is written is
+        long. Then one zero frame is written. With `limits`, what is written is
         clamped and ramped towards the command; stopping is always immediate.
 
         Raises:
@@ -207,7 +218,7 @@ class Device(Session[M, K]):
 
     @property
     def limits(self) -> MotionLimits:
-        """The :class:`MotionLimits` applied to what is written; assign to change them
+        """The `MotionLimits` applied to what is written; assign to change them
         (the next write uses the new ones)."""
         return self._motion.limits
 
@@ -230,14 +241,15 @@ class Device(Session[M, K]):
     @property
     def command_timeout(self) -> float | None:
         """The deadman (s): a velocity command without ``duration`` expires this long
-        after the last call; ``None``: it holds until :meth:`stop`."""
+        after the last call; ``None``: it holds until `stop`."""
         return self._watchdog.command_timeout
 
     # --- events, odometry, reports -------------------------------------------------------------
 
     def events(self) -> Subscription[RobotEvent]:
-        """Subscribe to :class:`~chassis_sdk.RobotEvent` edges: e-stops, bumpers, driver
-        faults, docking changes (chassis), battery low/ok (with ``battery_low``), and
+        """Subscribe to [`RobotEvent`][chassis_sdk.RobotEvent] edges: e-stops, bumpers, driver
+        faults, docking changes (chassis), battery low/ok (with ``battery_low``, a
+        voltage), battery low/critical/ok (with ``battery``, a state of charge), and
         the link going stale, lost and restored. Each edge is reported once.
         """
         return self._subscribe(self._reports.events)
@@ -247,20 +259,48 @@ class Device(Session[M, K]):
         """Voltage below which ``BATTERY_LOW`` is reported (``None``: not watched)."""
         return self._reports.battery_monitor.threshold
 
+    @property
+    def battery_model(self) -> BatteryModel | None:
+        """The state-of-charge estimator given as ``battery=`` (``None``: none)."""
+        return self._reports.battery_model
+
+    @property
+    def battery_percentage(self) -> float | None:
+        """The battery's estimated state of charge (0..100 %), or ``None``: no
+        ``battery=`` model, or not known yet (warming up, or only readings under load
+        with no current to correct them). Never a made-up number."""
+        return self._reports.battery_percentage
+
+    @property
+    def calibration(self) -> Calibration:
+        """The [`Calibration`][chassis_sdk.Calibration] applied to odometry and wheel-mode
+        commands (``calibration=``; factors of 1 when none was given). Assign to change
+        it: the next velocity sample and the next wheel-mode frame use the new one."""
+        return self._calibration
+
+    @calibration.setter
+    def calibration(self, calibration: Calibration | None) -> None:
+        if calibration is not None and not isinstance(calibration, Calibration):
+            raise TypeError(f"calibration must be a Calibration or None, got {calibration!r}")
+        self._calibration = Calibration() if calibration is None else calibration
+
     def odometry(self) -> Subscription[Odometry]:
         """Subscribe to the pose dead-reckoned from the device's reported velocities:
-        an async iterator of :class:`~chassis_sdk.Odometry`, one per velocity sample.
+        an async iterator of [`Odometry`][chassis_sdk.Odometry], one per velocity sample.
 
         Integration runs all the time, subscribed or not, using the samples'
         timestamps, so irregular intervals and dropped frames do not bias it; a gap
         longer than half a second (an outage) is not integrated. See
-        ``configure_odometry`` for the sources.
+        ``configure_odometry`` for the sources. The reported velocities are corrected
+        by `calibration` first (``linear * linear_scale``, ``angular *
+        angular_scale``), so the pose and the velocities of each sample are the
+        calibrated ones; a heading from a gyro is the gyro's, uncorrected.
         """
         return self._subscribe(self._reports.odometry)
 
     @property
     def latest_odometry(self) -> Odometry | None:
-        """The most recent :class:`~chassis_sdk.Odometry`, or ``None``."""
+        """The most recent [`Odometry`][chassis_sdk.Odometry], or ``None``."""
         return self._reports.latest_odometry
 
     def reset_odometry(self, x: float = 0.0, y: float = 0.0, heading: float = 0.0) -> None:
@@ -274,9 +314,17 @@ class Device(Session[M, K]):
         self._reports.reset_pose(x, y, heading)
         self._on_odometry_reset(heading)
 
+    def motion_blocked(self) -> tuple[str, ...]:
+        """What the device reports now that keeps it from moving (an e-stop, a bumper, a
+        driver fault), by the names of the flags of its latest report; empty when
+        nothing is known to block it (or the device reports no such thing). A command
+        sent meanwhile is accepted and ignored by the firmware, so a caller can refuse
+        to drive first (``chassis-sdk drive`` does)."""
+        return ()
+
     @property
     def stats(self) -> LinkStats:
-        """A snapshot of the link counters (see :class:`LinkStats`)."""
+        """A snapshot of the link counters (see [`LinkStats`][chassis_sdk.LinkStats])."""
         link, requests, watchdog = self._link, self._requests, self._watchdog
         return LinkStats.of(
             self._decoder.stats,
@@ -335,9 +383,19 @@ class Device(Session[M, K]):
     def _battery(self, voltage: float, timestamp: float) -> None:
         self._reports.battery(voltage, timestamp)
 
+    def _charge(
+        self, voltage: float, current: float | None, timestamp: float, loaded: bool = False
+    ) -> None:
+        """A reading for the state of charge (``battery=``): the pack's voltage, the
+        current it delivers if measured, and whether it is under load when that is not
+        known (see [`BatteryModel.update`][chassis_sdk.BatteryModel.update])."""
+        self._reports.charge(voltage, current, timestamp, loaded)
+
     def _integrate(
         self, linear: float, angular: float, timestamp: float, heading: float | None = None
     ) -> None:
+        cal = self._calibration
+        linear, angular = linear * cal.linear_scale, angular * cal.angular_scale
         self._reports.integrate(linear, angular, timestamp, heading)
 
     def _findings(self) -> Findings:
@@ -345,7 +403,7 @@ class Device(Session[M, K]):
         return self._reports.findings(self._link.state, self.last_frame_age)
 
     def _report(self, found: Findings, cls: type[D], **read: Any) -> D:
-        """A :class:`Diagnosis` (``cls``: it or a device's subclass, with what was
+        """A [`Diagnosis`][chassis_sdk.Diagnosis] (``cls``: it or a device's subclass, with what was
         ``read`` for it) of these findings, now."""
         return cls(
             self.device_name,

@@ -5,8 +5,8 @@ A fault is anything that stops or degrades the robot (an e-stop, a bumper, a dri
 error bit, a stale link, a low battery); a note is a fact worth reading next to them
 (status bits that are not faults, counters of what the line dropped, the battery
 voltage). The device base finds the link's and the battery's; each device adds the
-findings of its own status words (:class:`Findings` collects them), naming every set bit
-(:func:`flag_names`).
+findings of its own status words (`Findings` collects them), naming every set bit
+(`flag_names`).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Python 3.11's ``IntFlag`` and ``IntEnum`` print as their numbers (``str(status)`` is
 ``"8"``) and their ``repr`` is ``<ChassisStatus.REMOTE_OFFLINE: 8>``: neither is what an
-operator wants on a terminal. :class:`NamedFlag` and :class:`NamedEnum` print names
+operator wants on a terminal. `NamedFlag` and `NamedEnum` print names
 (``REMOTE_OFFLINE``, ``HARDWARE_ESTOP|FRONT_BUMPER``, ``none``) in ``str()`` and
 f-strings, and stay numbers everywhere else: arithmetic, comparisons, ``int()``,
 ``repr()``, and a numeric format (``f"{status:#06x}"``).

@@ -1,15 +1,17 @@
 """Robot events: edges decoded from what the device reports, as typed values.
 
 A status word is a level ("the bumper is pressed"); an application usually wants the
-edge ("the bumper was just hit"). :class:`EdgeDetector` turns successive status words
-into :class:`RobotEvent` values from a table that the device supplies (which bit means
+edge ("the bumper was just hit"). `EdgeDetector` turns successive status words
+into `RobotEvent` values from a table that the device supplies (which bit means
 what), and reports a device state (docking, say) when it changes;
-:class:`BatteryMonitor` does the same for a voltage against a threshold (with
-hysteresis, so a sagging battery does not chatter), and the device base adds the link's
+`BatteryMonitor` does the same for a voltage against a threshold (with
+hysteresis, so a sagging battery does not chatter; a device given a ``BatteryModel``
+reports the same kinds, and ``BATTERY_CRITICAL``, from the state of charge instead), and
+the device base adds the link's
 own edges (stale, lost, restored). Every edge is reported once; a level that holds
 produces nothing more.
 
-:class:`EventKind` is the shared vocabulary of a mobile base (e-stops, bumpers, drivers,
+`EventKind` is the shared vocabulary of a mobile base (e-stops, bumpers, drivers,
 docking, battery, link); which of a device's status bits means which kind, and from
 which ``source``, is the device's own table.
 """
@@ -37,8 +39,13 @@ class EventKind(enum.Enum):
     DRIVER_ERROR = "driver_error"  #: source: the wheel, e.g. "front_left"
     DRIVER_ERROR_CLEARED = "driver_error_cleared"  #: source: the wheel
     DOCKING_CHANGED = "docking_changed"  #: ``state`` (alias ``docking``) holds the new state
-    BATTERY_LOW = "battery_low"  #: ``voltage`` fell below the threshold
-    BATTERY_OK = "battery_ok"  #: ``voltage`` rose back above threshold + hysteresis
+    #: ``voltage`` fell below ``battery_low``, or (``percentage`` set) the state of
+    #: charge below the ``BatteryModel``'s ``low``
+    BATTERY_LOW = "battery_low"
+    #: ``voltage`` (or ``percentage``) rose back above threshold + hysteresis
+    BATTERY_OK = "battery_ok"
+    #: ``percentage`` fell below the ``BatteryModel``'s ``critical`` (after ``BATTERY_LOW``)
+    BATTERY_CRITICAL = "battery_critical"
     LINK_STALE = "link_stale"  #: no valid frame for ``link_timeout``
     LINK_LOST = "link_lost"  #: the port dropped
     LINK_RESTORED = "link_restored"  #: frames (or the port) are back
@@ -53,7 +60,10 @@ class RobotEvent:
         source: Which e-stop, bumper, driver or wheel; empty when there is one only.
         timestamp: ``time.monotonic()`` of the frame (or state change) that showed it.
         state: The new state, for a state change such as ``DOCKING_CHANGED``.
-        voltage: The battery voltage, for ``BATTERY_LOW`` and ``BATTERY_OK``.
+        voltage: The battery voltage, for ``BATTERY_LOW``, ``BATTERY_OK`` and
+            ``BATTERY_CRITICAL``.
+        percentage: The state of charge (percent), for the events of a
+            ``BatteryModel`` (``None`` for those of ``battery_low``, a voltage).
     """
 
     kind: EventKind
@@ -61,10 +71,11 @@ class RobotEvent:
     timestamp: float = 0.0
     state: enum.Enum | None = None
     voltage: float | None = None
+    percentage: float | None = None
 
     @property
     def docking(self) -> enum.Enum | None:
-        """The new docking state of ``DOCKING_CHANGED`` (the same as :attr:`state`)."""
+        """The new docking state of ``DOCKING_CHANGED`` (the same as `state`)."""
         return self.state
 
     def __str__(self) -> str:
@@ -75,6 +86,8 @@ class RobotEvent:
             text += f": {self.state.name}"
         if self.voltage is not None:
             text += f": {self.voltage:.1f} V"
+        if self.percentage is not None:
+            text += f", {self.percentage:.0f} %"
         return text
 
 

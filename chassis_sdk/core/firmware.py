@@ -2,7 +2,7 @@
 models of the devices share (a command decoder, the log of commands, rebooting).
 
 Pure: no asyncio, no clock of its own (every call is given ``now``). The server that
-puts a model on a pty or TCP is :class:`chassis_sdk.sim.SimulatorServer`.
+puts a model on a pty or TCP is `chassis_sdk.sim.SimulatorServer`.
 """
 
 from __future__ import annotations
@@ -48,9 +48,9 @@ class FirmwareModel(abc.ABC, Generic[C]):
     """What every sans-IO firmware model shares: a command decoder, the log of commands
     received, and rebooting (silent for a while, then the power-up state).
 
-    A device's model implements :meth:`_power_on` (its power-up state, with a fresh
-    ``_decoder`` of host commands), :meth:`_execute` (one command, returning any
-    immediate reply), :meth:`on_connect`, :meth:`poll` and :meth:`next_deadline`; its
+    A device's model implements `_power_on` (its power-up state, with a fresh
+    ``_decoder`` of host commands), `_execute` (one command, returning any
+    immediate reply), `on_connect`, `poll` and `next_deadline`; its
     ``__init__`` calls ``_power_on()`` once its own settings are in place.
     """
 
@@ -81,7 +81,7 @@ class FirmwareModel(abc.ABC, Generic[C]):
 
     @abc.abstractmethod
     def next_deadline(self) -> float:
-        """When :meth:`poll` next has something to do."""
+        """When [`poll`][chassis_sdk.core.firmware.FirmwareModel.poll] next has something to do."""
 
     def booting(self, now: float) -> bool:
         """True while a reset keeps the firmware silent and deaf."""

@@ -101,7 +101,7 @@ class DecoderStats:
 @dataclass(frozen=True, slots=True)
 class FrameLayout:
     """A protocol's framing rules as data, for decoding a whole capture with arrays
-    (:mod:`chassis_sdk.recording.columns`). It must say exactly what the codec's
+    (`chassis_sdk.recording.columns`). It must say exactly what the codec's
     ``_try_frame`` does; a test holds the two to the same frames.
 
     A frame starts with the decoder's head; its type is the byte at ``type_at`` and its length
@@ -135,7 +135,7 @@ class FrameLayout:
 @dataclass(frozen=True, slots=True)
 class Column:
     """One field of a fixed-size frame, read into an array by
-    :mod:`chassis_sdk.recording.columns`: ``name`` (the flattened name a CSV export uses,
+    `chassis_sdk.recording.columns`: ``name`` (the flattened name a CSV export uses,
     e.g. ``wheels.front_left``), the struct code of the little-endian field (``"h"``,
     ``"H"``, ``"B"``, ...) at ``at`` bytes from the frame's data (negative: in the
     header), and ``divisor``: the value in SI units is the raw number divided by it
@@ -150,7 +150,7 @@ class Column:
 class FrameDecoder(Generic[T]):
     """Incremental decoder: ``feed`` bytes in any chunking, get complete messages out.
 
-    Subclasses set ``_head`` (the two head bytes) and implement :meth:`_try_frame`.
+    Subclasses set ``_head`` (the two head bytes) and implement `_try_frame`.
     """
 
     _head: bytes = b""
@@ -248,7 +248,7 @@ class FrameDecoder(Generic[T]):
         it appends is one frame (the caller counts them).
 
         Returns:
-            The bytes consumed (one frame or more) if any were, :data:`NEED_DATA` if the
-            candidate is still incomplete, :data:`INVALID` if it is not a frame.
+            The bytes consumed (one frame or more) if any were, `NEED_DATA` if the
+            candidate is still incomplete, `INVALID` if it is not a frame.
         """
         raise NotImplementedError

@@ -1,8 +1,8 @@
-"""The close of a :class:`~chassis_sdk.core.transport.Link`: a bounded drain, the stale
+"""The close of a `Link`: a bounded drain, the stale
 frames discarded, the final zero kept, and the background "linger".
 
-:meth:`Link.aclose <chassis_sdk.core.transport.Link.aclose>` hands its work to the
-link's :class:`Linger`. It gives what is on its way a moment to leave; if the device is
+`Link.aclose` hands its work to the
+link's `Linger`. It gives what is on its way a moment to leave; if the device is
 still not reading then, every stale frame is discarded (what the link holds, and a
 serial port's kernel output queue, with ``tcflush``) **but the final zero is kept**: it
 goes out at once where the flush made room (a serial port), or waits in the background
@@ -13,12 +13,12 @@ queue has no event. The descriptors are closed once it has left or the bound has
 passed, and then whatever is still held is discarded (a socket is reset, so the kernel
 sends nothing stale either).
 
-A link closing in the background is registered by port: :func:`open_link
-<chassis_sdk.core.transport.open_link>` of the same port waits for it (its zero must be
-the last frame of that session), and :func:`wait_lingering` lets a program end only
+A link closing in the background is registered by port: `open_link`
+of the same port waits for it (its zero must be
+the last frame of that session), and `wait_lingering` lets a program end only
 once every zero has left (or its bound has passed).
 
-Each link makes its own :class:`Linger`, which reads and changes the link's write state
+Each link makes its own `Linger`, which reads and changes the link's write state
 directly (its held frames, the part-sent frame, the blocked flag, its descriptor, the
 loss counter) and uses the link's write-path helpers (``drain``, ``_send_held``,
 ``_drop_held``, ``_release_wfd``); the link remains the one object its owner talks to.
@@ -65,8 +65,8 @@ async def wait_lingering(timeout: float | None = None) -> None:
     """Wait until no link is closing in the background any more (every final zero has
     left, or its ``close_linger`` bound has passed), at most ``timeout`` seconds.
 
-    :func:`chassis_sdk.run` calls this before the program ends; under a plain
-    :func:`asyncio.run`, a link still lingering when the loop ends discards its zero
+    [`chassis_sdk.run`][chassis_sdk.run] calls this before the program ends; under a plain
+    `asyncio.run`, a link still lingering when the loop ends discards its zero
     (nothing stale is ever sent either way).
     """
     loop = asyncio.get_running_loop()
@@ -81,8 +81,8 @@ def _ignore_messages(messages: list[Any], now: float) -> None:
 
 class Linger:
     """Closes one link (see the module docstring); made by the link, used through its
-    :meth:`~chassis_sdk.core.transport.Link.aclose` and
-    :meth:`~chassis_sdk.core.transport.Link.lingered`."""
+    `aclose` and
+    `lingered`."""
 
     def __init__(self, link: Link[Any]) -> None:
         self._link = link
@@ -210,7 +210,7 @@ class Linger:
         transport.abort()
 
     async def aclose(self, timeout: float, linger: float) -> None:
-        """:meth:`Link.aclose <chassis_sdk.core.transport.Link.aclose>`, which see."""
+        """`Link.aclose`, which see."""
         link = self._link
         try:
             transport = link.transport

@@ -1,5 +1,5 @@
 """A device's motion: its commands over the
-:class:`~chassis_sdk.core.watchdog.VelocityWatchdog` that keeps, resends, limits and
+`VelocityWatchdog` that keeps, resends, limits and
 expires the active command."""
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def frame_builder(
 
 
 class Motion:
-    """A device's motion: the :class:`VelocityWatchdog` that keeps, resends, limits and
+    """A device's motion: the `VelocityWatchdog` that keeps, resends, limits and
     expires the active command, and the commands over it.
 
     Args:
@@ -85,7 +85,7 @@ class Motion:
     @limits.setter
     def limits(self, limits: MotionLimits | None) -> None:
         if limits is not None and not isinstance(limits, MotionLimits):
-            raise ValueError(f"limits must be a MotionLimits or None, got {limits!r}")
+            raise TypeError(f"limits must be a MotionLimits or None, got {limits!r}")
         self.watchdog.limits = limits if limits is not None else MotionLimits()
 
     @property

@@ -1,13 +1,14 @@
 """What a device reports beyond its own messages: its events, the pose dead-reckoned
-from its velocities, and its battery watch."""
+from its velocities, its battery watch and its state of charge."""
 
 from __future__ import annotations
 
 import logging
 
+from .battery import BatteryLevel, BatteryModel
 from .diagnosis import Findings
 from .dispatch import Broadcast
-from .events import BatteryMonitor, RobotEvent
+from .events import BatteryMonitor, EventKind, RobotEvent
 from .odometry import Odometry, OdometryIntegrator
 from .supervisor import ConnectionState
 from .transport import backend_name
@@ -24,6 +25,7 @@ class Reports:
         events: The device's ``events`` stream.
         odometry: The device's ``odometry`` stream.
         battery_low: Voltage below which ``BATTERY_LOW`` is reported, or ``None``.
+        battery: The state-of-charge estimator, or ``None``.
     """
 
     def __init__(
@@ -33,6 +35,7 @@ class Reports:
         events: Broadcast[RobotEvent],
         odometry: Broadcast[Odometry],
         battery_low: float | None,
+        battery: BatteryModel | None = None,
     ) -> None:
         self._port = port
         self._log = log
@@ -40,6 +43,7 @@ class Reports:
         self.odometry = odometry
         self.pose = OdometryIntegrator()
         self.battery_monitor = BatteryMonitor(battery_low)
+        self.battery_model = battery
 
     def emit(self, event: RobotEvent) -> None:
         """Log ``event`` and publish it on ``events``."""
@@ -51,6 +55,37 @@ class Reports:
         event = self.battery_monitor.update(voltage, timestamp)
         if event is not None:
             self.emit(event)
+
+    def charge(self, voltage: float, current: float | None, timestamp: float, loaded: bool) -> None:
+        """A reading for the state of charge: ``BATTERY_LOW``, ``BATTERY_CRITICAL`` or
+        ``BATTERY_OK`` when its level changes (each once per crossing; a first estimate
+        already low reports ``BATTERY_LOW``, and ``BATTERY_CRITICAL`` if it is)."""
+        model = self.battery_model
+        if model is None:
+            return
+        before = model.level
+        percentage = model.update(voltage, current, now=timestamp, loaded=loaded)
+        after = model.level
+        if after is None or after is before:
+            return
+        old = BatteryLevel.OK if before is None else before
+        kinds = []
+        if after is BatteryLevel.OK:
+            if before is not None:  # a first estimate that is OK is no edge
+                kinds.append(EventKind.BATTERY_OK)
+        else:
+            if old is BatteryLevel.OK:
+                kinds.append(EventKind.BATTERY_LOW)
+            if after is BatteryLevel.CRITICAL:
+                kinds.append(EventKind.BATTERY_CRITICAL)
+        for kind in kinds:
+            self.emit(RobotEvent(kind, "", timestamp, voltage=voltage, percentage=percentage))
+
+    @property
+    def battery_percentage(self) -> float | None:
+        """The estimated state of charge, or ``None`` (no model, or not yet known)."""
+        model = self.battery_model
+        return None if model is None else model.percentage
 
     def integrate(
         self, linear: float, angular: float, timestamp: float, heading: float | None
@@ -85,4 +120,13 @@ class Reports:
             found.note(f"last frame {last_frame_age:.2f} s ago, via {backend_name()}")
         if self.battery_monitor.low:
             found.fault(f"battery below {self.battery_monitor.threshold:g} V")
+        model = self.battery_model
+        if model is not None:
+            if model.percentage is None:
+                found.note("battery charge not yet known")
+            elif model.level is BatteryLevel.OK:
+                found.note(f"battery charge {model.percentage:.0f} %")
+            else:
+                name = "critical" if model.level is BatteryLevel.CRITICAL else "low"
+                found.fault(f"battery charge {model.percentage:.0f} % ({name})")
         return found

@@ -23,7 +23,7 @@ __all__ = ["Odometry", "OdometryIntegrator", "wrap_angle"]
 
 @dataclass(frozen=True, slots=True)
 class Odometry:
-    """A pose and velocity in the odometry frame (where :meth:`reset` put the robot).
+    """A pose and velocity in the odometry frame (where `reset` put the robot).
 
     Attributes:
         x: Forward of the starting pose (m).
@@ -97,7 +97,7 @@ class OdometryIntegrator:
     def advance(
         self, linear: float, angular: float, timestamp: float, heading: float | None = None
     ) -> None:
-        """:meth:`update` without building the :class:`Odometry` (see :meth:`current`):
+        """`update` without building the [`Odometry`][chassis_sdk.Odometry] (see `current`):
         the device integrates every sample, and builds a pose only for someone."""
         last = self._last
         self._last = timestamp

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["jsonable", "plain", "wall_time"]
+__all__ = ["jsonable", "outbound", "plain", "wall_time"]
 
 # One converter per type, worked out once: a recorder or a bridge converts every
 # message, and asking "is this a dataclass? an enum? ..." of each value every time
@@ -46,7 +46,7 @@ def _fields_converter(
 ) -> Callable[[Any], Any]:
     """A function made for one class (as ``dataclasses`` makes ``__init__``) that turns
     an instance into a ``dict`` of its fields: one attribute read per field, and a call
-    to :func:`plain` only for a value that is not already plain."""
+    to `plain` only for a value that is not already plain."""
     lines = [f"def to_plain(value):  # {title}"]
     for i, name in enumerate(fields):
         lines.append(f"    v{i} = value[{i}]" if tuple_like else f"    v{i} = value.{name}")
@@ -78,6 +78,19 @@ def jsonable(msg: object) -> dict[str, Any]:
     """A message as a JSON-ready ``dict`` (a bare value as ``{"value": ...}``)."""
     result = plain(msg)
     return result if isinstance(result, dict) else {"value": result}
+
+
+def outbound(msg: object, *, now: float | None = None) -> dict[str, Any]:
+    """A message as JSON that leaves the process (MQTT, the dashboard, ``--json``):
+    `jsonable`, with one clock: its ``timestamp`` is wall time (epoch seconds,
+    `wall_time`), and the ``time.monotonic()`` reading it came from is kept as
+    ``monotonic``, the only field named so."""
+    body = jsonable(msg)
+    stamp = body.get("timestamp")
+    if isinstance(stamp, float | int) and not isinstance(stamp, bool):
+        body["monotonic"] = stamp
+        body["timestamp"] = wall_time(float(stamp), now=now)
+    return body
 
 
 def wall_time(monotonic: float, *, now: float | None = None) -> float:

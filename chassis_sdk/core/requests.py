@@ -1,5 +1,5 @@
 """Requests and their replies: write, wait a bounded time, retry what may be retried,
-and attribute every reply by the rule of :class:`~chassis_sdk.core.dispatch.RequestTable`
+and attribute every reply by the rule of `RequestTable`
 (a late reply never answers a later call)."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ class Requester(Generic[K]):
     Args:
         port: For messages.
         write: Writes a frame (raises when the link cannot take it).
-        ensure_open: Raises :class:`NotConnectedError` unless a call may write now.
+        ensure_open: Raises `NotConnectedError` unless a call may write now.
         timeout: Seconds per attempt.
         retries: Extra attempts of read-only requests.
         log: Where late and unmatched replies are logged.

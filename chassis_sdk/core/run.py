@@ -6,7 +6,7 @@ Ctrl-C cancels the main task under ``asyncio.run``, so every ``async with Chassi
 unwinds and writes its zero-velocity frame. SIGTERM, what systemd, Docker and
 Kubernetes send to stop a service, and SIGHUP (the terminal went away) kill a plain
 Python process on the spot: nothing is written and only the firmware's own timeout
-stops the wheels. :func:`run` turns both into the same cancellation as Ctrl-C.
+stops the wheels. [`run`][chassis_sdk.run] turns both into the same cancellation as Ctrl-C.
 """
 
 from __future__ import annotations
@@ -29,6 +29,8 @@ T = TypeVar("T")
 ENV_LOOP = "CHASSIS_SDK_LOOP"
 #: Signals that cancel the main task (SIGINT is asyncio.Runner's own).
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+#: The exit status of a program ended by Ctrl-C (128 + SIGINT), as a shell reports it.
+INTERRUPTED = 128 + signal.SIGINT
 #: A cancellation is repeated this often, this many times, while the task runs on.
 RECANCEL_AFTER = 1.0
 RECANCELS = 10
@@ -41,7 +43,7 @@ def run(
     one_line_errors: bool = False,
     uvloop: bool | None = None,
 ) -> T:
-    """Run ``main`` to completion in a new event loop, like :func:`asyncio.run`, with
+    """Run ``main`` to completion in a new event loop, like `asyncio.run`, with
     SIGTERM and SIGHUP cancelling it the way Ctrl-C does.
 
     On the first such signal the main task is cancelled: every ``async with`` block
@@ -49,11 +51,11 @@ def run(
     function raises ``SystemExit(128 + signal number)`` (143 for SIGTERM), the exit
     status a shell reports for a process ended by that signal. A second signal, while
     the first is still unwinding, ends the process at once (the default action).
-    Ctrl-C raises :class:`KeyboardInterrupt` after the same unwinding, as under
-    :func:`asyncio.run`.
+    Ctrl-C raises `KeyboardInterrupt` after the same unwinding, as under
+    `asyncio.run`.
 
-    Example::
-
+    Example:
+        ```python
         import chassis_sdk
 
         async def main() -> None:
@@ -61,15 +63,19 @@ def run(
                 ...
 
         chassis_sdk.run(main())
+        ```
 
     Args:
         main: The program's main coroutine.
-        debug: asyncio debug mode, as for :func:`asyncio.run`.
-        one_line_errors: For scripts an operator runs: a :class:`~chassis_sdk.ChassisError`
+        debug: asyncio debug mode, as for `asyncio.run`.
+        one_line_errors: For scripts an operator runs: a [`ChassisError`][chassis_sdk.ChassisError]
             (no such port, nothing answering, another device on the port, the link
             lost...) ends the program with its message on one line of stderr, named
-            after the script, and exit status 1 (2 for a timeout), instead of a
-            traceback. The robot has been stopped by then, as on any exit.
+            after the script, and exit status 1 (2 for a timeout: every timeout the
+            SDK raises is one, ``wait_for`` and ``wait_connected`` included), instead
+            of a traceback; Ctrl-C ends it quietly with exit status 130 (no
+            ``KeyboardInterrupt`` traceback). The robot has been stopped by then, as
+            on any exit.
         uvloop: Run on `uvloop <https://github.com/MagicStack/uvloop>`_ (extra
             ``uvloop``): ``None`` (default) when it is installed, unless the
             environment says ``CHASSIS_SDK_LOOP=asyncio``; ``True`` requires it;
@@ -80,7 +86,10 @@ def run(
 
     Raises:
         SystemExit: ``main`` was cancelled by SIGTERM or SIGHUP, or (with
-            ``one_line_errors``) failed with a ``ChassisError``.
+            ``one_line_errors``) failed with a ``ChassisError`` or was interrupted
+            by Ctrl-C.
+        KeyboardInterrupt: Ctrl-C, without ``one_line_errors`` (as under
+            `asyncio.run`).
     """
     try:
         factory = loop_factory(uvloop)
@@ -91,6 +100,10 @@ def run(
         return _run(main, debug, factory)
     try:
         return _run(main, debug, factory)
+    except KeyboardInterrupt:
+        # Ctrl-C: the robot is stopped by now (every ``async with`` unwound); the
+        # operator asked for it, so no traceback, and the status a shell gives it.
+        raise SystemExit(INTERRUPTED) from None
     except RequestTimeoutError as exc:
         print(f"{_program()}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -118,7 +131,7 @@ def _program() -> str:
 
 
 def loop_factory(use_uvloop: bool | None = None) -> Callable[[], asyncio.AbstractEventLoop] | None:
-    """uvloop's loop factory if it is to be used (see :func:`run`), else ``None``.
+    """uvloop's loop factory if it is to be used (see [`run`][chassis_sdk.run]), else ``None``.
 
     Raises:
         ImportError: ``use_uvloop=True`` without uvloop installed.

@@ -1,12 +1,12 @@
 """``Session``: a device's port side.
 
-It owns the link (through :class:`~chassis_sdk.core.supervisor.LinkSupervisor`: the
+It owns the link (through `LinkSupervisor`: the
 lifetime, the writes, the close fence, reconnect, link health), the requests in flight
-(:class:`~chassis_sdk.core.requests.Requester`), the streams
-(:class:`~chassis_sdk.core.dispatch.Streams`) and the session recording; what
+(`Requester`), the streams
+(`Streams`) and the session recording; what
 observers may see of it (the raw traffic, every named stream, the connection states)
-they see through :class:`~chassis_sdk.core.notifier.Notifier`.
-:class:`~chassis_sdk.core.device.Device` adds the robot side: motion, odometry, events
+they see through [`Notifier`][chassis_sdk.core.notifier.Notifier].
+[`Device`][chassis_sdk.core.device.Device] adds the robot side: motion, odometry, events
 and reports.
 """
 
@@ -26,6 +26,7 @@ import anyio.lowlevel
 from ..errors import NotConnectedError, RequestTimeoutError
 from .dispatch import Broadcast, Streams, Subscription, first_match
 from .framing import FrameDecoder
+from .ports import parse_usb_identity
 from .requests import Requester
 from .supervisor import ConnectionState, LinkSupervisor
 from .transport import Decoder, backend_name
@@ -45,7 +46,7 @@ _POSITIVE: dict[str, Any] = {"low": 0, "low_open": True}
 
 class Recorder(Protocol):
     """A session recording as a device holds it (the ``record`` option): it taps the
-    device's traffic from before the port opens, and :meth:`close` ends it after the
+    device's traffic from before the port opens, and `close` ends it after the
     final zero."""
 
     def close(self) -> None:
@@ -85,7 +86,7 @@ RECORDER_GROUP = "chassis_sdk.recorders"
 
 
 def _find_recorder() -> None:
-    """Load the declared recorders (importing one installs it with :func:`set_recorder`)."""
+    """Load the declared recorders (importing one installs it with `set_recorder`)."""
     from importlib import metadata
 
     for ep in metadata.entry_points(group=RECORDER_GROUP):
@@ -102,7 +103,7 @@ def _find_recorder() -> None:
 def _recording(
     record: str | os.PathLike[str] | None,
 ) -> tuple[Path, Callable[[Any], Recorder]] | None:
-    """The ``record`` option checked: ``None``; a :class:`RecordTarget` (it opens its own
+    """The ``record`` option checked: ``None``; a `RecordTarget` (it opens its own
     recording); or a file path, opened by the installed recorder (``.mcap``: MCAP, which
     needs foxglove-sdk; any other name: a JSON-lines capture). Returns the file and what
     opens the recording given the device."""
@@ -140,7 +141,7 @@ def _recording(
 
 
 class _LinkHooks(Generic[M]):
-    """What the link supervisor needs of a session (:class:`~.supervisor.Supervised`),
+    """What the link supervisor needs of a session (`Supervised`),
     kept off the session's public surface."""
 
     __slots__ = ("_session",)
@@ -173,12 +174,12 @@ class _LinkHooks(Generic[M]):
 
 class Session(abc.ABC, Generic[M, K]):
     """A device's port side: see the module. The options are the device's (see
-    :class:`~chassis_sdk.Chassis`); ``background`` are the tasks that run while the
+    [`Chassis`][chassis_sdk.Chassis]); ``background`` are the tasks that run while the
     port is open, by name.
 
-    A subclass implements :meth:`_make_decoder` and :meth:`_zero_frame`; it may
-    override :meth:`_on_link_up`, :meth:`_make_command_decoder`, :meth:`_reply_quarantine`,
-    :meth:`_on_fenced` and :meth:`_on_state`.
+    A subclass implements `_make_decoder` and `_zero_frame`; it may
+    override `_on_link_up`, `_make_command_decoder`, `_reply_quarantine`,
+    `_on_fenced` and `_on_state`.
     """
 
     #: The device's profile name, as ``Diagnosis.device`` and the CLI say it.
@@ -203,6 +204,7 @@ class Session(abc.ABC, Generic[M, K]):
     ) -> None:
         if any("kind" in vars(c) for c in type(self).__mro__):  # the old name: not "device"
             raise TypeError(f"{type(self).__name__}: `kind` is now `device_name`")
+        parse_usb_identity(port)  # a malformed usb: port is the caller's error, now
         self.port = port
         self._log = logger
         chosen = _recording(record)
@@ -280,20 +282,34 @@ class Session(abc.ABC, Generic[M, K]):
 
     @property
     def connection_state(self) -> ConnectionState:
-        """The current :class:`ConnectionState`."""
+        """The current [`ConnectionState`][chassis_sdk.ConnectionState]."""
         return self._link.state
 
     @property
     def read_only(self) -> bool:
         """True for a viewer (``read_only=True``): nothing is ever written to the
         device, not even the zero at close; commands and requests raise
-        :class:`~chassis_sdk.errors.ChassisError`."""
+        [`ChassisError`][chassis_sdk.ChassisError]."""
         return self._link.writer.read_only
 
     @property
     def is_connected(self) -> bool:
         """True while the port is open (``CONNECTED`` or ``STALE``)."""
         return self._link.is_open
+
+    @property
+    def port_node(self) -> str | None:
+        """The device node open now (``/dev/ttyUSB1``), or ``None`` while the port is
+        not open.
+
+        `port` stays what was given. A ``usb:VID:PID[:SERIAL]`` port is looked up
+        in ``serial.tools.list_ports`` at every open and every reconnect attempt, and a
+        ``/dev/serial/by-id`` link is followed by the OS at each open, so after a
+        replug that renumbered the adapter (``ttyUSB0`` -> ``ttyUSB1``) this names the
+        new node (and the ``chassis_sdk`` logger says so at INFO). For a plain path it
+        is that path's node; for ``socket://`` the URL.
+        """
+        return self._link.node
 
     @property
     def transport_backend(self) -> str:
@@ -329,12 +345,14 @@ class Session(abc.ABC, Generic[M, K]):
         self._requests.retries = check_int(value, "retries", low=0)
 
     def connection_states(self) -> Subscription[ConnectionState]:
-        """An async iterator of :class:`ConnectionState` changes, from the next one on.
+        """An async iterator of `ConnectionState` changes, from the next one on.
 
-        It ends after ``DISCONNECTED`` when the device is closed. Example::
+        It ends after ``DISCONNECTED`` when the device is closed, for example:
 
-            async for state in robot.connection_states():
-                print("link is", state.value)
+        ```python
+        async for state in robot.connection_states():
+            print("link is", state.value)
+        ```
         """
         return self._link.states.subscribe()
 
@@ -377,7 +395,7 @@ class Session(abc.ABC, Generic[M, K]):
         port closes. If the device is not reading, every stale frame is discarded but
         the zero, which may go on waiting for it in the background for up to
         ``close_linger`` seconds after this returns (see the safety model); under
-        :func:`chassis_sdk.run` the program ends only once it has left. Safe to call
+        [`chassis_sdk.run`][chassis_sdk.run] the program ends only once it has left. Safe to call
         more than once, and from any task; a second call waits for the first to
         finish. Cancelling it does not interrupt it: it returns (within about a second)
         before the cancellation goes on.
@@ -392,7 +410,7 @@ class Session(abc.ABC, Generic[M, K]):
     @property
     def recording(self) -> Path | None:
         """The file this session is being recorded to (the ``record`` option), or
-        ``None``. Connecting again after :meth:`close` starts the file anew."""
+        ``None``. Connecting again after `close` starts the file anew."""
         return self._record_path
 
     def _stop_recording(self) -> None:
@@ -443,7 +461,7 @@ class Session(abc.ABC, Generic[M, K]):
     async def _request(
         self, build: Callable[[], tuple[bytes, K]], *, read_only: bool, name: str
     ) -> Any:
-        """Write a request and wait for its reply (see :meth:`Requester.call`).
+        """Write a request and wait for its reply (see `Requester.call`).
 
         A timeout on a port where bytes arrive but no frame of this protocol does says
         so: that is another device, or the wrong baud rate, not a slow one.
@@ -478,7 +496,7 @@ class Session(abc.ABC, Generic[M, K]):
         self, stream: Broadcast[T], predicate: Callable[[T], bool], timeout: float, what: str
     ) -> T:
         """The latest message of ``stream`` if it satisfies ``predicate``, else the next
-        one that does (a device's ``wait_for``; see :func:`~.dispatch.first_match`)."""
+        one that does (a device's ``wait_for``; see `first_match`)."""
         return await first_match(stream, self._subscribe, predicate, timeout, what, self.port)
 
     def __repr__(self) -> str:

@@ -23,8 +23,8 @@ Every loop-bound primitive (the events below) is made by ``connect()``, so a dev
 object works in any event loop it is connected in, one ``asyncio.run()`` after another.
 
 The supervisor knows no protocol: what it needs of the device it serves is the
-:class:`Supervised` interface (a decoder and a message sink per link, the zero frame,
-what to do when the link goes down), which :class:`~chassis_sdk.core.device.Device`
+`Supervised` interface (a decoder and a message sink per link, the zero frame,
+what to do when the link goes down), which [`Device`][chassis_sdk.core.device.Device]
 implements.
 """
 
@@ -40,7 +40,13 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import anyio
 
-from ..errors import ChassisError, ConnectionLostError, NotConnectedError, PortOpenError
+from ..errors import (
+    ChassisError,
+    ConnectionLostError,
+    NotConnectedError,
+    PortOpenError,
+    RequestTimeoutError,
+)
 from .backoff import Backoff
 from .dispatch import Broadcast, Listener, Subscription
 from .transport import QUEUE_LIMIT, Decoder, Link, Tap, backend_name, open_link
@@ -115,7 +121,7 @@ async def reopen(
     what: str = "",
 ) -> T | None:
     """Open a port again after it dropped: wait ``backoff.next()``, try ``open_once()``,
-    and again on :class:`~chassis_sdk.PortOpenError`, until it opens (its result) or
+    and again on [`PortOpenError`][chassis_sdk.PortOpenError], until it opens (its result) or
     ``until()`` is true before an attempt (``None``). ``each`` runs before every wait
     (progress). The caller bounds it in time with a cancel scope. Every reconnect of
     the SDK goes through this: a device's supervisor and the passive recorder.
@@ -135,12 +141,12 @@ async def reopen(
 
 
 class ConnectionStates:
-    """A device's :class:`ConnectionState`, its changes as a stream, and waiting on them.
+    """A device's `ConnectionState`, its changes as a stream, and waiting on them.
 
     Args:
         port: For messages.
         on_change: Called with ``(old, new)`` on every change, before anyone hears of it.
-        queue_size: Buffer of each subscriber of :meth:`subscribe`.
+        queue_size: Buffer of each subscriber of `subscribe`.
         log: Where changes are logged.
     """
 
@@ -183,7 +189,7 @@ class ConnectionStates:
 
     def listen(self, callback: Callable[[ConnectionState], None]) -> Listener[ConnectionState]:
         """Call ``callback(state)`` synchronously on every change (see
-        :meth:`Broadcast.listen`)."""
+        `Broadcast.listen`)."""
         return self._stream.listen(callback)
 
     def end_subscriptions(self) -> None:
@@ -192,12 +198,18 @@ class ConnectionStates:
         self._stream.reopen()
 
     async def wait_open(self, timeout: float | None) -> None:
-        """Wait until the port is open; see ``Device.wait_connected``."""
-        with anyio.fail_after(timeout):
+        """Wait until the port is open; see ``Device.wait_connected``.
+
+        Raises:
+            RequestTimeoutError: Not open within ``timeout`` (also a ``TimeoutError``).
+        """
+        with anyio.move_on_after(timeout):
             while self.state not in OPEN:
                 if self.state in (ConnectionState.DISCONNECTED, ConnectionState.LOST):
                     raise NotConnectedError(f"{self.port} is {self.state.value}")
                 await self.changed.wait()
+            return
+        raise RequestTimeoutError(f"{self.port} was not connected within {timeout:g} s")
 
 
 class Writer(Generic[M]):
@@ -234,8 +246,8 @@ class Writer(Generic[M]):
         return ChassisError(f"{self.port} was opened read-only: nothing is written to it")
 
     def ensure_open(self) -> None:
-        """Raise :class:`NotConnectedError` unless a call may write now (a
-        :class:`ChassisError` on a read-only device)."""
+        """Raise [`NotConnectedError`][chassis_sdk.NotConnectedError] unless a call may write now (a
+        [`ChassisError`][chassis_sdk.ChassisError] on a read-only device)."""
         if self.read_only:
             raise self.read_only_error()
         if self.link is None or self.is_fenced or self._states.state not in OPEN:
@@ -306,7 +318,9 @@ class LinkSupervisor(Generic[M]):
 
     Args:
         owner: The device served.
-        port: Device path, pty path or ``socket://host:port``.
+        port: Device path, pty path, ``usb:VID:PID[:SERIAL]`` or ``socket://host:port``;
+            looked up again (a ``usb:`` port) or followed again (a symlink) at every
+            open and every reconnect attempt.
         background: ``(name, coroutine function)`` pairs run while connected.
         Other arguments: as the device options of the same names.
     """
@@ -347,6 +361,9 @@ class LinkSupervisor(Generic[M]):
         # Set while connect() opens the port; a close() meanwhile waits for it.
         self._connecting: asyncio.Future[None] | None = None
         self.reconnects = 0
+        #: The device node the last link opened (``None`` before the first open): what
+        #: a ``usb:`` port or a ``/dev/serial/by-id`` link reached then.
+        self.last_node: str | None = None
         self._discarded = 0  # by links already closed
         self._taps: tuple[Tap, ...] = ()
         self._tap: Tap | None = None  # what the link calls: the one tap, or all of them
@@ -374,13 +391,19 @@ class LinkSupervisor(Generic[M]):
 
     @property
     def state(self) -> ConnectionState:
-        """The current :class:`ConnectionState`."""
+        """The current [`ConnectionState`][chassis_sdk.ConnectionState]."""
         return self.states.state
 
     @property
     def is_open(self) -> bool:
         """True while the port is open (``CONNECTED`` or ``STALE``)."""
         return self.states.state in OPEN
+
+    @property
+    def node(self) -> str | None:
+        """The device node of the link open now (``None`` while none is)."""
+        link = self.writer.link
+        return link.node if link is not None else None
 
     @property
     def discarded(self) -> int:
@@ -442,6 +465,12 @@ class LinkSupervisor(Generic[M]):
             return
         self.writer.link = link
         self._opened_at = time.monotonic()
+        if link.node != self.last_node:
+            # A usb: port or a by-id link that reached another node than last time (a
+            # replug renumbered it): worth a line at INFO; a plain path never changes.
+            if link.node != self.port:
+                self._log.info("%s is now %s", self.port, link.node)
+            self.last_node = link.node
         self._log.info("%s: opened at %d baud via %s", self.port, self.baudrate, backend_name())
 
     def _on_lost(self, link: Link[M], exc: Exception | None) -> None:

@@ -24,11 +24,11 @@ sends minutes-old velocity commands the moment the device reads again. So:
   one it replaces is discarded and counted), and one whose command has expired by the
   time the port can take it is dropped, so the first velocity frame after a stall is
   never stale. Other frames (requests, e-stops) wait in order, bounded. These
-  decisions are :class:`~chassis_sdk.core.writequeue.WriteQueue`'s (sans-IO);
+  decisions are `WriteQueue`'s (sans-IO);
 * writes are **eager** (pyserial-asyncio would hold every frame until the loop's next
   writer callback, so a frame queued just before the application blocks the loop
   would leave a whole block later);
-* :meth:`Link.aclose` drains with a bound. If the device is still not reading then,
+* `Link.aclose` drains with a bound. If the device is still not reading then,
   every stale frame is discarded (what the link holds, and the kernel's output queue,
   with ``tcflush``) **but the final zero is kept**: it goes out at once where the flush
   made room (a serial port), or waits in the background (a socket whose kernel buffer
@@ -37,15 +37,15 @@ sends minutes-old velocity commands the moment the device reads again. So:
   late it reads again within that bound, is the zero; the descriptors are closed once
   it has left (the kernel's output queue is empty) or the bound has passed, and then
   whatever is still held is discarded (a socket is reset, so the kernel sends nothing
-  stale either). The close is the link's :class:`~chassis_sdk.core.linger.Linger`'s,
-  in :mod:`chassis_sdk.core.linger` (with :func:`wait_lingering`, re-exported here).
+  stale either). The close is the link's `Linger`'s,
+  in `chassis_sdk.core.linger` (with `wait_lingering`, re-exported here).
 
 Opening is bounded and never blocks the loop: device paths are opened in a daemon
 thread (pyserial's open, its advisory ``flock`` and termios set-up are blocking calls),
 ``socket://host:port`` with the loop's own non-blocking connect (pyserial's socket
 handler connects with a blocking 5 s call, and its ``close()`` sleeps 0.3 s), each under
 ``connect_timeout``. Serial devices are opened exclusively: a second opener, in this
-process or another, gets :class:`~chassis_sdk.PortOpenError` naming who holds the port.
+process or another, gets [`PortOpenError`][chassis_sdk.PortOpenError] naming who holds the port.
 
 Three transports carry device paths, the first installed preferred: **serialx** (extra
 ``serialx``: opens off the loop, locks the port, reads with ``os.read`` straight from
@@ -83,6 +83,7 @@ from ..errors import PortOpenError
 from .linger import CLOSE_GRACE as CLOSE_GRACE
 from .linger import CLOSE_WAIT as CLOSE_WAIT
 from .linger import Linger, lingering, wait_lingering
+from .ports import lock_holder, parse_usb_identity, resolve_port
 from .writequeue import QUEUE_LIMIT, WriteQueue
 
 #: In order of preference: the first installed is used.
@@ -235,6 +236,9 @@ class Link(asyncio.Protocol, Generic[M]):
         self.tap: Tap | None = None
         #: The port's name (set by :func:`open_link`), for the lingering registry.
         self.url = ""
+        #: The device node open (``/dev/ttyUSB1``; set by :func:`open_link`): the node a
+        #: ``usb:`` port or a ``/dev/serial/by-id`` link reached; a socket's URL.
+        self.node = ""
         self._finished = False  # closed, or half-closed (a socket), with nothing held
         # The close (bounded drain, stale frames discarded, the final zero kept and
         # lingering): it reads and changes the write state above.
@@ -314,7 +318,7 @@ class Link(asyncio.Protocol, Generic[M]):
         """Write a frame that is not a velocity command (a request, an e-stop, ...).
 
         Frames keep their order. While the port cannot take bytes they wait, up to
-        :data:`QUEUE_LIMIT` bytes; past that the frame is discarded and counted.
+        `QUEUE_LIMIT` bytes; past that the frame is discarded and counted.
 
         Returns:
             False if the link is not open or the frame had to be discarded.
@@ -349,7 +353,7 @@ class Link(asyncio.Protocol, Generic[M]):
         """Write ``zero`` as the last velocity frame this link will ever carry.
 
         It replaces any velocity frame still waiting ("zero wins"), and every later
-        :meth:`write_velocity` is refused, so nothing but zero can follow it.
+        `write_velocity` is refused, so nothing but zero can follow it.
         """
         sent = self.write_velocity(zero)
         self._held.close_velocity(zero)
@@ -463,7 +467,7 @@ class Link(asyncio.Protocol, Generic[M]):
 
     async def aclose(self, timeout: float, linger: float = 0.0) -> None:
         """Close the port: at once if everything written has left, else see
-        :mod:`chassis_sdk.core.linger` (stale frames discarded, the final zero kept).
+        `chassis_sdk.core.linger` (stale frames discarded, the final zero kept).
 
         Args:
             timeout: The most this waits for the port to report closing.
@@ -482,38 +486,19 @@ class Link(asyncio.Protocol, Generic[M]):
 # --- opening ---------------------------------------------------------------------------
 
 
-def lock_holder(path: str) -> str | None:
-    """Who holds the advisory lock on ``path`` (from ``/proc/locks``), if we can see it."""
-    try:
-        st = os.stat(path)
-        with open("/proc/locks") as f:
-            lines = f.readlines()
-    except OSError:
-        return None
-    wanted = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    for line in lines:
-        parts = line.split()
-        if len(parts) > 5 and parts[1] == "FLOCK" and parts[5] == wanted:
-            pid = parts[4]
-            if pid == str(os.getpid()):
-                return f"this process (pid {pid})"
-            try:
-                with open(f"/proc/{pid}/cmdline", "rb") as f:
-                    cmd = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
-            except OSError:
-                cmd = ""
-            return f"process {pid}" + (f" ({cmd[:80]})" if cmd else "")
-    return None
-
-
-def _describe_open_error(url: str, exc: BaseException) -> str:
+def _describe_open_error(url: str, exc: BaseException, node: str | None = None) -> str:
+    """One line: why ``url`` did not open and what to do. ``node`` is the path that
+    was opened (a ``usb:`` port's device node): the lock and the hints are its."""
+    node = node or url
+    if node != url:
+        url = f"{url} ({node})"
     err = getattr(exc, "errno", None)
     text = str(exc)
     locked = "exclusively lock" in text or "already locked" in text  # pyserial, serialx
     if locked or err in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY):
-        holder = lock_holder(url)
+        holder = lock_holder(node)
         return f"could not open {url}: port busy, held by " + (
-            holder or "another program (close it, or check `fuser -v " + url + "`)"
+            holder or "another program (close it, or check `fuser -v " + node + "`)"
         )
     if (
         err == errno.ENOENT
@@ -606,7 +591,7 @@ def _fd_reader(fd: int) -> Callable[[int], bytes]:
 
 
 def _close_serial(ser: serial.Serial) -> None:
-    """pyserial's ``close`` without the abort pipes :func:`_open_serial` closed."""
+    """pyserial's ``close`` without the abort pipes `_open_serial` closed."""
     if ser.is_open:
         if ser.fd is not None:
             os.close(ser.fd)
@@ -646,6 +631,57 @@ async def _open_serial_in_thread(url: str, baudrate: int) -> serial.Serial:
     return await fut
 
 
+async def _open_device(
+    loop: asyncio.AbstractEventLoop,
+    link_factory: Callable[[], Link[Any]],
+    path: str,
+    baudrate: int,
+) -> tuple[asyncio.BaseTransport, Any]:
+    """Open the device path ``path`` (as given: a symlink is followed by the OS, at
+    this open) through the serial backend."""
+    backend = _load_backend()
+    if backend.name == "serialx":
+        # Opened off the loop, locked (flock), read with os.read from the loop.
+        transport, protocol = await backend.module.create_serial_connection(
+            loop, link_factory, path, baudrate, exclusive=True
+        )
+        if isinstance(getattr(transport, "max_size", None), int):
+            setattr(transport, "max_size", READ_SIZE)  # noqa: B010 (not typed)
+        return transport, protocol
+    ser = await _open_serial_in_thread(path, baudrate)
+    transport, protocol = await backend.module.connection_for_serial(loop, link_factory, ser)
+    return transport, protocol
+
+
+def _opened_node(link: Link[Any], path: str) -> str:
+    """The device node the link has open: what its descriptor is (a symlink may have
+    moved since the open), else where ``path`` points now."""
+    fd = link._wfd
+    if fd is not None:
+        with contextlib.suppress(OSError):
+            return os.readlink(f"/proc/self/fd/{fd}")
+    return os.path.realpath(path)
+
+
+async def _still_the_identity(url: str, path: str, transport: asyncio.BaseTransport) -> None:
+    """After opening the node a ``usb:`` identity was found at, look it up again: if
+    the adapter left and another took its node in between (a replug, two adapters),
+    the node open now is not this robot's. Close it and say so (a ``PortOpenError``:
+    a reconnecting device tries again).
+
+    Raises:
+        PortOpenError: The identity is no longer at ``path``.
+    """
+    try:
+        now = await anyio.to_thread.run_sync(resolve_port, url, abandon_on_cancel=True)
+    except PortOpenError:
+        now = None
+    if now != path:
+        transport.close()
+        where = f"at {now}" if now is not None else "gone"
+        raise PortOpenError(f"could not open {url}: it moved while opening ({path}, now {where})")
+
+
 async def open_link(
     url: str,
     baudrate: int,
@@ -653,17 +689,27 @@ async def open_link(
     *,
     timeout: float = 2.0,
 ) -> Link[Any]:
-    """Open ``url`` (device path, pty path or ``socket://host:port``) at 8N1.
+    """Open ``url`` (device path, pty path, ``/dev/serial/by-id`` link,
+    ``usb:VID:PID[:SERIAL]`` or ``socket://host:port``) at 8N1.
 
-    Bounded by ``timeout`` and cancellation-safe: whatever was opened is closed again
-    if the open does not complete.
+    A ``usb:`` port is looked up now (`resolve_port`, off
+    the loop), so every open and every reconnect attempt finds the device wherever it
+    is; a path is opened as given (the OS follows a symlink at each open). The node
+    opened is the link's `Link.node`. Bounded by ``timeout`` and
+    cancellation-safe: whatever was opened is closed again if the open does not
+    complete.
 
     Raises:
-        PortOpenError: The port cannot be opened; the message says why and what to do.
+        ValueError: A malformed ``usb:`` port (before anything is looked up).
+        PortOpenError: The port cannot be opened; the message says why and what to do
+            (`PortNotFoundError`: no such USB device is
+            attached now, or several are).
     """
     loop = asyncio.get_running_loop()
+    usb = parse_usb_identity(url) is not None
     parsed = urllib.parse.urlsplit(url)
     transport: asyncio.BaseTransport | None = None
+    path = url  # what is opened: a usb: port's node once it is found
     earlier = lingering(loop, url)
     try:
         with anyio.fail_after(timeout):
@@ -689,23 +735,18 @@ async def open_link(
                     # would work through, seconds of stale commands, if it read again.
                     with contextlib.suppress(OSError):
                         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SNDBUF)
-            elif "://" in url:
+            elif "://" in url and not usb:
                 raise ValueError(
                     f"unsupported URL scheme {parsed.scheme!r}: use a device path or "
                     "socket://host:port"
                 )
-            elif (backend := _load_backend()).name == "serialx":
-                # Opened off the loop, locked (flock), read with os.read from the loop.
-                transport, protocol = await backend.module.create_serial_connection(
-                    loop, link_factory, url, baudrate, exclusive=True
-                )
-                if isinstance(getattr(transport, "max_size", None), int):
-                    setattr(transport, "max_size", READ_SIZE)  # noqa: B010 (not typed)
             else:
-                ser = await _open_serial_in_thread(url, baudrate)
-                transport, protocol = await backend.module.connection_for_serial(
-                    loop, link_factory, ser
-                )
+                if usb:
+                    # comports() reads sysfs: off the loop, under the same bound.
+                    path = await anyio.to_thread.run_sync(resolve_port, url, abandon_on_cancel=True)
+                transport, protocol = await _open_device(loop, link_factory, path, baudrate)
+                if usb:
+                    await _still_the_identity(url, path, transport)
     except TimeoutError:
         if earlier is not None:
             raise PortOpenError(
@@ -719,11 +760,12 @@ async def open_link(
         raise
     except _Backend.open_errors as exc:
         # serial.SerialException is an OSError subclass; bad URLs raise ValueError.
-        raise PortOpenError(_describe_open_error(url, exc)) from exc
+        raise PortOpenError(_describe_open_error(url, exc, path)) from exc
     link: Link[Any] = protocol
     # pyserial's transports only schedule connection_made() (call_soon): the link can
     # write from now on.
     link.connection_made(transport)
     link.url = url
+    link.node = url if parsed.scheme == "socket" else _opened_node(link, path)
     link.flush_input()
     return link

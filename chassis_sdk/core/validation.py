@@ -1,9 +1,14 @@
 """The one place numbers from a caller are checked, and SI values scaled to wire integers.
 
-Every public argument that is a number goes through :func:`check_real` or
-:func:`check_int`, so every device and option refuses the same things with the same
+Every public argument that is a number goes through `check_real` or
+`check_int`, so every device and option refuses the same things with the same
 words: ``bool`` is not a number, NaN and infinities are refused, an ``int`` too large
 for a float is out of range, and the message names the argument and the range.
+
+As the standard library does (``math.sqrt("4")`` against ``math.sqrt(-1)``), a value of
+the wrong type (a ``str``, ``None``, a ``bool`` where a number is wanted, a ``float``
+where an integer is) raises `TypeError`, and a value of the right type that is
+not allowed (NaN, out of range, an unknown member) raises `ValueError`.
 """
 
 from __future__ import annotations
@@ -56,10 +61,12 @@ def check_real(
         unit: For the error message.
 
     Raises:
-        ValueError: Any of the above; the message names the argument and the range.
+        TypeError: ``value`` is not an ``int`` or a ``float`` (a ``bool`` is not).
+        ValueError: NaN, infinite or out of bounds; the message names the argument and
+            the range.
     """
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{name} must be a number, got {value!r}")
+        raise TypeError(f"{name} must be a number, got {value!r}")
     try:
         number = float(value)
     except OverflowError:
@@ -90,7 +97,8 @@ def scale_to_int(value: float, scale: float, bounds: tuple[int, int], name: str,
         unit: SI unit of ``value``, for the error message.
 
     Raises:
-        ValueError: ``value`` is not a real number, is NaN or infinite, or is out of range.
+        TypeError: ``value`` is not a number.
+        ValueError: ``value`` is NaN or infinite, or is out of range.
     """
     scaled = check_real(value, name) * scale
     lo, hi = bounds
@@ -110,7 +118,7 @@ def check_duration(duration: float | None) -> float | None:
 
 
 def check_optional(value: float | None, name: str, **bounds: float | bool | str) -> float | None:
-    """:func:`check_real` for an option where ``None`` means "off"."""
+    """`check_real` for an option where ``None`` means "off"."""
     if value is None:
         return None
     return check_real(value, name, **bounds)  # type: ignore[arg-type]
@@ -125,10 +133,11 @@ def check_int(value: object, name: str, *, low: int | None = None, high: int | N
     """Return ``value`` if it is an ``int`` (not a ``bool``) within the inclusive bounds.
 
     Raises:
-        ValueError: Not an integer, or out of range; the message names the argument.
+        TypeError: Not an ``int`` (a ``bool`` or a ``float`` is not).
+        ValueError: Out of range; the message names the argument and the range.
     """
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
+        raise TypeError(f"{name} must be an integer, got {value!r}")
     if (low is not None and value < low) or (high is not None and value > high):
         if high is None:
             rule = f">= {low}"
@@ -144,11 +153,12 @@ def check_member(cls: type[E], value: object, name: str, hint: str) -> E:
     """Return the member of ``cls`` whose value is ``value`` (an ``int``, not a ``bool``).
 
     Raises:
+        TypeError: ``value`` is not an ``int`` (a ``bool`` is not).
         ValueError: ``unknown {name} {value!r}: {hint}``.
     """
-    if not isinstance(value, bool) and isinstance(value, int):
-        try:
-            return cls(value)
-        except ValueError:
-            pass
-    raise ValueError(f"unknown {name} {value!r}: {hint}")
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"unknown {name} {value!r} (not an integer): {hint}")
+    try:
+        return cls(value)
+    except ValueError:
+        raise ValueError(f"unknown {name} {value!r}: {hint}") from None

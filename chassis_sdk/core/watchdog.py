@@ -16,7 +16,7 @@ drive forever. This class does the two:
 * ``stop()`` writes zero now; ``clear()`` forgets the command without writing (the link
   is gone: nothing can be written, and nothing must be resumed later).
 
-Optional :class:`MotionLimits` shape what is *written*, never what was asked: the
+Optional `MotionLimits` shape what is *written*, never what was asked: the
 target is clamped to the maximum speeds, and each write moves from the last written
 value towards the target by at most acceleration (or deceleration, when slowing
 towards zero) times the time since the last write, so a ramp advances at the resend
@@ -135,10 +135,10 @@ class VelocityWatchdog:
     Args:
         write: Writes one velocity frame with the time (``clock()``) after which it is
             stale and must not be sent late (``math.inf`` for a zero frame); raises
-            :class:`NotConnectedError` when there is no link.
+            [`NotConnectedError`][chassis_sdk.NotConnectedError] when there is no link.
         interval: Resend period (s).
         command_timeout: Deadman (s) for commands without ``duration``; ``None`` holds
-            them until :meth:`stop`.
+            them until `stop`.
         logger: Where expiries are logged.
         clock: Monotonic clock (replaceable in tests).
     """
@@ -238,7 +238,7 @@ class VelocityWatchdog:
         return out[0], out[1]
 
     def due(self) -> float | None:
-        """When (``clock()``) :meth:`tick` has something to do next: the next resend or
+        """When (``clock()``) `tick` has something to do next: the next resend or
         the expiry, whichever comes first; ``None`` when idle."""
         active = self._active
         if active is None:
@@ -246,9 +246,9 @@ class VelocityWatchdog:
         return min(self._next, active.deadline)
 
     def tick(self, now: float) -> None:
-        """Do what is due at ``now`` (the step of :meth:`run`, with the time given):
+        """Do what is due at ``now`` (the step of `run`, with the time given):
         write one zero and go idle if the command has expired, else re-write it if its
-        resend is due; nothing before :meth:`due`."""
+        resend is due; nothing before `due`."""
         active = self._active
         if active is None or now < min(self._next, active.deadline):
             return
@@ -268,8 +268,8 @@ class VelocityWatchdog:
             self._last_write = now
 
     async def run(self) -> None:
-        """Background loop; runs until cancelled: sleeps until :meth:`due` (or a new
-        command or a stop), then :meth:`tick`."""
+        """Background loop; runs until cancelled: sleeps until `due` (or a new
+        command or a stop), then `tick`."""
         clock = self._clock
         while True:
             due = self.due()

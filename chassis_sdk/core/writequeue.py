@@ -1,17 +1,17 @@
 """What a link holds while its port cannot take bytes: the decisions of the write
 path, sans-IO (no asyncio, no clock of its own: the time is given).
 
-The :class:`~chassis_sdk.core.transport.Link` does the writing; this class decides what
+The `Link` does the writing; this class decides what
 waits, what is discarded and what goes next:
 
 * a **velocity frame is state, not a queue**: only the newest waits (the one it
   replaces is discarded and counted), and one whose command has expired by the time
   the port can take it is dropped and counted, never sent;
-* other frames (requests, e-stops) wait in order, up to :data:`QUEUE_LIMIT` bytes;
+* other frames (requests, e-stops) wait in order, up to `QUEUE_LIMIT` bytes;
   past that a frame is discarded and counted;
-* once velocity is closed off (:meth:`WriteQueue.close_velocity`) no velocity frame
+* once velocity is closed off (`WriteQueue.close_velocity`) no velocity frame
   but the final zero is taken, and when a closing link discards every stale frame
-  (:meth:`WriteQueue.discard_stale`) the final zero is what remains.
+  (`WriteQueue.discard_stale`) the final zero is what remains.
 """
 
 from __future__ import annotations
@@ -30,11 +30,11 @@ class WriteQueue:
     """The frames a link holds, under a discipline that knows what they are.
 
     Frames come out in this order: every held non-velocity frame, oldest first, then
-    the held velocity frame. :meth:`peek` says what is next, :meth:`pop` that the port
+    the held velocity frame. `peek` says what is next, `pop` that the port
     took it.
 
     Args:
-        limit: Bytes of non-velocity frames :meth:`push` holds at most.
+        limit: Bytes of non-velocity frames `push` holds at most.
     """
 
     __slots__ = (
@@ -147,7 +147,7 @@ class WriteQueue:
         return frame
 
     def pop(self) -> None:
-        """The port took the frame :meth:`peek` gave out: stop holding it."""
+        """The port took the frame `peek` gave out: stop holding it."""
         if self._frames:
             self.held_bytes -= len(self._frames.popleft())
         else:

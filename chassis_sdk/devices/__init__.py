@@ -1,23 +1,23 @@
 """The device registry: every device the SDK can talk to, simulate, record and decode.
 
 A device is one package (``devices/chassis/``, ``devices/board/``, or an installed
-third-party package) that provides a :class:`DeviceProfile`: its device class, its
-codec (:class:`Codec`), its firmware model, and what a bridge may publish and answer of
-it (:class:`Remote`). ``chassis-sdk``, the recorders and the fuzz harness loop over
-:func:`profiles`; nothing outside a device's own package names it.
+third-party package) that provides a `DeviceProfile`: its device class, its
+codec (`Codec`), its firmware model, and what a bridge may publish and answer of
+it (`Remote`). ``chassis-sdk``, the recorders and the fuzz harness loop over
+[`profiles`][chassis_sdk.devices.profiles]; nothing outside a device's own package names it.
 
 Third parties add a device by installing a package that declares an entry point in the
-group ``chassis_sdk.devices`` whose object is a :class:`DeviceProfile` (or a function
+group ``chassis_sdk.devices`` whose object is a `DeviceProfile` (or a function
 returning one)::
 
     # pyproject.toml of the package "acme-mower"
     [project.entry-points."chassis_sdk.devices"]
     mower = "acme_mower:PROFILE"
 
-Loading is lazy: :func:`names` reads no profile, :func:`profile` loads one, and a
+Loading is lazy: `names` reads no profile, [`profile`][chassis_sdk.devices.profile] loads one, and a
 profile's ``device`` and ``firmware`` may be ``"module:attribute"`` strings, imported
 on first use (so listing devices or decoding a capture never loads the runtime).
-Tests and scripts may also :func:`register` a profile at run time. See "Adding a
+Tests and scripts may also `register` a profile at run time. See "Adding a
 device" in the docs for a whole device in one file.
 """
 
@@ -126,7 +126,7 @@ class DeviceProfile:
             ``Diagnosis.device``, ``detect``'s answer.
         summary: One line for help texts.
         recognised_by: What ``detect`` hears from this device unprompted, for messages.
-        device: The :class:`~chassis_sdk.core.device.Device` subclass, or its
+        device: The [`Device`][chassis_sdk.core.device.Device] subclass, or its
             ``"module:attribute"`` (imported on first use).
         firmware: Makes a sans-IO firmware model (the simulator's), or its
             ``"module:attribute"``.
@@ -262,7 +262,7 @@ def profile(name: str) -> DeviceProfile:
 
 
 def register(device: DeviceProfile) -> None:
-    """Add a device at run time (tests, scripts); :func:`unregister` removes it.
+    """Add a device at run time (tests, scripts); `unregister` removes it.
 
     Raises:
         ValueError: A device of that name is already known.
@@ -273,5 +273,5 @@ def register(device: DeviceProfile) -> None:
 
 
 def unregister(name: str) -> None:
-    """Remove a device added with :func:`register` (no error if it is not there)."""
+    """Remove a device added with `register` (no error if it is not there)."""
     _registered.pop(name, None)

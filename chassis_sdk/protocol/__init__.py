@@ -11,7 +11,7 @@ run inside a simulator, or be tested with plain bytes::
             print(message)
     print(decoder.stats)
 
-The codecs live with their devices (:mod:`chassis_sdk.devices`); this package gathers
+The codecs live with their devices (`chassis_sdk.devices`); this package gathers
 them under the paths code was written against (``chassis_sdk.devices.chassis.protocol`` and
 ``.board`` included).
 """

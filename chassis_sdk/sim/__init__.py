@@ -11,19 +11,20 @@ against when no hardware is attached::
 
 ``sim.port`` is the pty's path (``/dev/pts/N``) or, with ``tcp_port=``, a
 ``socket://127.0.0.1:PORT`` URL. ``sim.firmware`` is the model, for device faults
-(bumper, driver faults, e-stop, ``reset``); ``sim.faults`` (:class:`LineFaults`) damages
+(bumper, driver faults, e-stop, ``reset``); ``sim.faults`` (`LineFaults`) damages
 the line; ``sim.unplug()`` / ``await sim.replug()`` pull and restore the cable.
 
-* :mod:`.server`: :class:`SimulatorServer`, which serves any firmware model, and the
+* `.server`: `SimulatorServer`, which serves any firmware model, and the
   line faults;
-* :mod:`.chassis`, :mod:`.board`: the two built-in devices' simulators;
-* :func:`simulator`: the simulator of any registered device, by name.
+* `.chassis`, `.board`: the two built-in devices' simulators;
+* `simulator`: the simulator of any registered device, by name.
 
 Each firmware model lives with its device (``chassis_sdk.devices.NAME.firmware``).
 """
 
 from __future__ import annotations
 
+from ..core.pack import PackSpec
 from ..devices import profile
 from ..devices.board.firmware import BoardFirmware, BoardSpec
 from ..devices.chassis.firmware import ChassisFirmware, ChassisSpec
@@ -40,6 +41,7 @@ __all__ = [
     "ChassisSpec",
     "FaultCounts",
     "LineFaults",
+    "PackSpec",
     "SimulatorServer",
     "simulator",
 ]

@@ -12,9 +12,11 @@ class ChassisSimulator(SimulatorServer):
     """The chassis firmware model served on a pseudo-terminal (default) or TCP.
 
     Example:
-        >>> async def main() -> None:  # doctest: +SKIP
-        ...     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
-        ...         print(await robot.get_firmware_version())
+        ```python
+        async def main() -> None:
+            async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+                print(await robot.get_firmware_version())
+        ```
 
     Args:
         spec: Device parameters (versions, geometry, rates).

@@ -1,6 +1,6 @@
 """The lines a simulator serves its device on: a pseudo-terminal behind a stable path,
 or TCP clients on ``127.0.0.1:PORT``. Each delivers what the host sends to
-``received(data)`` and takes what the device sends with :meth:`send`; neither knows
+``received(data)`` and takes what the device sends with `send`; neither knows
 the firmware or the line faults."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ class PtyLine:
     adapter does under its udev name.
 
     Args:
-        path: The symlink to make (replaced atomically on every :meth:`open`).
+        path: The symlink to make (replaced atomically on every `open`).
         received: Called with each chunk the host writes.
     """
 
@@ -52,7 +52,7 @@ class PtyLine:
         return self._master is not None
 
     def open(self) -> None:
-        """Make a new pty behind :attr:`path`."""
+        """Make a new pty behind `path`."""
         master, slave = os.openpty()
         # Raw mode before anything else: no echo, no line discipline, 8-bit clean.
         tty.setraw(slave)
@@ -84,7 +84,7 @@ class PtyLine:
 
     def send(self, data: bytes) -> None:
         """Write towards the host; what the kernel cannot take waits in a bounded
-        backlog (the oldest is lost past :data:`MAX_BACKLOG`)."""
+        backlog (the oldest is lost past `MAX_BACKLOG`)."""
         assert self._master is not None
         if not self._backlog:
             try:
@@ -227,6 +227,11 @@ class TcpLine:
             while data := await reader.read(4096):
                 self._received(data)
         except ConnectionError:
+            pass
+        except asyncio.CancelledError:
+            # The server is stopping (cancel_clients). Ending quietly, not cancelled:
+            # Python 3.11's start_server callback calls task.exception() on its client
+            # task, which raises for a cancelled one ("Exception in callback ...").
             pass
         finally:
             self._clients.discard(writer)

@@ -5,9 +5,9 @@ returns any immediate reply) and ``poll(now)`` for what is due at ``now`` (perio
 telemetry). ``next_deadline()`` says when ``poll`` next has something to do.
 
 The server runs the model's clock, passes what it sends through the line faults
-(:mod:`.faults`) to the line (:mod:`.lines`: a pty behind a stable path, or TCP), and
-is where the cable is pulled (:meth:`SimulatorServer.unplug`) and put back
-(:meth:`SimulatorServer.replug`).
+(`.faults`) to the line (`.lines`: a pty behind a stable path, or TCP), and
+is where the cable is pulled (`SimulatorServer.unplug`) and put back
+([`SimulatorServer.replug`][chassis_sdk.sim.server.SimulatorServer.replug]).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ class SimulatorServer:
     def port(self) -> str:
         """What to pass to ``Chassis``/``Board``: the pty's stable path (a symlink the
         server owns) or a ``socket://127.0.0.1:PORT`` URL. It stays the same across
-        :meth:`unplug` and :meth:`replug`."""
+        [`unplug`][chassis_sdk.sim.server.SimulatorServer.unplug] and `replug`."""
         line = self._line
         if isinstance(line, PtyLine):
             return line.path
@@ -144,7 +144,7 @@ class SimulatorServer:
     def unplug(self) -> None:
         """Pull the cable: close the pty and remove its path (the host's reads fail and
         reopening finds no device, as when a USB adapter is pulled), or stop listening
-        and drop every TCP client. The firmware keeps running; :meth:`replug` puts the
+        and drop every TCP client. The firmware keeps running; `replug` puts the
         device back."""
         self._unplug_line()
 

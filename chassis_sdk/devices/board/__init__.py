@@ -1,10 +1,10 @@
 """The controller board (protocol B): IMU, LED, buzzer, motors and servos.
 
-* :mod:`.messages`: the typed messages and their enums;
-* :mod:`.protocol`: the sans-IO codec (frames, encoder, decoders);
-* :mod:`.device`: :class:`Board`, the public API;
-* :mod:`.firmware`: the sans-IO firmware model (served by :mod:`chassis_sdk.sim`);
-* :mod:`.profile`: its registry entry.
+* `.messages`: the typed messages and their enums;
+* `.protocol`: the sans-IO codec (frames, encoder, decoders);
+* `.device`: [`Board`][chassis_sdk.Board], the public API;
+* `.firmware`: the sans-IO firmware model (served by `chassis_sdk.sim`);
+* `.profile`: its registry entry.
 
 ``Board`` is imported on first use, so the codec loads without the runtime.
 """

@@ -14,6 +14,7 @@ from ...core.motion import frame_builder
 from ...core.validation import check_real
 from ...core.watchdog import FrameBuilder
 from ...errors import ChassisError, RequestTimeoutError
+from ..config import FromConfig
 from .messages import (
     BatteryReading,
     BoardMessage,
@@ -48,11 +49,11 @@ _ZERO = VelocityCommand(0, 0)
 _Key = tuple[BoardType, int]
 
 
-class Board(Device[BoardMessage, _Key]):
+class Board(Device[BoardMessage, _Key], FromConfig):
     """A controller board speaking protocol B, over a serial port, pty or TCP socket.
 
     Lifetime, options, the velocity watchdog and the deadman are exactly those of
-    :class:`~chassis_sdk.Chassis`.
+    [`Chassis`][chassis_sdk.Chassis].
 
     IMU samples are in g and °/s by the vendor document's scale (164 counts per g, 16.4
     per °/s), with the raw counts in ``ImuSample.raw`` and SI values in
@@ -63,15 +64,35 @@ class Board(Device[BoardMessage, _Key]):
     reply. Ids are allocated round-robin, skipping any in use, so up to 256 requests
     may be outstanding and replies may come back in any order. An id whose request
     timed out is retired until its late reply arrives (and is dropped) or
-    :data:`ID_QUARANTINE` seconds pass, so a late reply never answers a later request.
+    `ID_QUARANTINE` seconds pass, so a late reply never answers a later request.
+
+    With ``battery=BatteryModel(...)``, `battery_percentage` is estimated from
+    the 0x13 voltage (1 Hz); the board reports no current, so readings taken while it
+    moves are not used (the default ``warmup`` wants 5 readings: 5 s at rest).
+
+    With ``calibration=Calibration(...)``, the velocities of 0x12 are multiplied by its
+    ``linear_scale`` and ``angular_scale`` before `odometry` integrates them
+    (`velocity` stays what the board sent). Velocity commands (0x22) are written
+    as the protocol defines them: the board has no wheel mode. With
+    ``configure_odometry(heading="imu")`` the heading is the gyro's, which needs no
+    angular factor; ``chassis-sdk calibrate PORT angular`` fits that factor from the
+    gyro for the velocity heading.
 
     Example:
-        >>> async def main() -> None:  # doctest: +SKIP
-        ...     async with Board("/dev/ttyUSB0") as board:
-        ...         await board.set_led(True)
-        ...         async for sample in board.imu():
-        ...             print(sample.accel.z)
+        ```python
+        async def main() -> None:
+            async with Board("/dev/ttyUSB0") as board:
+                await board.set_led(True)
+                async for sample in board.imu():
+                    print(sample.accel.z)
+        ```
     """
+
+    #: The angles :meth:`set_servo` takes, in degrees. The vendor document gives only
+    #: the resolution (0.1°, an int16 on the wire: ±3276.7°); 0 to 180° is a hobby
+    #: servo's travel, so 400° is refused rather than driven into the end stop. A
+    #: subclass (or an instance) for another servo sets its own.
+    servo_range: tuple[float, float] = (0.0, 180.0)
 
     device_name = "board"
 
@@ -120,7 +141,7 @@ class Board(Device[BoardMessage, _Key]):
             self._gyro_heading = heading
 
     async def configure_odometry(self, heading: str = "velocity", *, max_gap: float = 0.5) -> None:
-        """Choose what :meth:`odometry` takes its heading from.
+        """Choose what [`odometry`][chassis_sdk.Board.odometry] takes its heading from.
 
         Args:
             heading: ``"velocity"`` (default): integrate the angular velocity of 0x12.
@@ -142,6 +163,12 @@ class Board(Device[BoardMessage, _Key]):
     def _on_battery(self, m: BatteryReading) -> None:
         self._battery_stream.publish(m)
         self._battery(m.voltage, m.timestamp)
+        if self.battery_model is not None:
+            # The board measures no current: a reading taken while it moves is not
+            # used for the state of charge (the sag would count as discharge).
+            v = self._velocity.latest
+            loaded = v is not None and (abs(v.linear) > 0.02 or abs(v.angular) > 0.05)
+            self._charge(m.voltage, None, m.timestamp, loaded=loaded)
 
     def _on_log(self, m: LogMessage) -> None:
         self._log.debug("%s: board log: %s", self.port, m.text)
@@ -159,7 +186,7 @@ class Board(Device[BoardMessage, _Key]):
         """Set one motor's raw PWM value (0x21, for testing the drive train).
 
         Args:
-            motor: A :class:`~chassis_sdk.protocol.Motor` (1 rear-left, 2 rear-right,
+            motor: A `Motor` (1 rear-left, 2 rear-right,
                 3 front-left, 4 front-right).
             pwm: Signed PWM value (int16).
 
@@ -169,11 +196,20 @@ class Board(Device[BoardMessage, _Key]):
         await self._send(self._encoder.encode(motor_pwm_command(motor, pwm)))
 
     async def set_servo(self, servo: int, angle: float) -> None:
-        """Move a servo (0x31) to ``angle`` degrees (0.1° resolution).
+        """Move a servo (0x31) to ``angle`` degrees (0.1° resolution), within
+        `servo_range` (0 to 180°).
 
         Raises:
-            ValueError: Unknown servo (not 1 or 2) or an angle that overflows.
+            TypeError: ``servo`` is not an ``int`` or ``angle`` not a number.
+            ValueError: Unknown servo (not 1 or 2), or an angle outside
+                `servo_range`; nothing is written.
         """
+        angle = check_real(angle, "angle", unit="degrees")
+        low, high = self.servo_range
+        if not low <= angle <= high:
+            raise ValueError(
+                f"angle={angle:g} degrees is out of range: the servo takes {low:g} to {high:g}"
+            )
         await self._send(self._encoder.encode(servo_command(servo, angle)))
 
     # --- requests -------------------------------------------------------------------------------
@@ -290,27 +326,27 @@ class Board(Device[BoardMessage, _Key]):
 
     @property
     def imu_scale(self) -> ImuScale:
-        """The IMU's counts per g and per °/s applied to :meth:`imu` samples (and to the
+        """The IMU's counts per g and per °/s applied to `imu` samples (and to the
         ``diagnose()`` check); assign to change it."""
         return self._imu_scale if self._imu_scale is not None else ImuScale()
 
     @imu_scale.setter
     def imu_scale(self, scale: ImuScale) -> None:
         if not isinstance(scale, ImuScale):
-            raise ValueError(f"imu_scale must be an ImuScale, got {scale!r}")
+            raise TypeError(f"imu_scale must be an ImuScale, got {scale!r}")
         self._imu_scale = None if scale == ImuScale() else scale
 
     @property
     def latest_imu(self) -> ImuSample | None:
-        """The most recent :class:`ImuSample`, or ``None``."""
+        """The most recent `ImuSample`, or ``None``."""
         return self._imu.latest
 
     @property
     def latest_velocity(self) -> VelocityFeedback | None:
-        """The most recent :class:`VelocityFeedback`, or ``None``."""
+        """The most recent `VelocityFeedback`, or ``None``."""
         return self._velocity.latest
 
     @property
     def latest_battery(self) -> BatteryReading | None:
-        """The most recent :class:`BatteryReading`, or ``None``."""
+        """The most recent `BatteryReading`, or ``None``."""
         return self._battery_stream.latest

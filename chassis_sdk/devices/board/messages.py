@@ -1,7 +1,7 @@
 """Protocol B (the controller board): the typed messages and the enums of their fields.
 
 Frozen, slotted dataclasses (and ``NamedTuple``s where a value is a plain tuple of
-numbers), in SI units; the wire format is :mod:`.protocol`'s business.
+numbers), in SI units; the wire format is `.protocol`'s business.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ class ImuSample:
 
     Attributes:
         accel: Acceleration in g: the raw counts over the scale (164 per g by default,
-            the vendor document's; see :class:`ImuSample.scaled` and ``ImuScale``).
+            the vendor document's; see `ImuSample.scaled` and ``ImuScale``).
         gyro: Angular rate in degrees per second (raw / 16.4 by default).
         mag: Magnetic field, raw counts (the document gives no scale).
         timestamp: ``time.monotonic()`` at receipt (0.0 without a clock).
@@ -154,13 +154,13 @@ class ImuSample:
 
     @property
     def linear_acceleration(self) -> Vector3:
-        """Acceleration in m/s² (SI, as ROS REP 103 expects), from :attr:`accel`."""
+        """Acceleration in m/s² (SI, as ROS REP 103 expects), from `accel`."""
         g = STANDARD_GRAVITY
         return Vector3(self.accel.x * g, self.accel.y * g, self.accel.z * g)
 
     @property
     def angular_velocity(self) -> Vector3:
-        """Angular rate in rad/s (SI), from :attr:`gyro`."""
+        """Angular rate in rad/s (SI), from `gyro`."""
         r = math.pi / 180
         return Vector3(self.gyro.x * r, self.gyro.y * r, self.gyro.z * r)
 

@@ -21,8 +21,9 @@ This module is I/O-free.
 from __future__ import annotations
 
 import struct
-from typing import ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar
 
+from ...core import compiled
 from ...core.construct import frozen_builder
 from ...core.framing import (
     INVALID,
@@ -180,7 +181,7 @@ class BoardEncoder:
     """Turns protocol B messages into frames (host commands with ``AB BC``, board
     messages with ``FE CE``). Stateless: protocol B has no sequence number.
 
-    Example:
+    Examples:
         >>> BoardEncoder().encode(LedCommand(SwitchAction.ON, 1)).hex(" ")
         'ab bc 01 03 01 01 06'
     """
@@ -332,6 +333,9 @@ _HOST_FRAMES: FrameTable = {
 
 _M = TypeVar("_M")
 
+# The optional compiled fast path (chassis_sdk/core/compiled.py), or None: the pure code.
+_compiled = compiled.load("chassis_sdk.devices.board._compiled")
+
 
 class _ProtocolBDecoder(FrameDecoder[_M]):
     """Framing for protocol B, parametrised by head and the table of accepted types.
@@ -360,12 +364,35 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
     in the 8-bit sum leave a frame of the right shape. Refusing candidates followed
     by stray bytes would remove the first kind too, but it loses good frames in
     proportion to the noise (0.3 % to 1.9 % at 2 % noise), so it is not done.
+
+    Which ``feed`` runs
+    -------------------
+    With the compiled fast path built, `BoardDecoder` and `BoardCommandDecoder` feed
+    through it: the same messages, stats and buffer as the pure loop. It reads the
+    head, the table and ``check_alignment`` from the decoder at every call, and hands
+    the call to the pure loop if ``_try_frame`` or ``_swallows_a_head`` was changed on
+    the class or the instance. A subclass gets the pure `FrameDecoder.feed` back (see
+    ``__init_subclass__``): it may override ``_try_frame``, ``_table`` or a parser,
+    which only the pure loop calls.
     """
 
     _table: ClassVar[FrameTable] = {}
     layout = _LAYOUT
     #: Refuse checked-out candidates that what follows shows to be misaligned.
     check_alignment: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Give a subclass that would inherit the compiled ``feed`` the pure one.
+
+        The compiled ``feed`` mirrors this module's own two decoders, not what a
+        subclass may change (a ``_try_frame``, a parser, the table's meaning): only the
+        pure loop calls a subclass's overrides. A ``feed`` the subclass (or a base of
+        its own) defines is kept. The compiled ``feed`` also checks the exact type, so
+        a ``super().feed()`` from a subclass runs the pure loop too.
+        """
+        super().__init_subclass__(**kwargs)
+        if _compiled is not None and cls.feed is _compiled.feed:
+            cls.feed = FrameDecoder.feed  # type: ignore[method-assign]
 
     def _try_frame(
         self, buf: bytes | bytearray, start: int, end: int, out: list[_M], ts: float
@@ -435,7 +462,7 @@ class _ProtocolBDecoder(FrameDecoder[_M]):
 class BoardDecoder(_ProtocolBDecoder[BoardMessage]):
     """Sans-IO decoder of everything the board sends (0x11, 0x12, 0x13, 0xF1, replies).
 
-    Example:
+    Examples:
         >>> BoardDecoder().feed(bytes.fromhex("FE CE 01 03 01 01 06"))
         [LedReply(request_id=1, on=True)]
     """
@@ -450,3 +477,23 @@ class BoardCommandDecoder(_ProtocolBDecoder[BoardCommand]):
 
     _head = HOST_HEAD
     _table = _HOST_FRAMES
+
+
+if _compiled is not None:
+    # The compiled feed for this module's own two decoders only, mirroring the pure objects
+    # it is given here (subclasses: see _ProtocolBDecoder.__init_subclass__).
+    _compiled.bind(
+        decoder_cls=BoardDecoder,
+        command_cls=BoardCommandDecoder,
+        pure_feed=FrameDecoder.feed,
+        try_frame=_ProtocolBDecoder._try_frame,
+        swallows_a_head=_ProtocolBDecoder._swallows_a_head,
+        parse_imu=_parse_imu,
+        imu_cls=ImuSample,
+        vector_cls=Vector3,
+        counts_cls=ImuCounts,
+        accel_scale=ACCEL_SCALE,
+        gyro_scale=GYRO_SCALE,
+    )
+    BoardDecoder.feed = _compiled.feed  # type: ignore[method-assign]
+    BoardCommandDecoder.feed = _compiled.feed  # type: ignore[method-assign]

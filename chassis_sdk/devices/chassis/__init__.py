@@ -1,11 +1,11 @@
 """The chassis (protocol A): a four-wheel skid-steer base.
 
-* :mod:`.messages`: the typed messages and their enums;
-* :mod:`.protocol`: the sans-IO codec (frames, encoder, decoders);
-* :mod:`.device`: :class:`Chassis`, the public API (:mod:`.commands`: its commands);
-* :mod:`.health`: what its status words mean (events, diagnosis findings);
-* :mod:`.firmware`: the sans-IO firmware model (served by :mod:`chassis_sdk.sim`);
-* :mod:`.profile`: its registry entry.
+* `.messages`: the typed messages and their enums;
+* `.protocol`: the sans-IO codec (frames, encoder, decoders);
+* `.device`: [`Chassis`][chassis_sdk.Chassis], the public API (`.commands`: its commands);
+* `.health`: what its status words mean (events, diagnosis findings);
+* `.firmware`: the sans-IO firmware model (served by `chassis_sdk.sim`);
+* `.profile`: its registry entry.
 
 ``Chassis`` is imported on first use, so the codec loads without the runtime.
 """

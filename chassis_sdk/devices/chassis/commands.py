@@ -17,7 +17,7 @@ __all__ = ["ChassisCommands"]
 
 
 class ChassisCommands(Device[Any, ReplyId]):
-    """E-stop, fault clearing, docking and stream switches of :class:`Chassis`."""
+    """E-stop, fault clearing, docking and stream switches of `Chassis`."""
 
     _encoder: ChassisEncoder
     _telemetry: Broadcast[Telemetry]
@@ -69,7 +69,9 @@ class ChassisCommands(Device[Any, ReplyId]):
         """Clear latched faults (0x05).
 
         Args:
-            driver, front_bumper, rear_bumper: What to clear.
+            driver: Clear a latched driver fault.
+            front_bumper: Clear the front bumper's latch.
+            rear_bumper: Clear the rear bumper's latch.
             confirm: Return only once telemetry shows the selected faults clear (a
                 bumper still pressed, or a driver still failing, makes this time out).
             timeout: Seconds to wait for that (with ``confirm``).
@@ -154,7 +156,7 @@ class ChassisCommands(Device[Any, ReplyId]):
         Example: ``await robot.wait_for(lambda t: t.docking is DockingState.DOCKED, 60)``.
 
         Args:
-            predicate: Called with each :class:`Telemetry`.
+            predicate: Called with each `Telemetry`.
             timeout: Seconds (finite); the wait always ends.
 
         Raises:

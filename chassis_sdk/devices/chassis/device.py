@@ -14,13 +14,21 @@ from ...core.motion import frame_builder
 from ...core.validation import check_duration, check_real
 from ...core.watchdog import FrameBuilder
 from ...errors import ProtocolError, RequestTimeoutError
+from ..config import FromConfig
 from .commands import ChassisCommands
-from .health import ChassisDiagnosis, StatusEdges, driver_findings, status_findings
+from .health import (
+    ChassisDiagnosis,
+    StatusEdges,
+    driver_findings,
+    explain_status,
+    status_findings,
+)
 from .messages import (
     ChassisInfo,
     CommandId,
     DriverStatus,
     DriveVelocity,
+    DriveWheels,
     FirmwareVersion,
     HardwareVersion,
     PowerTelemetry,
@@ -40,21 +48,41 @@ from .protocol import (
 __all__ = ["Chassis"]
 
 _ZERO = DriveVelocity(0, 0.0)
+#: Seconds a 0xB1 frame stands for the pack's current: while they come (20 Hz), the
+#: state of charge is fed from them (voltage and currents of one instant), else from 0x81.
+_POWER_FRESH = 0.25
+#: Wheel speed (m/s) above which the pack counts as loaded when no current is known.
+_MOVING = 0.02
 
 
-class Chassis(ChassisCommands):
+#: Below this share of the other driver's voltage, a driver's reading is not the
+#: pack's: the driver is offline or its sensor reads nothing.
+_DRIVER_VOLTAGE_SHARE = 0.8
+
+
+def _pack_voltage(p: PowerTelemetry) -> float:
+    """The pack's voltage from the two drivers' readings (0xB1): their mean, or the
+    higher one when the other is far below it (a driver that is offline reports 0 V,
+    and the mean would be half the pack: a made-up charge)."""
+    low, high = sorted((p.voltage_front, p.voltage_rear))
+    return high if low < high * _DRIVER_VOLTAGE_SHARE else (low + high) / 2
+
+
+class Chassis(ChassisCommands, FromConfig):
     """A robot chassis speaking protocol A, over a serial port, pty or TCP socket.
 
-    Constructing does no I/O. ``async with`` (or :meth:`connect`) opens the port and
-    starts the background tasks; leaving it writes zero velocity, waits for it to leave,
-    and closes the port, also on an exception or cancellation.
+    Constructing does no I/O. ``async with`` (or [`connect`][chassis_sdk.Chassis.connect])
+    opens the port and starts the background tasks; leaving it writes zero velocity,
+    waits for it to leave, and closes the port, also on an exception or cancellation.
 
     Example:
-        >>> async def main() -> None:  # doctest: +SKIP
-        ...     async with Chassis("/dev/ttyUSB0") as robot:
-        ...         print(await robot.get_chassis_info())
-        ...         async for t in robot.telemetry():
-        ...             print(t.voltage, t.linear, t.status)
+        ```python
+        async def main() -> None:
+            async with Chassis("/dev/ttyUSB0") as robot:
+                print(await robot.get_chassis_info())
+                async for t in robot.telemetry():
+                    print(t.voltage, t.linear, t.status)
+        ```
 
     Args:
         port: Device path (``/dev/ttyUSB0``), pty path, or ``socket://host:port``.
@@ -69,13 +97,30 @@ class Chassis(ChassisCommands):
         queue_size: Buffer per stream subscriber; on overflow the oldest is dropped.
         link_timeout: Seconds without a valid frame before the link is reported
             ``STALE`` (a state change, logged once); ``None`` disables the check.
-        limits: Optional :class:`MotionLimits` (maximum speeds, acceleration and
+        limits: Optional `MotionLimits` (maximum speeds, acceleration and
             deceleration) applied to what the watchdog writes; stops are immediate.
-        battery_low: Report ``BATTERY_LOW`` in :meth:`events` below this voltage
+        battery_low: Report ``BATTERY_LOW`` in `events` below this voltage
             (and ``BATTERY_OK`` 0.2 V above it); ``None`` (default) does not watch.
+        battery: A [`BatteryModel`][chassis_sdk.BatteryModel] (chemistry, cells, capacity,
+            thresholds) for `battery_percentage` and the ``BATTERY_LOW``,
+            ``BATTERY_CRITICAL`` and ``BATTERY_OK`` events of the state of charge.
+            With power telemetry on (`enable_power_telemetry`), it is fed the
+            0xB1 voltage and the sum of the wheel currents, so the sag under load is
+            undone; without it, only the 0x81 voltages taken with the wheels still are
+            used. ``None`` (default): no estimate (`battery_percentage` is
+            ``None``).
+        calibration: A [`Calibration`][chassis_sdk.Calibration] (``linear_scale``,
+            ``angular_scale``, as ``chassis-sdk calibrate`` measures them): the
+            velocities of 0x81 are multiplied by them before `odometry`
+            integrates them, and `set_wheel_speeds` divides the speeds it writes
+            by ``linear_scale``, so the wheels' true speed is the one asked for.
+            `set_velocity` is written as the protocol defines it (the firmware
+            turns it into wheel speeds with its own geometry; a closed loop over the
+            calibrated odometry corrects it). `telemetry` stays what the chassis
+            sent. ``None`` (default): factors of 1.
         connect_timeout: Seconds each open (and reconnect attempt) may take; the port
             is opened off the event loop, so nothing else waits for it.
-        close_linger: Seconds the final zero of :meth:`close` may wait, in the
+        close_linger: Seconds the final zero of `close` may wait, in the
             background after ``close()`` has returned, for a device that has stopped
             reading (stale frames are discarded at once; the zero is the last frame it
             gets if it reads again within this bound). 0 discards it with the rest.
@@ -84,10 +129,10 @@ class Chassis(ChassisCommands):
             bytes both ways, every stream, the commands written, odometry and events;
             open it in Foxglove; needs the ``foxglove`` extra) or, any other name, a
             JSON-lines capture (raw bytes both ways). Everything the application and
-            the watchdog write is in it, up to the zero frame of :meth:`close`, so a
+            the watchdog write is in it, up to the zero frame of `close`, so a
             bug report is one file.
         read_only: A viewer: nothing is ever written to the device, not even the
-            zero of :meth:`close`; commands and requests raise ``ChassisError``. For a
+            zero of `close`; commands and requests raise ``ChassisError``. For a
             monitor, a recorder or a read-only bridge of a robot someone else drives.
 
     Raises:
@@ -104,9 +149,10 @@ class Chassis(ChassisCommands):
         self._power: Broadcast[PowerTelemetry] = self._stream("power")
         self._edges = StatusEdges()
         self._wheel_track: float | None = None  # effective track, when odometry uses wheels
+        self._power_at = -float("inf")  # when the last 0xB1 arrived
         self._handlers = {
             Telemetry: self._on_telemetry,
-            PowerTelemetry: self._power.publish,
+            PowerTelemetry: self._on_power,
             DriverStatus: lambda m: self._reply(ReplyId.DRIVER_STATUS, m),
             FirmwareVersion: lambda m: self._reply(ReplyId.FIRMWARE_VERSION, m),
             HardwareVersion: lambda m: self._reply(ReplyId.HARDWARE_VERSION, m),
@@ -137,12 +183,25 @@ class Chassis(ChassisCommands):
         for event in self._edges.update(t.status, t.docking, t.timestamp):
             self._emit(event)
         self._battery(t.voltage, t.timestamp)
+        if self.battery_model is not None and t.timestamp - self._power_at > _POWER_FRESH:
+            w = t.wheels
+            moving = max(abs(w.front_left), abs(w.front_right), abs(w.rear_left), abs(w.rear_right))
+            self._charge(t.voltage, None, t.timestamp, loaded=moving > _MOVING)
         if self._wheel_track is None:
             self._integrate(t.linear, t.angular, t.timestamp)
         else:
             w = t.wheels
             left, right = (w.front_left + w.rear_left) / 2, (w.front_right + w.rear_right) / 2
             self._integrate((left + right) / 2, (right - left) / self._wheel_track, t.timestamp)
+
+    def _on_power(self, p: PowerTelemetry) -> None:
+        self._power.publish(p)
+        if self.battery_model is not None:
+            self._power_at = p.timestamp
+            # The pack delivers what the four drivers draw: the sum of their magnitudes
+            # (a driver's sign is the torque's direction, not the pack's).
+            current = sum(abs(c) for c in p.currents)
+            self._charge(_pack_voltage(p), current, p.timestamp)
 
     def _on_link_up(self) -> None:
         self._decoder.sequence.reset()
@@ -161,7 +220,7 @@ class Chassis(ChassisCommands):
         slip_factor: float = 1.0,
         max_gap: float = 0.5,
     ) -> None:
-        """Choose what :meth:`odometry` integrates.
+        """Choose what [`odometry`][chassis_sdk.Chassis.odometry] integrates.
 
         Args:
             source: ``"velocity"`` (default): the chassis's own linear and angular
@@ -200,13 +259,23 @@ class Chassis(ChassisCommands):
         """Drive in wheel mode: left and right side speeds in m/s.
 
         The front and rear wheel of a side turn alike. Watchdog, deadman and ``duration``
-        behave as for :meth:`set_velocity`.
+        behave as for `set_velocity`. The speeds are true ones: what is written is
+        each divided by ``calibration.linear_scale`` (the wheels' real diameter), after
+        `limits` (which, like `commanded_velocity`, see the speeds asked).
 
         Raises:
             ValueError: NaN, infinity, out of int16 mm/s range, or a bad ``duration``.
             NotConnectedError: The port is not open.
         """
-        build = frame_builder(wheel_speeds_command, self._encoder.encode, left, right)
+        scale = self.calibration.linear_scale
+        if scale == 1.0:
+            make = wheel_speeds_command
+        else:
+
+            def make(left: float, right: float) -> DriveWheels:
+                return wheel_speeds_command(left / scale, right / scale)
+
+        build = frame_builder(make, self._encoder.encode, left, right)
         self._drive(
             (left, right),
             build,
@@ -240,13 +309,13 @@ class Chassis(ChassisCommands):
 
     async def get_hardware_version(self) -> str:
         """Read the hardware version string (0x08 → 0x88). Raises as
-        :meth:`get_firmware_version`."""
+        [`get_firmware_version`][chassis_sdk.Chassis.get_firmware_version]."""
         reply: HardwareVersion = await self._read(CommandId.HARDWARE_VERSION)
         return reply.text
 
     async def get_chassis_info(self) -> ChassisInfo:
         """Read the geometry (0x09 → 0x89), lengths in metres. Raises as
-        :meth:`get_firmware_version`."""
+        [`get_firmware_version`][chassis_sdk.Chassis.get_firmware_version]."""
         reply: ChassisInfo = await self._read(CommandId.CHASSIS_INFO)
         return reply
 
@@ -256,7 +325,7 @@ class Chassis(ChassisCommands):
         Raises:
             ProtocolError: The device sent an impossible date.
             RequestTimeoutError, ConnectionLostError, NotConnectedError: As for
-                :meth:`get_firmware_version`.
+                [`get_firmware_version`][chassis_sdk.Chassis.get_firmware_version].
         """
         reply: ShipDate = await self._read(CommandId.SHIP_DATE)
         try:
@@ -266,19 +335,22 @@ class Chassis(ChassisCommands):
 
     async def get_driver_status(self) -> DriverStatus:
         """Read the four motor drivers' status (0xB0 → 0xB0). Raises as
-        :meth:`get_firmware_version`."""
+        [`get_firmware_version`][chassis_sdk.Chassis.get_firmware_version]."""
         reply: DriverStatus = await self._read(CommandId.DRIVER_STATUS)
         return reply
 
     async def diagnose(self) -> ChassisDiagnosis:
         """Gather the robot's health into one report: connection and link counters, every
         set status bit of the latest telemetry, and every error bit of each wheel's
-        driver (read now with 0xB0, if connected). ``print()`` it for a readable report.
+        driver (read now with 0xB0, if connected and not ``read_only``). ``print()`` it
+        for a readable report.
 
         Example:
-            >>> report = await robot.diagnose()  # doctest: +SKIP
-            >>> if not report.ok:  # doctest: +SKIP
-            ...     print(report)
+            ```python
+            report = await robot.diagnose()
+            if not report.ok:
+                print(report)
+            ```
         """
         found = self._findings()
         latest = self._telemetry.latest
@@ -290,7 +362,9 @@ class Chassis(ChassisCommands):
         scheme = {"shared": "one counter for every frame", "per-id": "one counter per frame id"}
         found.note(f"frame numbering: {scheme.get(self.sequence_scheme or '', 'not yet known')}")
         drivers = None
-        if self.is_connected:
+        if self.read_only:  # a viewer asks nothing: 0xB0 is a request
+            found.note("driver status not read (read-only)")
+        elif self.is_connected:
             try:
                 drivers = await self.get_driver_status()
             except RequestTimeoutError:
@@ -303,32 +377,43 @@ class Chassis(ChassisCommands):
     # --- streams --------------------------------------------------------------------------------
 
     def telemetry(self) -> Subscription[Telemetry]:
-        """Subscribe to the 50 Hz telemetry: an async iterator of :class:`Telemetry`.
+        """Subscribe to the 50 Hz telemetry: an async iterator of `Telemetry`.
 
         Every subscriber gets every frame from the moment of the call; one that falls
         ``queue_size`` frames behind loses the oldest (counted in ``stats.queue_drops``).
         Breaking out of the loop unsubscribes. Without ``reconnect`` the iterator raises
-        :class:`ConnectionLostError` when the link drops; it ends when the device closes.
+        `ConnectionLostError` when the link drops; it ends when the device closes.
         """
         return self._subscribe(self._telemetry)
 
     def power(self) -> Subscription[PowerTelemetry]:
-        """Subscribe to the 20 Hz 0xB1 stream (after :meth:`enable_power_telemetry`)."""
+        """Subscribe to the 20 Hz 0xB1 stream (after `enable_power_telemetry`)."""
         return self._subscribe(self._power)
 
     @property
     def latest_telemetry(self) -> Telemetry | None:
-        """The most recent :class:`Telemetry`, or ``None`` before the first."""
+        """The most recent `Telemetry`, or ``None`` before the first."""
         return self._telemetry.latest
+
+    def motion_blocked(self) -> tuple[str, ...]:
+        """The latest telemetry's status flags that stop the wheels: the e-stops
+        (``SOFTWARE_ESTOP``, ``HARDWARE_ESTOP``, ``REMOTE_ESTOP``), a latched bumper,
+        a driver error or a driver offline (the faults of
+        `FAULT_STATUS`), lowest bit first;
+        empty when none is set or before the first telemetry."""
+        latest = self._telemetry.latest
+        if latest is None:
+            return ()
+        return tuple(flag.name for flag in explain_status(latest.status) if flag.fault)
 
     @property
     def telemetry_age(self) -> float | None:
-        """Seconds since the latest :class:`Telemetry` arrived, or ``None`` before the
+        """Seconds since the latest `Telemetry` arrived, or ``None`` before the
         first. It keeps growing through an outage and a stale link."""
         latest = self._telemetry.latest
         return None if latest is None else time.monotonic() - latest.timestamp
 
     @property
     def latest_power(self) -> PowerTelemetry | None:
-        """The most recent :class:`PowerTelemetry`, or ``None``."""
+        """The most recent `PowerTelemetry`, or ``None``."""
         return self._power.latest

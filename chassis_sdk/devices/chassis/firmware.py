@@ -1,13 +1,20 @@
 """A sans-IO model of the protocol A chassis firmware.
 
-The simulator that serves it is :class:`chassis_sdk.sim.ChassisSimulator`.
+The simulator that serves it is `chassis_sdk.sim.ChassisSimulator`.
 
 The model behaves like the device as far as a host can tell: 0x81 telemetry at 50 Hz
 (switchable), 0xB1 at 20 Hz when enabled, replies to every read request, skid-steer
 kinematics with an acceleration ramp, the software e-stop, the docking state machine,
-a battery that sags under load, bumpers and driver faults that tests can trigger and
-0x05 clears, and the firmware's own command timeout: the wheels stop if no 0x02 arrives
-for 0.5 s, which is why the SDK's watchdog exists.
+a battery that sags under load (or, with ``ChassisSpec.pack``, a pack model: a charge
+the wheels' currents drain, a chemistry's voltage curve and an internal resistance),
+bumpers and driver faults that tests can trigger and 0x05 clears, and the firmware's own
+command timeout: the wheels stop if no 0x02 arrives for 0.5 s, which is why the SDK's
+watchdog exists.
+
+It can be miscalibrated as a real base is (``ChassisSpec.wheel_diameter_error``,
+``ChassisSpec.turn_slip``): the telemetry reports what the encoders count, the true
+pose (`ChassisFirmware.pose`, `ChassisFirmware.odometer`) is where the
+robot really went, for tests to hold a calibration against.
 """
 
 from __future__ import annotations
@@ -17,6 +24,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from ...core.firmware import FirmwareModel, next_slot
+from ...core.pack import Pack, PackSpec
+from ...core.validation import check_real
 from .messages import (
     ChassisInfo,
     ChassisMessage,
@@ -74,9 +83,25 @@ class ChassisSpec:
     battery_resistance: float = 0.03  #: Ω: sag per ampere drawn
     battery_drain: float = 0.0005  #: V per second of driving
     docking_step: float = 1.0  #: s per docking state
+    #: A pack model instead of the linear battery above (``battery_*`` then unused):
+    #: its charge drains with the wheels' currents (idle, speed and acceleration), its
+    #: voltage follows the chemistry's curve and sags by ``I * R``; ``None``: the
+    #: linear battery, as before.
+    pack: PackSpec | None = None
     #: How FRAME-NUMS count (the document leaves it open): ``"per-id"``, one counter
     #: per frame id, or ``"shared"``, one counter for every frame the chassis sends.
     sequence: Literal["per-id", "shared"] = "per-id"
+    #: The true wheels' diameter over the one the firmware believes, minus 1 (0.04:
+    #: 4 % bigger): the robot goes ``1 + wheel_diameter_error`` times as far (and
+    #: turns as much more) as its encoders report.
+    wheel_diameter_error: float = 0.0
+    #: Skid slip in turns: the robot turns ``1 - turn_slip`` times what the wheels'
+    #: speed difference over the track says (0.2: 20 % less).
+    turn_slip: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_real(self.wheel_diameter_error, "wheel_diameter_error", low=-0.5, high=0.5)
+        check_real(self.turn_slip, "turn_slip", low=0, high=0.9)
 
 
 #: The status bit of each level ``ChassisFirmware.status`` lists, in its order.
@@ -95,12 +120,14 @@ _STATUS_BITS = (
 
 
 def _advance(
-    pose: tuple[float, float, float], wheels: list[float], track: float, dt: float
+    pose: tuple[float, float, float], wheels: list[float], spec: ChassisSpec, dt: float
 ) -> tuple[float, float, float]:
-    """The true pose after ``dt`` at these wheel speeds (midpoint rule), for tests to
-    hold odometry against."""
+    """The true pose after ``dt`` at these (encoder) wheel speeds (midpoint rule), with
+    the spec's miscalibration, for tests to hold odometry against."""
     left, right = (wheels[0] + wheels[2]) / 2, (wheels[1] + wheels[3]) / 2
-    v, w = (left + right) / 2, (right - left) / track
+    true = 1.0 + spec.wheel_diameter_error
+    v = (left + right) / 2 * true
+    w = (right - left) / spec.info.track_width * true * (1.0 - spec.turn_slip)
     x, y, heading = pose
     mid = heading + w * dt / 2
     return (x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), heading + w * dt)
@@ -109,9 +136,10 @@ def _advance(
 class ChassisFirmware(FirmwareModel[HostCommand]):
     """The firmware model: ``receive(bytes, now)`` and ``poll(now)`` return bytes to send.
 
-    Tests and the CLI reach into it to trigger faults: :meth:`press_bumper`,
-    :meth:`set_driver_fault`, :meth:`set_driver_offline`, :meth:`set_hardware_estop`,
-    :meth:`set_remote_estop`, :meth:`set_battery`, :meth:`reset`.
+    Tests and the CLI reach into it to trigger faults: `press_bumper`,
+    `set_driver_fault`, `set_driver_offline`, `set_hardware_estop`,
+    `set_remote_estop`, `set_battery`, `reset`; `hold_bumper` and
+    `ignored` make it refuse what the host asks (for tests of confirmation).
     """
 
     def __init__(self, spec: ChassisSpec | None = None) -> None:
@@ -121,9 +149,19 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         self.remote_estop = False
         self.remote_online = False
         self.drivers_offline = [False, False]
+        #: Bumpers physically held pressed (front, rear): 0x05 cannot clear them.
+        self.bumpers_held = [False, False]
+        #: Commands this firmware receives and drops unexecuted (a chassis that does not
+        #: confirm: its telemetry never shows the effect).
+        self.ignored: set[CommandId] = set()
         self._battery_open = self.spec.battery_full  # the battery outlives a reset
-        #: The true pose (x m, y m, heading rad unwrapped) from the simulated wheels.
+        #: The pack model (``spec.pack``), or ``None``; its ``charge`` is the truth.
+        self.pack = None if self.spec.pack is None else Pack(self.spec.pack)
+        #: The true pose (x m, y m, heading rad unwrapped) from the simulated wheels
+        #: (with ``spec.wheel_diameter_error`` and ``spec.turn_slip``).
         self.pose = (0.0, 0.0, 0.0)
+        #: The true distance travelled (m, forward and back both count).
+        self.odometer = 0.0
         self._power_on()
 
     def _power_on(self) -> None:
@@ -171,13 +209,23 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         self.remote_estop = pressed
         self.remote_online = True
 
+    def hold_bumper(self, front: bool = True, held: bool = True) -> None:
+        """Hold a bumper pressed (it latches, and 0x05 cannot clear it while held), or
+        let it go (the latch stays until 0x05)."""
+        self.bumpers_held[0 if front else 1] = held
+        if held:
+            self.press_bumper(front)
+
     def set_driver_offline(self, front: bool, offline: bool = True) -> None:
         """Take the front or rear motor-driver board off the bus (or put it back)."""
         self.drivers_offline[0 if front else 1] = offline
 
     def set_battery(self, voltage: float) -> None:
-        """Set the battery's open-circuit voltage (it keeps draining from there)."""
+        """Set the battery's open-circuit voltage (it keeps draining from there); with a
+        pack model, its charge becomes the one this voltage shows."""
         self._battery_open = voltage
+        if self.pack is not None:
+            self.pack.set_open_voltage(voltage)
 
     # --- sans-IO interface --------------------------------------------------------------------
 
@@ -202,7 +250,7 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         return bytes(out)
 
     def next_deadline(self) -> float:
-        """When :meth:`poll` next has a frame to send (or the physics a step to take)."""
+        """When `poll` next has a frame to send (or the physics a step to take)."""
         due = [self._next_telemetry if self.telemetry_enabled else math.inf]
         if self.power_enabled:
             due.append(self._next_power)
@@ -216,6 +264,8 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
             self._drive(cmd, now)
             return b""
         cid, value = cmd.id, cmd.value
+        if cid in self.ignored:
+            return b""
         if cid is CommandId.TELEMETRY:
             self.telemetry_enabled = bool(value)
             if self.telemetry_enabled:
@@ -230,9 +280,9 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
             what = FaultClear(value & 0x7)
             if FaultClear.DRIVER in what:
                 self.driver_errors = [DriverError(0)] * 4
-            if FaultClear.FRONT_BUMPER in what:
+            if FaultClear.FRONT_BUMPER in what and not self.bumpers_held[0]:
                 self.front_bumper = False
-            if FaultClear.REAR_BUMPER in what:
+            if FaultClear.REAR_BUMPER in what and not self.bumpers_held[1]:
                 self.rear_bumper = False
         elif cid is CommandId.DOCKING:
             if value:
@@ -311,7 +361,11 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         self._last_step = now
         if last is None or now <= last:
             return
-        dt = min(now - last, 0.1)
+        # The physics steps at most 0.1 s; the true pose moves for all the time that
+        # passed (up to a second), as the robot would while the model's loop was held
+        # up, and as the host's odometry integrates the gap at the next frame's speed.
+        elapsed = min(now - last, 1.0)
+        dt = min(elapsed, 0.1)
         may_move = self._may_move(now)
         if not may_move:
             self.target = [0.0, 0.0, 0.0, 0.0]
@@ -328,9 +382,12 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
             # microseconds long drew thousands of amperes and a negative voltage.
             self._accel[i] = max(-max_accel, min(max_accel, dv / dt))
             self._peak[i] = max(self._peak[i], abs(self._current(i)))
-        self.pose = _advance(self.pose, self.wheels, self.spec.info.track_width, dt)
-        moving = any(abs(w) > 1e-6 for w in self.wheels)
-        if moving:
+        x, y, _ = self.pose
+        self.pose = _advance(self.pose, self.wheels, self.spec, elapsed)
+        self.odometer += math.hypot(self.pose[0] - x, self.pose[1] - y)
+        if self.pack is not None:
+            self.pack.draw(self._total_current(), dt)
+        elif any(abs(w) > 1e-6 for w in self.wheels):
             self._battery_open -= self.spec.battery_drain * dt
         if self.docking_enabled:
             step = int((now - self._docking_since) / self.spec.docking_step)
@@ -340,12 +397,22 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
     def _current(self, i: int) -> float:
         return 0.3 + 3.0 * abs(self.wheels[i]) + 4.0 * abs(self._accel[i])
 
+    def _total_current(self) -> float:
+        return sum(self._current(i) for i in range(4))
+
     @property
     def battery_voltage(self) -> float:
         """Terminal voltage: open-circuit voltage minus the sag under the current drawn
         (never below zero: a battery set or drained that far reads empty)."""
-        total = sum(self._current(i) for i in range(4))
+        total = self._total_current()
+        if self.pack is not None:
+            return self.pack.terminal_voltage(total)
         return max(0.0, self._battery_open - self.spec.battery_resistance * total)
+
+    @property
+    def battery_charge(self) -> float | None:
+        """The pack model's true state of charge (percent), or ``None`` without one."""
+        return None if self.pack is None else self.pack.charge
 
     def telemetry(self) -> Telemetry:
         """The telemetry frame the model would send now."""

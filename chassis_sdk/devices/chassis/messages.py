@@ -1,7 +1,7 @@
 """Protocol A (the chassis): the typed messages and the enums of their fields.
 
 Frozen, slotted dataclasses (and ``NamedTuple``s where a value is a plain tuple of
-numbers), in SI units; the wire format is :mod:`.protocol`'s business.
+numbers), in SI units; the wire format is `.protocol`'s business.
 """
 
 from __future__ import annotations

@@ -14,13 +14,15 @@ This module is I/O-free: bytes in, messages out; messages in, bytes out.
 from __future__ import annotations
 
 import struct
-from typing import ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar
 
+from ...core import compiled
 from ...core.construct import MemberCache, frozen_builder
 from ...core.framing import (
     INVALID,
     NEED_DATA,
     Column,
+    DecoderStats,
     FrameDecoder,
     FrameLayout,
     FrameTable,
@@ -88,7 +90,7 @@ def velocity_command(linear: float, angular: float) -> DriveVelocity:
     Args:
         linear: Linear velocity in m/s (sent as int16 mm/s).
         angular: Angular velocity in rad/s (sent as float32), at most
-            :data:`ANGULAR_LIMIT` either way.
+            `ANGULAR_LIMIT` either way.
 
     Raises:
         ValueError: A value is NaN, infinite, or does not fit its wire field.
@@ -204,7 +206,7 @@ class ChassisEncoder:
     whatever its id, and wraps from 65535 to 0. The host uses it for commands; the
     simulator uses it for the chassis's frames.
 
-    Example:
+    Examples:
         >>> enc = ChassisEncoder()
         >>> enc.encode(Command(CommandId.FIRMWARE_VERSION)).hex(" ")
         'ed de 00 00 07 0c 00 00 de 01 bd bc'
@@ -427,7 +429,7 @@ class SequenceTracker:
 
     * a frame that only the *shared* prediction gets right is evidence for it, one that
       only the *per-id* prediction gets right is evidence for that; after
-      :data:`EVIDENCE` more votes for one scheme than the other, it is the scheme;
+      `EVIDENCE` more votes for one scheme than the other, it is the scheme;
     * once the scheme is known, a frame it did not predict is a gap (counted once,
       however many frames were lost);
     * before that, a frame that *neither* predicts is a gap under either scheme, so it
@@ -435,8 +437,8 @@ class SequenceTracker:
       from evidence), so a gap in the first few frames may go uncounted, never a
       false one.
 
-    Sans-IO: the decoder calls :meth:`update` for every valid frame; the device calls
-    :meth:`reset` on every new connection (a reconnect starts counting afresh).
+    Sans-IO: the decoder calls `update` for every valid frame; the device calls
+    `reset` on every new connection (a reconnect starts counting afresh).
     """
 
     #: Votes ahead that settle the scheme.
@@ -504,6 +506,18 @@ class _ProtocolADecoder(FrameDecoder[_M]):
         #: Breaks in the frame numbers (see :class:`SequenceTracker`).
         self.sequence = SequenceTracker()
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Give every subclass the pure `FrameDecoder.feed` unless it defines its own.
+
+        The compiled ``feed`` (when built) mirrors this module's own two decoders, whose
+        ``_try_frame`` and parsers it knows; a subclass may override any of them (or
+        ``_table``, ``_head``), and only the pure loop calls the overrides. This module's
+        decoders get the compiled ``feed`` after they are defined, below.
+        """
+        super().__init_subclass__(**kwargs)
+        if "feed" not in cls.__dict__:
+            cls.feed = FrameDecoder.feed  # type: ignore[method-assign]
+
     def _try_frame(
         self, buf: bytes | bytearray, start: int, end: int, out: list[_M], ts: float
     ) -> int:
@@ -557,7 +571,7 @@ class _ProtocolADecoder(FrameDecoder[_M]):
 class ChassisDecoder(_ProtocolADecoder[ChassisMessage]):
     """Sans-IO decoder of everything the chassis sends (0x81, 0xB0, 0xB1, 0x87-0x8A).
 
-    Example:
+    Examples:
         >>> dec = ChassisDecoder()
         >>> dec.feed(bytes.fromhex("ED DE 00 00 8A 0D 18 01 02 7D 02 BD BC"))
         [ShipDate(year=2024, month=1, day=2)]
@@ -571,3 +585,26 @@ class ChassisCommandDecoder(_ProtocolADecoder[HostCommand]):
     """Sans-IO decoder of what the host sends (used by the simulator and for captures)."""
 
     _table = _HOST_FRAMES
+
+
+# The compiled fast path (issue 29), when built: the same feed for this module's own two
+# decoders, never for their subclasses (see _ProtocolADecoder.__init_subclass__; the
+# compiled feed checks the exact type too, for a subclass whose feed calls super().feed).
+# It reads _table, _head, _try_frame and the tracker on every call, so a changed table
+# is honoured and anything else changed sends the call to the pure FrameDecoder.feed.
+_compiled = compiled.load("chassis_sdk.devices.chassis._compiled")
+if _compiled is not None:
+    _compiled.bind(
+        decoder_cls=ChassisDecoder,
+        command_cls=ChassisCommandDecoder,
+        pure_feed=FrameDecoder.feed,
+        try_frame=_ProtocolADecoder._try_frame,
+        tracker_cls=SequenceTracker,
+        stats_cls=DecoderStats,
+        parse_telemetry=_parse_telemetry,
+        telemetry_cls=Telemetry,
+        wheels_cls=WheelSpeeds,
+        status=_status,
+        docking=_docking,
+    )
+    ChassisDecoder.feed = ChassisCommandDecoder.feed = _compiled.feed  # type: ignore[method-assign]
