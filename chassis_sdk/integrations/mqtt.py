@@ -105,7 +105,7 @@ from ..errors import ChassisError
 from .inbound import CommandError as CommandError  # re-exported: it was defined here
 from .inbound import check_topic_level
 from .mqtt_commands import REQUEST_WORKERS, Commands
-from .mqtt_inbox import CommandInbox, install_inbox
+from .mqtt_inbox import CommandInbox, install_batched_reads, install_inbox
 from .mqtt_ownership import Ownership, RobotIdTaken, new_owner
 from .mqtt_publish import Publisher, connection_will
 
@@ -206,6 +206,7 @@ class MqttBridge:
         # what it does with what comes in (sorted into the inbox's lanes as it comes).
         self._out = Publisher(self, float(report_interval))
         self._inbox = install_inbox(client)
+        install_batched_reads(client)
         self._ownership = Ownership(self, self._out, self._inbox.lanes)
         self._in = Commands(self, self._out, self._ownership, self._inbox.lanes)
         self._inbox.sort = self._in.sort
