@@ -328,6 +328,9 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
     # paho reads one packet of QoS 0 per loop_read(), and aiomqtt calls it once per
     # readable event: a turn of the event loop a message, the larger part of its cost
     # (a bridge at 10,000/s fell behind, and an e-stop waited behind the backlog).
+    # A backlog is made on purpose: the loop is stalled while the flood arrives, so
+    # the kernel holds it all when the loop runs again (a reader that keeps up finds
+    # one packet a wake-up, batches or not).
     async with broker() as b:
         client = aiomqtt.Client("127.0.0.1", b.port, protocol=aiomqtt.ProtocolVersion.V5)
         install_batched_reads(client)
@@ -344,15 +347,19 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
         paho.loop_read = counting  # type: ignore[method-assign]
         async with client:
             await client.subscribe("t/flood", qos=0)
-            sender = await flood(b, "t/flood", kind="junk", rate=20_000, seconds=0.5)
-            sent = (await flood_result(sender))["sent"]
+            # Blocking on purpose: the stall. 2,000 short messages fit the socket's
+            # buffers, so the broker drops none of them.
+            stalled = subprocess.run(  # noqa: ASYNC221
+                [sys.executable, "-m", "tests.support.mqtt_flood", str(b.port), "t/flood",
+                 "--rate", "4000", "--seconds", "0.5", "--kind", "junk"],
+                cwd=ROOT, capture_output=True, timeout=20, check=True,
+            )  # fmt: skip
+            sent = json.loads(stalled.stdout)["sent"]
             queue = client._queue
-            # QoS 0: the broker may drop a few of a burst this fast (it did 66 of
-            # 10,000 once), so not all are waited for.
-            await wait_until(lambda: queue.qsize() >= 0.95 * sent, timeout=20)
-            read = queue.qsize()
-        assert sent == 10_000
-        assert wakes <= read / 4, (wakes, read)  # one a packet without the batches
+            await wait_until(lambda: queue.qsize() >= sent, timeout=20)
+        assert sent == 2_000
+        assert queue.qsize() == sent  # nothing lost, nothing twice
+        assert wakes <= sent / 8, (wakes, sent)  # one a packet without the batches
     with pytest.raises(ValueError, match="at least 1"):
         install_batched_reads(aiomqtt.Client("127.0.0.1"), batch=0)
     assert READ_BATCH >= 16
