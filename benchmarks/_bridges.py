@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 import sys
 
 import aiomqtt
@@ -28,6 +29,7 @@ async def one(broker_port: int, rate: float, port: str, robot_id: str, up: async
             will=connection_will(robot_id),
             clean_start=True,
             max_queued_outgoing_messages=1000,
+            socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)],  # as the CLI's
         )
         up.set()
         await MqttBridge(robot, client, robot_id, rate=rate).run()

@@ -30,6 +30,7 @@ import asyncio
 import json
 import os
 import platform
+import socket
 import statistics
 import subprocess
 import sys
@@ -43,6 +44,10 @@ from tests.support.mqtt_broker import Mosquitto
 
 BRIDGES = Path(__file__).with_name("_bridges.py")
 SIMULATORS = Path(__file__).with_name("_fleet_simulators.py")
+#: The observer sends its commands at once, as docs/mqtt.md asks of a fleet's clients:
+#: with Nagle's algorithm on its socket a command waits for the broker's delayed ACK of
+#: the one before (up to 40 ms), which is the publisher's latency, not the bridge's.
+NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
 #: Telemetry messages a second per stream each bridge forwards (the robots send 50): the
 #: bridge's default.
 RATE = 10.0
@@ -61,7 +66,9 @@ def percentile(values: list[float], q: float) -> float:
 
 async def floor(port: int, n: int) -> tuple[float, float]:
     """Round trip through the broker alone: publish, receive, on one client."""
-    async with aiomqtt.Client("127.0.0.1", port, identifier="floor") as client:
+    async with aiomqtt.Client(
+        "127.0.0.1", port, identifier="floor", socket_options=NODELAY
+    ) as client:
         await client.subscribe("floor/echo")
         times = []
         for _ in range(n):
@@ -88,7 +95,10 @@ async def measure(port: int, n: int, window: float, commands: int) -> dict[str, 
             assert child.stdout is not None
             ready = await asyncio.to_thread(child.stdout.readline)
             assert ready.strip() == b"ready", ready
-            async with aiomqtt.Client("127.0.0.1", port, identifier="observer") as obs:
+            observer = aiomqtt.Client(
+                "127.0.0.1", port, identifier="observer", socket_options=NODELAY
+            )
+            async with observer as obs:
                 await obs.subscribe("robots/+/telemetry/telemetry")
                 received = 0
 
