@@ -11,6 +11,8 @@ import contextlib
 import json
 import os
 import signal
+import socket
+import time
 from typing import Any
 
 import aiomqtt
@@ -18,7 +20,7 @@ import pytest
 
 from chassis_sdk import Board, Chassis, ConnectionLostError, RobotEvent, Telemetry
 from chassis_sdk.core.notifier import Notifier
-from chassis_sdk.integrations.mqtt import MqttBridge
+from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.mqtt_broker import Broker, broker
@@ -91,15 +93,17 @@ async def test_every_telemetry_message_published_reaches_the_broker_in_order() -
         notifier.listen("telemetry", lambda t: produced.append(t.timestamp))
         bridge = MqttBridge(robot, bridge_client(b, "r1"), "r1", rate=100.0)
         published: list[bytes] = []
-        client: Any = bridge.client
-        publish = client.publish
+        # Telemetry is handed to paho's client directly (``send_latest``): recorded
+        # where it enters the connection.
+        paho: Any = bridge.client._client
+        publish = paho.publish
 
-        async def recording(topic: str, payload: bytes, **kwargs: Any) -> None:
+        def recording(topic: str, payload: bytes, *args: Any, **kwargs: Any) -> Any:
             if topic == "robots/r1/telemetry/telemetry":
                 published.append(payload)
-            await publish(topic, payload, **kwargs)
+            return publish(topic, payload, *args, **kwargs)
 
-        client.publish = recording
+        paho.publish = recording
         task = asyncio.create_task(bridge.run())
         try:
             await obs.wait(lambda: len(published) >= 75)  # 1.5 s of a 50 Hz stream
@@ -137,6 +141,61 @@ async def test_a_device_lost_for_good_ends_the_bridge_with_its_last_will() -> No
         await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "CONNECTIONBROKEN")
         assert obs.on("robots/r1/link")[-1]["state"] == "lost"
         assert "link_lost" in [e["kind"] for e in obs.on("robots/r1/events")]
+
+
+async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None:
+    # The broker stops reading (SIGSTOP) while the bridge publishes every stream at
+    # 100 a second through a small send buffer: once the socket is full, the bridge
+    # skips its slots and counts them instead of queueing messages, so its outgoing
+    # queue holds at most one slot's messages; once the broker is back, the newest
+    # readings go out again.
+    small = [(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)]
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        Observer(b) as obs,
+    ):
+        assert b.proc is not None
+        client = aiomqtt.Client(
+            "127.0.0.1",
+            b.port,
+            identifier="bridge-r1",
+            protocol=aiomqtt.ProtocolVersion.V5,
+            will=connection_will("r1"),
+            clean_start=True,
+            socket_options=small,
+        )
+        bridge = MqttBridge(robot, client, "r1", rate=100.0)
+        streams = len(bridge.profile.remote.streams)
+        paho: Any = client._client
+        task = asyncio.create_task(bridge.run())
+        topic = "robots/r1/telemetry/telemetry"
+        try:
+            await obs.wait(lambda: bool(obs.on(topic)))
+            os.kill(b.proc.pid, signal.SIGSTOP)
+            try:
+                most = 0
+
+                def skipped() -> bool:
+                    nonlocal most
+                    most = max(most, len(paho._out_packet))
+                    return bridge.telemetry_skipped >= 20
+
+                await wait_until(skipped, timeout=30.0)
+                assert most <= streams, (most, streams)
+            finally:
+                os.kill(b.proc.pid, signal.SIGCONT)
+                resumed = time.monotonic()
+            # A reading newer than the broker's return arrives: the bridge went on.
+            await obs.wait(
+                lambda: any(m["monotonic"] > resumed for m in obs.on(topic)), timeout=15.0
+            )
+            assert not task.done()
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await task
 
 
 async def test_events_behind_a_stalled_broker_keep_the_newest_and_count_the_rest() -> None:

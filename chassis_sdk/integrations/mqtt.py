@@ -224,6 +224,13 @@ class MqttBridge:
         return self._out.unpublished
 
     @property
+    def telemetry_skipped(self) -> int:
+        """Telemetry slots skipped because the slot before had not left for the broker
+        yet (a broker reading slowly, a congested link): the newest readings go out at
+        the next slot instead, so the outgoing queue never grows."""
+        return self._out.telemetry_skipped
+
+    @property
     def online(self) -> bool:
         """True once this bridge is the robot id's owner on the broker (it has read its
         own ``ONLINE`` back and found no other bridge before it)."""

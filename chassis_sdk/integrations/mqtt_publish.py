@@ -24,6 +24,14 @@ a subscriber of the device's streams would. One task publishes everything, in th
 order: the link states, the events, then, on the rate's schedule, the telemetry; a
 broker slow to acknowledge an event holds the telemetry behind it (which then
 publishes its newest).
+
+Telemetry (QoS 0) is handed to the client's outgoing queue without waiting for each
+message to leave, all of one slot's streams together (`send_latest`): aiomqtt's
+``publish`` waits for every message's write (a task, an event, a timer and three
+turns of the loop each), which was the larger part of a bridge's work and kept the
+loop busy in bursts a command then waited behind. A slot whose previous telemetry has
+not left yet (a broker that reads slowly) is skipped and counted
+(`Publisher.telemetry_skipped`): the newest is sent at the next slot, never a backlog.
 """
 
 from __future__ import annotations
@@ -38,6 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import aiomqtt
 import anyio
+import paho.mqtt.client as paho_mqtt
 from paho.mqtt.properties import Properties
 
 from ..core.charge import battery_fields
@@ -52,9 +61,31 @@ from .inbound import RefusalReport, Refusals
 if TYPE_CHECKING:
     from .mqtt import MqttBridge
 
-__all__ = ["Publisher", "connection_will", "epoch_now", "state_payload"]
+__all__ = ["Publisher", "connection_will", "epoch_now", "send_latest", "state_payload"]
 
 _log = logging.getLogger("chassis_sdk.integrations.mqtt")
+
+
+def send_latest(client: aiomqtt.Client, messages: list[tuple[str, bytes]]) -> bool:
+    """Queue ``(topic, payload)`` messages (QoS 0, not retained) on ``client``'s
+    connection at once, without waiting for them to be written; False (nothing queued)
+    while messages queued before are still unwritten.
+
+    The socket is written when the loop finds it writable (one write for all of them),
+    as aiomqtt's ``publish`` does, less the per-message wait. It uses aiomqtt's paho
+    client (``client._client``), as `install_batched_reads` does.
+
+    Raises:
+        aiomqtt.MqttCodeError: The client is not connected (what ``publish`` raises).
+    """
+    paho = client._client
+    if paho.want_write():
+        return False
+    for topic, payload in messages:
+        info = paho.publish(topic, payload)
+        if info.rc != paho_mqtt.MQTT_ERR_SUCCESS:
+            raise aiomqtt.MqttCodeError(info.rc, "Could not publish message")
+    return True
 
 
 def epoch_now() -> float:
@@ -108,6 +139,9 @@ class Publisher:
         #: broker fell more than the device's ``queue_size`` behind (telemetry is the
         #: latest by design: a message replaced by a newer one is not counted).
         self.unpublished = 0
+        #: Telemetry slots skipped because the previous slot's messages had not left
+        #: for the broker yet (it reads slowly or the link is congested).
+        self.telemetry_skipped = 0
 
     async def publish(
         self,
@@ -224,7 +258,7 @@ class Publisher:
                     # An absolute schedule: publishing takes time, and must not slow
                     # the rate; a broker that held the loop up skips the slots missed.
                     due = next_slot(due, period, now)
-                    await self._publish_latest()
+                    self._publish_latest()
                     continue
                 with anyio.move_on_after(due - now):
                     await self._wake.wait()
@@ -249,10 +283,12 @@ class Publisher:
             # own: the robot is stopped and the last will tells the fleet).
             raise ConnectionLostError(f"{device.port} was lost and does not reconnect")
 
-    async def _publish_latest(self) -> None:
-        """Each stream's newest message not yet published, if any."""
+    def _publish_latest(self) -> None:
+        """Each stream's newest message not yet published, if any, handed to the
+        client together (see `send_latest`)."""
         bridge = self._bridge
         latest = self._latest
+        messages = []
         for stream in bridge.profile.remote.streams:
             message = latest.pop(stream, None)
             if message is None:
@@ -260,7 +296,9 @@ class Publisher:
             body = {"type": type(message).__name__, **outbound(message)}
             if "voltage" in body:  # the pack's voltage: its state of charge beside
                 body.update(battery_fields(bridge.device))
-            await self.publish(f"telemetry/{stream}", json.dumps(body).encode())
+            messages.append((f"{bridge.topic}/telemetry/{stream}", json.dumps(body).encode()))
+        if messages and not send_latest(bridge.client, messages):
+            self.telemetry_skipped += 1
 
     # --- what was refused ----------------------------------------------------------------
 
