@@ -20,6 +20,7 @@ import pytest
 
 from chassis_sdk import Board, Chassis, ConnectionLostError, RobotEvent, Telemetry
 from chassis_sdk.core.notifier import Notifier
+from chassis_sdk.integrations import mqtt_publish
 from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
@@ -165,6 +166,7 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
             will=connection_will("r1"),
             clean_start=True,
             socket_options=small,
+            timeout=60.0,  # the skipping under test, not the end of the bridge (below)
         )
         bridge = MqttBridge(robot, client, "r1", rate=100.0)
         streams = len(bridge.profile.remote.streams)
@@ -193,6 +195,87 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
             )
             assert not task.done()
         finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await task
+
+
+async def test_a_broker_that_reads_nothing_for_the_timeout_ends_the_bridge() -> None:
+    # As a publish waiting for the client's ``timeout`` did: once the socket is full
+    # and the slots have been skipped for that long, the bridge ends ("broker lost";
+    # `chassis-sdk bridge` then connects again), not later on the keepalive.
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        Observer(b) as obs,
+    ):
+        assert b.proc is not None
+        client = aiomqtt.Client(
+            "127.0.0.1",
+            b.port,
+            identifier="bridge-r1",
+            protocol=aiomqtt.ProtocolVersion.V5,
+            will=connection_will("r1"),
+            clean_start=True,
+            socket_options=[(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)],
+            timeout=1.0,
+        )
+        bridge = MqttBridge(robot, client, "r1", rate=100.0)
+        task = asyncio.create_task(bridge.run())
+        try:
+            # Up (its claim and retained topics acknowledged) and publishing.
+            await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
+            os.kill(b.proc.pid, signal.SIGSTOP)
+            try:
+                await wait_until(lambda: bridge.telemetry_skipped > 0, timeout=30.0)
+                first_skip = time.monotonic()
+                # (Its disconnect then times out too, and that is the error raised.)
+                with pytest.raises(aiomqtt.MqttError):
+                    async with asyncio.timeout(10.0):
+                        await task
+                waited = time.monotonic() - first_skip
+                assert 0.9 <= waited <= 4.0, waited  # 1 s, then the disconnect's 1 s
+            finally:
+                os.kill(b.proc.pid, signal.SIGCONT)
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await task
+
+
+async def test_a_skipped_slot_keeps_its_readings_for_the_next(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A slot skipped (the connection still holding unwritten packets) leaves each
+    # stream's newest message where it was: the last reading before the device falls
+    # silent still goes out once the connection has room, not lost with the slot.
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        Observer(b) as obs,
+    ):
+        bridge = MqttBridge(robot, bridge_client(b, "r1"), "r1", rate=5.0)
+        topic = "robots/r1/telemetry/telemetry"
+        produced: list[float] = []
+        notifier = Notifier(robot)
+        notifier.listen("telemetry", lambda t: produced.append(t.timestamp))
+        task = asyncio.create_task(bridge.run())
+        try:
+            await obs.wait(lambda: bool(obs.on(topic)))
+            monkeypatch.setattr(mqtt_publish, "unwritten", lambda client: True)
+            skipped = bridge.telemetry_skipped
+            sim.faults.drop_rate = 1.0  # the device falls silent
+            await asyncio.sleep(0.05)  # what was on its way is read
+            last = produced[-1]
+            # Two slots (of 200 ms) skipped after the last reading.
+            await wait_until(lambda: bridge.telemetry_skipped >= skipped + 2)
+            assert produced[-1] == last
+            monkeypatch.undo()
+            await obs.wait(lambda: any(m["monotonic"] == last for m in obs.on(topic)))
+        finally:
+            notifier.close()
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
                 await task

@@ -31,7 +31,9 @@ message to leave, all of one slot's streams together (`send_latest`): aiomqtt's
 turns of the loop each), which was the larger part of a bridge's work and kept the
 loop busy in bursts a command then waited behind. A slot whose previous telemetry has
 not left yet (a broker that reads slowly) is skipped and counted
-(`Publisher.telemetry_skipped`): the newest is sent at the next slot, never a backlog.
+(`Publisher.telemetry_skipped`), its messages kept: the newest is sent at the next
+slot, never a backlog. A broker that reads nothing for the client's ``timeout`` ends
+the bridge, as a ``publish`` waiting that long did.
 """
 
 from __future__ import annotations
@@ -61,31 +63,58 @@ from .inbound import RefusalReport, Refusals
 if TYPE_CHECKING:
     from .mqtt import MqttBridge
 
-__all__ = ["Publisher", "connection_will", "epoch_now", "send_latest", "state_payload"]
+__all__ = [
+    "Publisher",
+    "connection_will",
+    "epoch_now",
+    "send_latest",
+    "state_payload",
+    "unwritten",
+]
 
 _log = logging.getLogger("chassis_sdk.integrations.mqtt")
 
 
-def send_latest(client: aiomqtt.Client, messages: list[tuple[str, bytes]]) -> bool:
-    """Queue ``(topic, payload)`` messages (QoS 0, not retained) on ``client``'s
-    connection at once, without waiting for them to be written; False (nothing queued)
-    while messages queued before are still unwritten.
+def _not_connected(client: aiomqtt.Client, rc: int) -> aiomqtt.MqttCodeError:
+    """What aiomqtt's ``publish`` raises when the client is not connected."""
+    error = aiomqtt.MqttCodeError(rc, "Could not publish message")
+    lost = client._disconnected
+    if lost.done() and not lost.cancelled() and lost.exception() is not None:
+        error.__cause__ = lost.exception()
+    return error
 
-    The socket is written when the loop finds it writable (one write for all of them),
-    as aiomqtt's ``publish`` does, less the per-message wait. It uses aiomqtt's paho
-    client (``client._client``), as `install_batched_reads` does.
+
+def unwritten(client: aiomqtt.Client) -> bool:
+    """True while packets queued on ``client``'s connection are not all written yet
+    (the broker reads slowly, or the link is congested).
+
+    Raises:
+        aiomqtt.MqttCodeError: The client is not connected (what ``publish`` raises; paho
+            keeps the unwritten packets of a lost connection until it reconnects).
+    """
+    paho = client._client
+    if paho._sock is None:
+        raise _not_connected(client, paho_mqtt.MQTT_ERR_NO_CONN)
+    return paho.want_write()
+
+
+def send_latest(client: aiomqtt.Client, messages: list[tuple[str, bytes]]) -> None:
+    """Queue ``(topic, payload)`` messages (QoS 0, not retained) on ``client``'s
+    connection, without waiting for them to be written.
+
+    They are written when the loop next finds the socket writable, all in that one
+    wake-up, as aiomqtt's ``publish`` writes (less its wait for each message). It uses
+    aiomqtt's paho client (``client._client``), as `install_batched_reads` does; call
+    `unwritten` first not to queue behind packets the broker has not read.
 
     Raises:
         aiomqtt.MqttCodeError: The client is not connected (what ``publish`` raises).
     """
     paho = client._client
-    if paho.want_write():
-        return False
     for topic, payload in messages:
         info = paho.publish(topic, payload)
         if info.rc != paho_mqtt.MQTT_ERR_SUCCESS:
-            raise aiomqtt.MqttCodeError(info.rc, "Could not publish message")
-    return True
+            raise _not_connected(client, info.rc)
 
 
 def epoch_now() -> float:
@@ -142,6 +171,8 @@ class Publisher:
         #: Telemetry slots skipped because the previous slot's messages had not left
         #: for the broker yet (it reads slowly or the link is congested).
         self.telemetry_skipped = 0
+        # When the slots began to be skipped (None: the last slot was sent).
+        self._stalled_since: float | None = None
 
     async def publish(
         self,
@@ -285,8 +316,28 @@ class Publisher:
 
     def _publish_latest(self) -> None:
         """Each stream's newest message not yet published, if any, handed to the
-        client together (see `send_latest`)."""
+        client together (`send_latest`). While the connection still holds unwritten
+        packets the slot is skipped, its messages kept for the next one (a newer one
+        of a stream replaces its own).
+
+        Raises:
+            aiomqtt.MqttError: The client is not connected, or the broker has read
+                nothing for the client's ``timeout`` (as a ``publish`` waiting that long
+                raises).
+        """
         bridge = self._bridge
+        client = bridge.client
+        if unwritten(client):
+            self.telemetry_skipped += 1
+            now = anyio.current_time()
+            if self._stalled_since is None:
+                self._stalled_since = now
+            elif now - self._stalled_since > client.timeout:
+                raise aiomqtt.MqttError(
+                    f"the broker has read nothing for {client.timeout:g} s (telemetry held)"
+                )
+            return
+        self._stalled_since = None
         latest = self._latest
         messages = []
         for stream in bridge.profile.remote.streams:
@@ -297,8 +348,7 @@ class Publisher:
             if "voltage" in body:  # the pack's voltage: its state of charge beside
                 body.update(battery_fields(bridge.device))
             messages.append((f"{bridge.topic}/telemetry/{stream}", json.dumps(body).encode()))
-        if messages and not send_latest(bridge.client, messages):
-            self.telemetry_skipped += 1
+        send_latest(client, messages)
 
     # --- what was refused ----------------------------------------------------------------
 
