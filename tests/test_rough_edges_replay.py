@@ -18,7 +18,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
+from chassis_sdk.cli.monitor_command import brief
 from chassis_sdk.recording import capture
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
@@ -387,3 +390,55 @@ async def test_the_testing_page_snippet_survives_the_replug() -> None:
     async with asyncio.timeout(20):
         await scope["snippet"](result)
     assert result == {"state": "connected", "seen": 125}
+
+
+def _brief_reference(value: object) -> str:
+    """`brief` as first written (a call per field): its loop must print the same."""
+    if isinstance(value, dict):
+        return " ".join(
+            f"{k}={_brief_reference(v)}"
+            for k, v in value.items()
+            if k not in ("timestamp", "monotonic")
+        )
+    if isinstance(value, float):
+        return f"{value:.3f}"
+    return str(value)
+
+
+_leaves = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(),
+    st.booleans(),
+    st.none(),
+    st.text(max_size=8),
+    st.lists(st.integers(), max_size=3),
+)
+_fields = st.recursive(
+    _leaves,
+    lambda inner: st.dictionaries(
+        st.sampled_from(["a", "voltage", "timestamp", "monotonic", "wheels", "seq"]), inner
+    ),
+    max_leaves=12,
+)
+
+
+@given(st.dictionaries(st.text(max_size=6), _fields, max_size=10))
+def test_brief_prints_what_its_first_form_printed(fields: dict[str, Any]) -> None:
+    # `replay` and `monitor` print each message through `brief`; its fast loop (no call
+    # per float or name) must give the same text for every kind of field.
+    assert brief(fields) == _brief_reference(fields)
+
+
+def test_replay_lines_of_every_message_kind_match_the_first_form(
+    captures: dict[str, Path],
+) -> None:
+    from chassis_sdk.cli.replay_command import replay_line
+    from chassis_sdk.core.plain import jsonable
+
+    seen = set()
+    for path in captures.values():
+        for t, msg in capture.decode_capture(path, "chassis"):
+            seen.add(type(msg).__name__)
+            expected = f"{t:10.3f}  {type(msg).__name__}: {_brief_reference(jsonable(msg))}"
+            assert replay_line(t, msg) == expected
+    assert seen, "the captures hold no messages"

@@ -85,10 +85,27 @@ async def monitor(
 _CLOCKS = frozenset({"timestamp", "monotonic"})
 
 
+#: Values whose text is ``str(value)``, written without a call to `brief`.
+_AS_TEXT = frozenset({int, str, bool, type(None)})
+
+
 def brief(value: object) -> str:
     """A message's fields on one line (not its clock), numbers to three decimals."""
     if isinstance(value, dict):
-        return " ".join(f"{k}={brief(v)}" for k, v in value.items() if k not in _CLOCKS)
+        # A loop, not a call per field: `replay` writes a line per frame of a capture
+        # (180,000 an hour), and most fields are a float or a name.
+        parts = []
+        for k, v in value.items():
+            if k in _CLOCKS:
+                continue
+            cls = v.__class__
+            if cls is float:
+                parts.append(f"{k}={v:.3f}")
+            elif cls in _AS_TEXT:
+                parts.append(f"{k}={v}")
+            else:
+                parts.append(f"{k}={brief(v)}")
+        return " ".join(parts)
     if isinstance(value, float):
         return f"{value:.3f}"
     return str(value)
