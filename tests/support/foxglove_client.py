@@ -125,6 +125,8 @@ class FoxgloveClient:
         await asyncio.wait_for(loop(), timeout)
 
     async def subscribe(self, *topics: str) -> None:
+        # Only channels advertised (the advertise follows serverInfo, as above).
+        await self.wait_for(lambda: all(topic in self.channels for topic in topics))
         subs = []
         for topic in topics:
             sub = self._next_sub
@@ -134,6 +136,10 @@ class FoxgloveClient:
         await self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     async def call(self, service: str, request: bytes = b"{}", timeout: float = 5.0) -> Any:
+        # As a real client, only once the service is advertised: the server sends its
+        # advertiseServices after serverInfo, so a caller that waited for serverInfo
+        # alone may be here first (it was, once, on uvloop).
+        await self.wait_for(lambda: service in self.services, timeout)
         spec = self.services[service]
         call = self._next_call
         self._next_call += 1
