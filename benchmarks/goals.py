@@ -310,7 +310,11 @@ def replay_rows(report: dict[str, Any]) -> list[Row]:
         as_json.append(f"{f} {mmm(j, ' s', 1)}")
         meds_plain.append(_med(s))
         meds_json.append(_med(j))
-    scaled = " (a tenth of an hour, scaled)" if report.get("quick") and formats else ""
+    scaled = (
+        " (a tenth of an hour: one start-up plus ten times the rest)"
+        if report.get("quick") and formats
+        else ""
+    )
     measured = (
         f"`replay`: {'; '.join(plain) or NOT_MEASURED}. "
         f"`--json`: {'; '.join(as_json) or NOT_MEASURED}"
