@@ -34,7 +34,8 @@ ROOT = Path(__file__).resolve().parent.parent
 V5 = aiomqtt.ProtocolVersion.V5
 
 
-def bridge_client(b: Broker, robot_id: str) -> aiomqtt.Client:
+def bridge_client(b: Broker, robot_id: str, **options: Any) -> aiomqtt.Client:
+    """A bridge's client on ``b``; ``options`` go to ``aiomqtt.Client`` as well."""
     return aiomqtt.Client(
         "127.0.0.1",
         b.port,
@@ -42,6 +43,7 @@ def bridge_client(b: Broker, robot_id: str) -> aiomqtt.Client:
         protocol=V5,
         will=connection_will(robot_id),
         clean_start=True,
+        **options,
     )
 
 

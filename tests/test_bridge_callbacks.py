@@ -21,7 +21,7 @@ import pytest
 from chassis_sdk import Board, Chassis, ConnectionLostError, RobotEvent, Telemetry
 from chassis_sdk.core.notifier import Notifier
 from chassis_sdk.integrations import mqtt_publish
-from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
+from chassis_sdk.integrations.mqtt import MqttBridge
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.mqtt_broker import Broker, broker
@@ -33,6 +33,9 @@ BRIDGE_TASKS = 6
 #: The most tasks a running bridge may add to the loop in all: its own, its run, what
 #: aiomqtt runs for its client, and the short waits of its inbox and client.
 MOST_TASKS = 12
+#: A bridge socket's send buffer small enough that a broker that stops reading
+#: fills it within seconds.
+SMALL_SEND_BUFFER = [(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)]
 
 
 async def tasks_of_a_bridge(b: Broker, device: Chassis | Board, robot_id: str) -> set[str]:
@@ -150,7 +153,6 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
     # skips its slots and counts them instead of queueing messages, so its outgoing
     # queue holds at most one slot's messages; once the broker is back, the newest
     # readings go out again.
-    small = [(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)]
     async with (
         broker() as b,
         ChassisSimulator() as sim,
@@ -158,16 +160,8 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
         Observer(b) as obs,
     ):
         assert b.proc is not None
-        client = aiomqtt.Client(
-            "127.0.0.1",
-            b.port,
-            identifier="bridge-r1",
-            protocol=aiomqtt.ProtocolVersion.V5,
-            will=connection_will("r1"),
-            clean_start=True,
-            socket_options=small,
-            timeout=60.0,  # the skipping under test, not the end of the bridge (below)
-        )
+        # A long timeout: the skipping is under test, not the end of the bridge (below).
+        client = bridge_client(b, "r1", socket_options=SMALL_SEND_BUFFER, timeout=60.0)
         bridge = MqttBridge(robot, client, "r1", rate=100.0)
         streams = len(bridge.profile.remote.streams)
         paho: Any = client._client
@@ -211,16 +205,7 @@ async def test_a_broker_that_reads_nothing_for_the_timeout_ends_the_bridge() -> 
         Observer(b) as obs,
     ):
         assert b.proc is not None
-        client = aiomqtt.Client(
-            "127.0.0.1",
-            b.port,
-            identifier="bridge-r1",
-            protocol=aiomqtt.ProtocolVersion.V5,
-            will=connection_will("r1"),
-            clean_start=True,
-            socket_options=[(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)],
-            timeout=1.0,
-        )
+        client = bridge_client(b, "r1", socket_options=SMALL_SEND_BUFFER, timeout=1.0)
         bridge = MqttBridge(robot, client, "r1", rate=100.0)
         task = asyncio.create_task(bridge.run())
         try:
