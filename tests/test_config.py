@@ -10,6 +10,7 @@ import json
 import os
 import re
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,8 @@ from chassis_sdk.devices.config import (
 )
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
+
+from .support.helpers import until
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "chassis_sdk" / "devices" / "chassis-sdk.example.toml"
@@ -270,8 +273,12 @@ async def test_open_robot_builds_the_device_the_profile_describes(home: Path) ->
             assert isinstance(robot.battery_model, BatteryModel)
             await robot.set_velocity(0.5, 0.0)
             await asyncio.sleep(0)  # the write is queued at once
-        linear = [c.linear_mm for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-        assert max(linear) == 200
+
+        def linear() -> list[int]:
+            return [c.linear_mm for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
+
+        await until(lambda: 0 in linear()[1:])  # the simulator has read the zero of close()
+        assert max(linear()) == 200
 
 
 def test_open_robot_without_a_port_says_so(home: Path) -> None:
@@ -413,8 +420,17 @@ def test_the_blocking_api_builds_from_the_profile_too(home: Path) -> None:
             assert robot.limits == MotionLimits(max_linear=0.2)
             robot.set_velocity(0.5, 0.0)
         firmware: Any = sim.server.firmware
-        drives = [c for _, c in firmware.received if isinstance(c, DriveVelocity)]
-        assert max(d.linear_mm for d in drives) == 200
+
+        def drives() -> list[DriveVelocity]:
+            return [c for _, c in list(firmware.received) if isinstance(c, DriveVelocity)]
+
+        # The simulator reads in its own thread: wait for the zero that close() wrote
+        # after the command (CI once looked before the simulator had read either).
+        deadline = time.monotonic() + 5.0
+        while not any(d.linear_mm == 0 for d in drives()[1:]):
+            assert time.monotonic() < deadline, f"no zero after the command: {drives()}"
+            time.sleep(0.005)
+        assert max(d.linear_mm for d in drives()) == 200
     other = write(home / "b.toml", "[robot]\ndevice = 'chassis'\nport = 'p'\n")
     with pytest.raises(ProfileError, match=r"\[robot\] device is 'chassis', not 'board'"):
         sync.Board.from_config(other)
