@@ -10,7 +10,6 @@ import json
 import os
 import re
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +35,7 @@ from chassis_sdk.devices.config import (
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
-from .support.helpers import until
+from .support.helpers import until, wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "chassis_sdk" / "devices" / "chassis-sdk.example.toml"
@@ -426,10 +425,7 @@ def test_the_blocking_api_builds_from_the_profile_too(home: Path) -> None:
 
         # The simulator reads in its own thread: wait for the zero that close() wrote
         # after the command (CI once looked before the simulator had read either).
-        deadline = time.monotonic() + 5.0
-        while not any(d.linear_mm == 0 for d in drives()[1:]):
-            assert time.monotonic() < deadline, f"no zero after the command: {drives()}"
-            time.sleep(0.005)
+        wait_until(lambda: any(d.linear_mm == 0 for d in drives()[1:]))
         assert max(d.linear_mm for d in drives()) == 200
     other = write(home / "b.toml", "[robot]\ndevice = 'chassis'\nport = 'p'\n")
     with pytest.raises(ProfileError, match=r"\[robot\] device is 'chassis', not 'board'"):

@@ -37,6 +37,7 @@ from chassis_sdk import (
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
+from .support.helpers import wait_until
 from .test_cli_operator import silent_pty
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,16 +51,6 @@ def drives(firmware: object) -> list[tuple[float, DriveVelocity]]:
 
 def is_zero(c: DriveVelocity) -> bool:
     return c.linear_mm == 0 and c.angular == 0.0
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = 5.0) -> float:
-    """Wait (from a plain test) for state held in another thread; return the time taken."""
-    start = time.monotonic()
-    while not condition():
-        if time.monotonic() - start > timeout:
-            raise AssertionError(f"not within {timeout} s")
-        time.sleep(0.005)
-    return time.monotonic() - start
 
 
 @pytest.fixture

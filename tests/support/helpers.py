@@ -29,6 +29,7 @@ __all__ = [
     "kill_while_recording",
     "open_fds_on",
     "until",
+    "wait_until",
 ]
 
 TRANSPORTS = [pytest.param(False, id="pty"), pytest.param(True, id="tcp")]
@@ -66,6 +67,17 @@ async def until(condition: Callable[[], bool], timeout: float = 5.0, poll: float
     async with asyncio.timeout(timeout):
         while not condition():
             await asyncio.sleep(poll)
+    return time.monotonic() - start
+
+
+def wait_until(condition: Callable[[], bool], timeout: float = 5.0) -> float:
+    """Wait (from a plain test, not a coroutine) for state held in another thread;
+    return how long it took (s)."""
+    start = time.monotonic()
+    while not condition():
+        if time.monotonic() - start > timeout:
+            raise AssertionError(f"not within {timeout} s")
+        time.sleep(0.005)
     return time.monotonic() - start
 
 
