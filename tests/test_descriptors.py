@@ -94,11 +94,9 @@ async def test_a_failing_read_is_a_lost_link_once_not_a_traceback_per_wakeup(
 
     from chassis_sdk import ConnectionState
 
+    # The link reads the port itself under every transport (after the first chunk,
+    # which the transport's own read delivers), so the read to break is the link's.
     reader: Any = transport
-    if transport.backend_name() == "serialx":
-        if isinstance(error, ValueError):
-            pytest.skip("serialx reads itself; os.read raises no ValueError")
-        reader = importlib.import_module("serialx.descriptor_transport")
     failures = 0
 
     def failing_read(fd: int, size: int) -> bytes:
@@ -133,9 +131,10 @@ async def test_no_read_asks_for_more_than_read_size(monkeypatch: pytest.MonkeyPa
     per request round trip at p50 in benchmarks/latency.py)."""
     import types
 
-    reader: Any = transport
+    # The transport's own read delivers the first chunk, the link's every later one.
+    readers: list[Any] = [transport]
     if transport.backend_name() == "serialx":
-        reader = importlib.import_module("serialx.descriptor_transport")
+        readers.append(importlib.import_module("serialx.descriptor_transport"))
     sizes: list[int] = []
 
     def recording_read(fd: int, size: int) -> bytes:
@@ -145,10 +144,46 @@ async def test_no_read_asks_for_more_than_read_size(monkeypatch: pytest.MonkeyPa
     spy = types.ModuleType("os")
     spy.__dict__.update(os.__dict__)
     spy.read = recording_read  # type: ignore[attr-defined]
-    monkeypatch.setattr(reader, "os", spy)
+    for reader in readers:
+        monkeypatch.setattr(reader, "os", spy)
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         async for _ in robot.telemetry():
             break
         await robot.get_firmware_version()
     assert sizes
     assert max(sizes) <= transport.READ_SIZE, max(sizes)
+
+
+async def test_the_link_reads_the_port_itself_after_the_first_chunk(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every transport's read callback is Python of its own around one ``os.read``
+    (serialx logs twice per read); the link registers its own reader on the port once
+    the transport has delivered a chunk, and reads every later one itself."""
+    import sys
+    import types
+
+    callers: list[str] = []
+    real_read = os.read
+
+    def recording_read(fd: int, size: int) -> bytes:
+        callers.append(sys._getframe(1).f_code.co_qualname)
+        return real_read(fd, size)
+
+    spy = types.ModuleType("os")
+    spy.__dict__.update(os.__dict__)
+    spy.read = recording_read  # type: ignore[attr-defined]
+    monkeypatch.setattr(transport, "os", spy)
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        frames = 0
+        async for _ in robot.telemetry():
+            frames += 1
+            if frames == 10:
+                break
+        assert await robot.get_firmware_version() > 0
+    # The pyserial transports' first read is their Serial.read (which the link
+    # replaced with one os.read); serialx's is in its own module, not spied.
+    if callers[0] != "Link._read_ready":
+        assert callers.pop(0) == "_fd_reader.<locals>.read", callers[0]
+    assert len(callers) >= 10
+    assert set(callers) == {"Link._read_ready"}, set(callers)

@@ -55,7 +55,10 @@ thread through ``serial.serial_for_url`` and read with one ``os.read`` too: pyse
 ``Serial.read`` first calls ``select()``, which fails for descriptors numbered 1024 and
 up, and its two abort pipes (closed here) would cost four descriptors per port. Under
 every transport the link writes itself, to its own duplicate of the descriptor, as
-described above; a port holds two descriptors.
+described above; a port holds two descriptors. And once the transport has delivered
+the first chunk, the link reads the port itself too (`Link._read_ready`: one
+``os.read`` and the chunk straight to the decoder, without the transport's Python
+around it); the transport still opens, locks and closes the port.
 """
 
 from __future__ import annotations
@@ -223,12 +226,17 @@ class Link(asyncio.Protocol, Generic[M]):
         # pyserial's transports never see a write (see the module docstring), and the
         # duplicate outlives their close of the original until we are done with it.
         self._wfd: int | None = None
+        # For a serial port: the descriptor the transport reads, which the link reads
+        # itself once the transport has delivered the first chunk (see `_read_ready`).
+        self._rfd: int | None = None
+        self._reading = False  # the link's own reader is the one registered
         self._blocked = False  # the port cannot take bytes now
         self._partial = b""  # the unsent rest of a frame (serial ports)
         # What waits while the port cannot take bytes, and what is discarded.
         self._held = WriteQueue()
         self._lost = 0  # discarded outside it: part-sent frames, asyncio's buffer
         self._write_error: Exception | None = None
+        self._read_error: Exception | None = None
         self._flushed: asyncio.Future[None] | None = None
         #: Set by the owner once it has counted this link's losses.
         self.accounted = False
@@ -253,12 +261,20 @@ class Link(asyncio.Protocol, Generic[M]):
         fd = _serial_fd(transport.get_extra_info("serial"))
         if fd is not None:
             self._wfd = os.dup(fd)
+            if hasattr(transport, "_read_ready"):  # all three; another reads itself
+                self._rfd = fd
         else:
             # asyncio's socket transport: pause as soon as it holds a byte, so that
             # from then on the link holds frames itself.
             self.transport.set_write_buffer_limits(high=0, low=0)
 
     def data_received(self, data: bytes) -> None:
+        if not self._reading and self._rfd is not None:
+            # The transport's reader delivered this: from now on the link reads itself.
+            # (Its reader was registered by now; the pyserial transports register it
+            # only after connection_made.)
+            self._loop.add_reader(self._rfd, self._read_ready)
+            self._reading = True
         now = time.monotonic()
         if self._log.isEnabledFor(logging.DEBUG):
             self._log.debug("rx %s", data.hex(" "))
@@ -268,14 +284,55 @@ class Link(asyncio.Protocol, Generic[M]):
         if messages:
             self._on_messages(messages, now)
 
+    def _read_ready(self) -> None:
+        """The link's own read callback, in place of the transport's: one ``os.read``
+        and the chunk straight to the decoder.
+
+        Every transport's read callback is Python of its own around the same
+        ``os.read`` (serialx logs twice per read at DEBUG level, the pyserial ones go
+        through ``Serial.read``), and at 50 Hz that is a good part of what a chassis
+        costs beyond the read itself (docs/figures.md). Should a transport register
+        its reader again (``resume_reading``; the SDK never pauses reading), it simply
+        delivers through `data_received` again; the transport removes whichever reader
+        is registered when it closes. A read that fails, or finds the device gone (readable, no
+        data), ends the link once, with that error: the reader is removed, so there is
+        no error per wake-up, and the transport is aborted.
+        """
+        try:
+            data = os.read(cast(int, self._rfd), READ_SIZE)
+        except (BlockingIOError, InterruptedError):
+            return
+        except Exception as exc:  # whatever it is, the port is lost, once
+            self._lose_reading(exc)
+            return
+        if data:
+            self.data_received(data)
+        else:  # what the kernel says of a tty hung up: the device has gone
+            self._lose_reading(
+                OSError(errno.EIO, "the port reports data but has none: device disconnected?")
+            )
+
+    def _lose_reading(self, exc: Exception) -> None:
+        self._read_error = exc
+        self._reading = False
+        rfd, self._rfd = self._rfd, None
+        transport = self.transport
+        if rfd is not None and transport is not None:
+            self._loop.remove_reader(rfd)
+            transport.abort()
+
     def connection_lost(self, exc: Exception | None) -> None:
+        self._rfd = None
+        self._reading = False
         self.transport = None
         self._drop_held()
         self._release_wfd()
         self._wake_flushed()
         if not self.closed.done():
             self.closed.set_result(None)
-        self._on_lost(exc if exc is not None else self._write_error)
+        if exc is None:  # an abort by the link: why it aborted
+            exc = self._read_error or self._write_error
+        self._on_lost(exc)
 
     def pause_writing(self) -> None:
         self._blocked = True
