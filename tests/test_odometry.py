@@ -8,6 +8,7 @@ import math
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -113,6 +114,56 @@ def test_an_external_heading_replaces_the_integrated_one() -> None:
     pose = odo.update(1.0, 0.0, 0.5, heading=math.pi)  # turned half round per the gyro
     assert pose.heading == pytest.approx(math.pi)
     assert (pose.x, pose.y) == pytest.approx((0.0, 1 / math.pi))  # a half circle of 0.5 m
+
+
+_SAMPLES = st.lists(
+    st.tuples(
+        st.floats(-2, 2),  # linear (m/s)
+        st.floats(-4, 4),  # angular (rad/s)
+        st.floats(0, 0.8),  # time since the previous sample: some past max_gap, some 0
+        st.one_of(st.none(), st.floats(-10, 10)),  # an external heading, or none
+        st.sampled_from(["defer", "advance", "read", "reset", "max_gap"]),
+    ),
+    max_size=200,
+)
+
+
+@given(_SAMPLES)
+@settings(max_examples=150, deadline=None)
+def test_deferred_samples_give_the_same_pose_to_the_bit(steps: list[tuple[Any, ...]]) -> None:
+    """A device defers the samples nobody listens to and integrates them when the pose
+    is read or changed (or 64 wait): the same pose, gaps and last sample to the bit as
+    integrating each at once, whatever reads, resets and max_gap changes come between."""
+    now_, later = OdometryIntegrator(), OdometryIntegrator()
+    t = 100.0
+    for linear, angular, dt, heading, what in steps:
+        t += dt
+        if what == "reset":
+            now_.reset(linear, angular, t)
+            later.reset(linear, angular, t)
+        elif what == "max_gap":
+            now_.max_gap = later.max_gap = 0.05 + dt
+        elif what == "read":
+            assert (later.x, later.y, later.heading) == (now_.x, now_.y, now_.heading)
+            assert later.current() == now_.current()
+        else:
+            now_.advance(linear, angular, t, heading)
+            (later.defer if what == "defer" else later.advance)(linear, angular, t, heading)
+    assert later.current() == now_.current()
+    assert (later.x, later.y, later.heading) == (now_.x, now_.y, now_.heading)
+    assert later.skipped_gaps == now_.skipped_gaps
+
+
+def test_deferred_samples_wait_at_most_the_limit() -> None:
+    from chassis_sdk.core.odometry import DEFER_LIMIT
+
+    odo = OdometryIntegrator()
+    for i in range(DEFER_LIMIT - 1):
+        odo.defer(1.0, 0.0, i * 0.01)
+    assert len(odo._deferred) == DEFER_LIMIT - 1  # nothing integrated yet
+    odo.defer(1.0, 0.0, (DEFER_LIMIT - 1) * 0.01)
+    assert not odo._deferred  # the limit integrated them all
+    assert odo.x == pytest.approx((DEFER_LIMIT - 1) * 0.01)
 
 
 # --- against the simulators -------------------------------------------------------------------

@@ -21,7 +21,7 @@ import abc
 import logging
 import os
 import time
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from typing import Any, TypeVar
 
 import anyio
@@ -141,8 +141,13 @@ class Device(Session[M, K]):
         )
         self.limits = limits
         odometry = self._stream("odometry")  # the first named streams, in this order
-        self._reports = Reports(port, log, self._stream("events"), odometry, battery_low, battery)
-        self._pose = self._reports.pose
+        reports = self._reports = Reports(
+            port, log, self._stream("events"), odometry, battery_low, battery
+        )
+        reports.calibration = self._calibration
+        self._emit, self._battery = reports.emit, reports.battery
+        self._charge, self._integrate = reports.charge, reports.integrate
+        self._pose = reports.pose
         self._init_protocol()
 
     def _write_velocity(self, frame: bytes, expires: float) -> None:
@@ -283,6 +288,7 @@ class Device(Session[M, K]):
         if calibration is not None and not isinstance(calibration, Calibration):
             raise TypeError(f"calibration must be a Calibration or None, got {calibration!r}")
         self._calibration = Calibration() if calibration is None else calibration
+        self._reports.calibration = self._calibration
 
     def odometry(self) -> Subscription[Odometry]:
         """Subscribe to the pose dead-reckoned from the device's reported velocities:
@@ -377,26 +383,23 @@ class Device(Session[M, K]):
                 )
             await anyio.sleep(0.02)
 
-    def _emit(self, event: RobotEvent) -> None:
-        self._reports.emit(event)
+    # `_emit`, `_battery`, `_charge` and `_integrate` are the `Reports` methods
+    # themselves, bound in __init__: they run for every frame, and a method here that
+    # only forwarded would cost a Python call per frame on the read path.
 
-    def _battery(self, voltage: float, timestamp: float) -> None:
-        self._reports.battery(voltage, timestamp)
-
-    def _charge(
-        self, voltage: float, current: float | None, timestamp: float, loaded: bool = False
-    ) -> None:
-        """A reading for the state of charge (``battery=``): the pack's voltage, the
-        current it delivers if measured, and whether it is under load when that is not
-        known (see [`BatteryModel.update`][chassis_sdk.BatteryModel.update])."""
-        self._reports.charge(voltage, current, timestamp, loaded)
-
-    def _integrate(
-        self, linear: float, angular: float, timestamp: float, heading: float | None = None
-    ) -> None:
-        cal = self._calibration
-        linear, angular = linear * cal.linear_scale, angular * cal.angular_scale
-        self._reports.integrate(linear, angular, timestamp, heading)
+    #: Log an event and publish it on ``events``: ``_emit(event)``.
+    _emit: Callable[[RobotEvent], None]
+    #: A battery voltage (V) at a time, for ``battery_low``: ``_battery(voltage, timestamp)``.
+    _battery: Callable[[float, float], None]
+    #: A reading for the state of charge (``battery=``): the pack's voltage, the current
+    #: it delivers if measured (else ``None``), the time, and whether it is under load
+    #: when no current is known (see [`BatteryModel.update`][chassis_sdk.BatteryModel.update]):
+    #: ``_charge(voltage, current, timestamp, loaded)``.
+    _charge: Callable[..., None]
+    #: One velocity sample (m/s, rad/s, s) into the pose, the calibration applied, with
+    #: an absolute heading change instead of the angular velocity if the device has
+    #: one: ``_integrate(linear, angular, timestamp, heading=None)``.
+    _integrate: Callable[..., None]
 
     def _findings(self) -> Findings:
         """The link's and the battery's findings, for ``diagnose()`` to add to."""

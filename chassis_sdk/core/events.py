@@ -96,6 +96,10 @@ class RobotEvent:
 Edge = tuple[int, EventKind, EventKind, str]
 
 
+#: What `EdgeDetector.update` returns when nothing changed (shared: no list per frame).
+_NO_EVENTS: tuple[RobotEvent, ...] = ()
+
+
 class EdgeDetector:
     """Turns successive (status word, state) levels into edge events, from a table.
 
@@ -117,8 +121,10 @@ class EdgeDetector:
         self._bits = 0  # plain int: IntFlag arithmetic costs a microsecond per operation
         self._state: enum.Enum | None = None
 
-    def update(self, status: int, state: enum.Enum | None, ts: float) -> list[RobotEvent]:
+    def update(self, status: int, state: enum.Enum | None, ts: float) -> Sequence[RobotEvent]:
         """The edges between the previous levels and these (usually none)."""
+        if status == self._bits and state is self._state:  # the usual case, every frame
+            return _NO_EVENTS
         bits = int(status)
         events: list[RobotEvent] = []
         changed = (bits ^ self._bits) & self._watched

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 
 from .battery import BatteryLevel, BatteryModel
+from .calibration import Calibration
 from .diagnosis import Findings
 from .dispatch import Broadcast
 from .events import BatteryMonitor, EventKind, RobotEvent
@@ -44,6 +45,8 @@ class Reports:
         self.pose = OdometryIntegrator()
         self.battery_monitor = BatteryMonitor(battery_low)
         self.battery_model = battery
+        #: The device's calibration, applied to every velocity sample (`integrate`).
+        self.calibration = Calibration()
 
     def emit(self, event: RobotEvent) -> None:
         """Log ``event`` and publish it on ``events``."""
@@ -52,11 +55,15 @@ class Reports:
 
     def battery(self, voltage: float, timestamp: float) -> None:
         """A battery reading: an event if it crosses the threshold."""
-        event = self.battery_monitor.update(voltage, timestamp)
-        if event is not None:
-            self.emit(event)
+        monitor = self.battery_monitor
+        if monitor.threshold is not None:  # (no call per frame when nothing is watched)
+            event = monitor.update(voltage, timestamp)
+            if event is not None:
+                self.emit(event)
 
-    def charge(self, voltage: float, current: float | None, timestamp: float, loaded: bool) -> None:
+    def charge(
+        self, voltage: float, current: float | None, timestamp: float, loaded: bool = False
+    ) -> None:
         """A reading for the state of charge: ``BATTERY_LOW``, ``BATTERY_CRITICAL`` or
         ``BATTERY_OK`` when its level changes (each once per crossing; a first estimate
         already low reports ``BATTERY_LOW``, and ``BATTERY_CRITICAL`` if it is)."""
@@ -88,14 +95,17 @@ class Reports:
         return None if model is None else model.percentage
 
     def integrate(
-        self, linear: float, angular: float, timestamp: float, heading: float | None
+        self, linear: float, angular: float, timestamp: float, heading: float | None = None
     ) -> None:
-        """One velocity sample into the pose (published only if anyone listens)."""
+        """One velocity sample into the pose, scaled by the calibration (published only
+        if anyone listens)."""
+        cal = self.calibration
+        linear, angular = linear * cal.linear_scale, angular * cal.angular_scale
         stream = self.odometry
         if stream.listened:
             stream.publish(self.pose.update(linear, angular, timestamp, heading))
-        else:  # nobody listens: the pose is built when asked (latest_odometry)
-            self.pose.advance(linear, angular, timestamp, heading)
+        else:  # nobody listens: integrated and built when asked (latest_odometry)
+            self.pose.defer(linear, angular, timestamp, heading)
             stream.latest = None
 
     @property

@@ -57,26 +57,80 @@ def wrap_angle(angle: float) -> float:
     return math.pi if wrapped == -math.pi else wrapped
 
 
+#: Samples `OdometryIntegrator.defer` holds before it integrates them all at once.
+DEFER_LIMIT = 64
+
+_Sample = tuple[float, float, float, "float | None"]
+
+
 class OdometryIntegrator:
     """Integrates ``(linear, angular, timestamp)`` samples into a pose.
+
+    A device integrates every velocity sample, but builds and reads a pose only when
+    someone asks; `defer` takes a sample at the cost of appending it, and the samples
+    are integrated, in order and with the same arithmetic, the next time anything
+    reads or changes the integrator (or `DEFER_LIMIT` of them wait). A cold read path
+    runs the integration at 50 Hz per device; run as one loop, it costs a fraction.
 
     Args:
         max_gap: Longest interval (s) to integrate across; longer gaps are skipped.
     """
 
     def __init__(self, max_gap: float = 0.5) -> None:
-        self.max_gap = check_real(max_gap, "max_gap", low=0, low_open=True, unit="s")
-        self.x = 0.0
-        self.y = 0.0
+        self._max_gap = check_real(max_gap, "max_gap", low=0, low_open=True, unit="s")
+        self._x = 0.0
+        self._y = 0.0
         self._heading = 0.0  # unwrapped, so many turns integrate without loss
         self._last: float | None = None
         self._sample: tuple[float, float, float] | None = None
-        #: Gaps longer than ``max_gap`` that were not integrated.
-        self.skipped_gaps = 0
+        self._skipped = 0
+        self._deferred: list[_Sample] = []
+
+    @property
+    def x(self) -> float:
+        """Forward of the starting pose (m)."""
+        if self._deferred:
+            self._catch_up()
+        return self._x
+
+    @property
+    def y(self) -> float:
+        """Left of the starting pose (m)."""
+        if self._deferred:
+            self._catch_up()
+        return self._y
+
+    @property
+    def heading(self) -> float:
+        """The integrated heading, unwrapped (rad)."""
+        if self._deferred:
+            self._catch_up()
+        return self._heading
+
+    @property
+    def skipped_gaps(self) -> int:
+        """Gaps longer than ``max_gap`` that were not integrated."""
+        if self._deferred:
+            self._catch_up()
+        return self._skipped
+
+    @property
+    def max_gap(self) -> float:
+        """Longest interval (s) integrated across (may be changed: the samples taken
+        before the change are integrated under the old value)."""
+        return self._max_gap
+
+    @max_gap.setter
+    def max_gap(self, value: float) -> None:
+        if self._deferred:
+            self._catch_up()
+        self._max_gap = check_real(value, "max_gap", low=0, low_open=True, unit="s")
 
     def reset(self, x: float = 0.0, y: float = 0.0, heading: float = 0.0) -> None:
         """Put the robot at ``(x, y, heading)``; the next sample starts from there."""
-        self.x, self.y, self._heading = float(x), float(y), float(heading)
+        if self._deferred:
+            self._catch_up()
+        self._x, self._y, self._heading = float(x), float(y), float(heading)
         self._last = None
 
     def update(
@@ -92,46 +146,62 @@ class OdometryIntegrator:
                 ``angular`` (for a gyro-integrated heading), or ``None``.
         """
         self.advance(linear, angular, timestamp, heading)
-        return _build(self.x, self.y, wrap_angle(self._heading), linear, angular, timestamp)
+        return _build(self._x, self._y, wrap_angle(self._heading), linear, angular, timestamp)
 
     def advance(
         self, linear: float, angular: float, timestamp: float, heading: float | None = None
     ) -> None:
-        """`update` without building the [`Odometry`][chassis_sdk.Odometry] (see `current`):
-        the device integrates every sample, and builds a pose only for someone."""
-        last = self._last
-        self._last = timestamp
-        self._sample = (linear, angular, timestamp)
-        if last is not None:
-            dt = timestamp - last
-            if dt > self.max_gap:
-                self.skipped_gaps += 1
-            elif dt > 0:
-                self._advance(linear, angular, dt, heading)
+        """`update` without building the [`Odometry`][chassis_sdk.Odometry] (see `current`)."""
+        if self._deferred:
+            self._catch_up()
+        self._step(linear, angular, timestamp, heading)
+
+    def defer(
+        self, linear: float, angular: float, timestamp: float, heading: float | None = None
+    ) -> None:
+        """`advance`, later: the sample is kept, and integrated with the others kept
+        before anything reads or changes the integrator."""
+        deferred = self._deferred
+        deferred.append((linear, angular, timestamp, heading))
+        if len(deferred) >= DEFER_LIMIT:
+            self._catch_up()
 
     def current(self) -> Odometry | None:
         """The pose now, with the last sample's velocity and time (``None`` before the
         first sample)."""
+        if self._deferred:
+            self._catch_up()
         sample = self._sample
         if sample is None:
             return None
-        return _build(self.x, self.y, wrap_angle(self._heading), *sample)
+        return _build(self._x, self._y, wrap_angle(self._heading), *sample)
 
-    def _advance(self, v: float, w: float, dt: float, heading: float | None) -> None:
-        h0 = self._heading
-        h1 = h0 + w * dt if heading is None else heading
-        # The exact arc, written as its chord: length v*dt*sin(a)/a with a half the
-        # turn, along the mid heading. The same as (v*dt/turn)*(sin h1 - sin h0) but
-        # without its cancellation, which lost nanometres on a nearly straight arc
-        # (and so made one sample and three of the same motion disagree).
-        half = (h1 - h0) / 2
-        chord = v * dt * (math.sin(half) / half if half else 1.0)
-        mid = h0 + half
-        self.x += chord * math.cos(mid)
-        self.y += chord * math.sin(mid)
-        self._heading = h1
+    def _catch_up(self) -> None:
+        """Integrate the samples kept, in order."""
+        samples, self._deferred = self._deferred, []
+        step = self._step
+        for sample in samples:
+            step(*sample)
 
-    @property
-    def heading(self) -> float:
-        """The integrated heading, unwrapped (rad)."""
-        return self._heading
+    def _step(self, linear: float, angular: float, timestamp: float, heading: float | None) -> None:
+        last = self._last
+        self._last = timestamp
+        self._sample = (linear, angular, timestamp)
+        if last is None:
+            return
+        dt = timestamp - last
+        if dt > self._max_gap:
+            self._skipped += 1
+        elif dt > 0:
+            h0 = self._heading
+            h1 = h0 + angular * dt if heading is None else heading
+            # The exact arc, written as its chord: length v*dt*sin(a)/a with a half the
+            # turn, along the mid heading. The same as (v*dt/turn)*(sin h1 - sin h0) but
+            # without its cancellation, which lost nanometres on a nearly straight arc
+            # (and so made one sample and three of the same motion disagree).
+            half = (h1 - h0) / 2
+            chord = linear * dt * (math.sin(half) / half if half else 1.0)
+            mid = h0 + half
+            self._x += chord * math.cos(mid)
+            self._y += chord * math.sin(mid)
+            self._heading = h1

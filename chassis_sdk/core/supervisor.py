@@ -447,9 +447,11 @@ class LinkSupervisor(Generic[M]):
         self._lost_exc = None
         decoder, sink = self._owner.link_opening()
 
+        states = self.states
+
         def received(messages: list[M], now: float) -> None:
             self.last_frame_time = now
-            if self.state is ConnectionState.STALE:
+            if states.state is ConnectionState.STALE:
                 self._log.warning("%s: frames arrive again; link restored", self.port)
                 self.states.set(ConnectionState.CONNECTED)
             sink(messages, now)

@@ -179,20 +179,23 @@ class Chassis(ChassisCommands, FromConfig):
         return self._decoder.sequence.scheme
 
     def _on_telemetry(self, t: Telemetry) -> None:
+        # Every 0x81 (50 Hz) comes here: each call below goes straight to the code that
+        # does the work, with no forwarding method in between.
         self._telemetry.publish(t)
-        for event in self._edges.update(t.status, t.docking, t.timestamp):
+        ts = t.timestamp
+        for event in self._edges.update(t.status, t.docking, ts):
             self._emit(event)
-        self._battery(t.voltage, t.timestamp)
-        if self.battery_model is not None and t.timestamp - self._power_at > _POWER_FRESH:
+        self._battery(t.voltage, ts)
+        if self._reports.battery_model is not None and ts - self._power_at > _POWER_FRESH:
             w = t.wheels
             moving = max(abs(w.front_left), abs(w.front_right), abs(w.rear_left), abs(w.rear_right))
-            self._charge(t.voltage, None, t.timestamp, loaded=moving > _MOVING)
+            self._charge(t.voltage, None, ts, moving > _MOVING)
         if self._wheel_track is None:
-            self._integrate(t.linear, t.angular, t.timestamp)
+            self._integrate(t.linear, t.angular, ts)
         else:
             w = t.wheels
             left, right = (w.front_left + w.rear_left) / 2, (w.front_right + w.rear_right) / 2
-            self._integrate((left + right) / 2, (right - left) / self._wheel_track, t.timestamp)
+            self._integrate((left + right) / 2, (right - left) / self._wheel_track, ts)
 
     def _on_power(self, p: PowerTelemetry) -> None:
         self._power.publish(p)
