@@ -28,7 +28,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from chassis_sdk.core import compiled
-from chassis_sdk.core.framing import FrameDecoder, FrameTable
+from chassis_sdk.core.framing import DecoderStats, FrameDecoder, FrameTable
 from chassis_sdk.devices.board import protocol
 from chassis_sdk.devices.board.messages import VelocityFeedback
 from chassis_sdk.devices.board.profile import COMMAND_EXAMPLES, EXAMPLES
@@ -371,12 +371,20 @@ def test_bind_refuses_tuples_that_would_have_a_dict() -> None:
         "imu_cls": ImuSample,
         "vector_cls": Vector3,
         "counts_cls": ImuCounts,
+        "stats_cls": DecoderStats,
         "accel_scale": protocol.ACCEL_SCALE,
         "gyro_scale": protocol.GYRO_SCALE,
     }
     for name in ("vector_cls", "counts_cls"):
         with pytest.raises(TypeError, match="without a __dict__"):
             COMPILED_BIND(**{**args, name: WithDict})
+
+    class PlainStats:  # counters in a __dict__, not in slots
+        def __init__(self) -> None:
+            self.bytes_received = self.frames = self.bytes_dropped = 0
+
+    with pytest.raises(TypeError, match="not slot descriptors"):
+        COMPILED_BIND(**{**args, "stats_cls": PlainStats})
     assert BoardDecoder().feed(EXAMPLES[0][0]) == [EXAMPLES[0][1]]
 
 
@@ -493,6 +501,52 @@ def test_a_changed_head_is_honoured_and_another_type_goes_to_the_pure_loop() -> 
     bytes_head = BoardDecoder()
     bytes_head._head = memoryview(DEVICE_HEAD)  # type: ignore[assignment]
     assert bytes_head.feed(EXAMPLES[1][0]) == [EXAMPLES[1][1]]
+
+
+def test_the_class_s_values_changed_after_a_feed_are_honoured(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """feed keeps what it read from the class while the class's version tag holds:
+    a head, table or alignment rule changed on the class afterwards is read again."""
+    stream = MISALIGNED + b"\x00" * 4
+    assert BoardDecoder().feed(stream) == []  # read from the class, and kept
+    monkeypatch.setattr(BoardDecoder, "check_alignment", False)
+    assert [type(m) for m in BoardDecoder().feed(stream)] == [VelocityFeedback]
+    monkeypatch.undo()
+    assert BoardDecoder().feed(stream) == []
+    monkeypatch.setattr(BoardDecoder, "_table", {0x12: BoardDecoder._table[0x12]})
+    decoder = BoardDecoder()
+    assert decoder.feed(EXAMPLES[0][0] + EXAMPLES[1][0]) == [EXAMPLES[1][1]]
+    assert decoder.stats.bytes_dropped == len(EXAMPLES[0][0])
+    monkeypatch.undo()
+    monkeypatch.setattr(BoardDecoder, "_head", HOST_HEAD)
+    assert BoardDecoder().feed(HOST_HEAD + EXAMPLES[1][0][2:]) == [EXAMPLES[1][1]]
+    monkeypatch.undo()
+    assert BoardDecoder().feed(EXAMPLES[1][0]) == [EXAMPLES[1][1]]
+
+
+def test_replaced_stats_are_counted_through_their_own_attributes() -> None:
+    class Counting(DecoderStats):
+        __slots__ = ("sets",)
+        sets: int
+
+        def __init__(self) -> None:
+            object.__setattr__(self, "sets", 0)
+            super().__init__()  # one set per counter
+
+        def __setattr__(self, name: str, value: object) -> None:
+            if name != "sets":
+                self.sets += 1
+            super().__setattr__(name, value)
+
+    raw = b"\x00\x01" + EXAMPLES[0][0] * 3
+    pair = Pair(BoardDecoder)
+    pair.fast.stats, pair.pure.stats = Counting(), Counting()
+    initial = pair.fast.stats.sets
+    pair.feed(raw)
+    assert pair.fast.stats.frames == 3
+    assert pair.fast.stats.bytes_dropped == 2
+    assert pair.fast.stats.sets == pair.pure.stats.sets == initial + 3  # received, dropped, frames
 
 
 def test_pure_env_gives_the_pure_path() -> None:

@@ -1460,6 +1460,32 @@ static int __Pyx_init_tpflags_variables(void) {
     static PyObject *board_b_class_attr(PyObject *cls, PyObject *name) {
         return _PyType_Lookup((PyTypeObject *)cls, name);
     }
+    /* descriptor.__get__(obj, type(obj)): a slot's value (AttributeError if unset). */
+    static PyObject *board_b_descr_get(PyObject *descr, PyObject *obj) {
+        descrgetfunc get = Py_TYPE(descr)->tp_descr_get;
+        if (get == NULL) {
+            PyErr_SetString(PyExc_TypeError, "not a descriptor");
+            return NULL;
+        }
+        return get(descr, obj, (PyObject *)Py_TYPE(obj));
+    }
+    /* Whether a type's attributes are looked up plainly (no __getattribute__/__getattr__),
+       and set plainly (no __setattr__/__delattr__). */
+    static int board_b_plain_getattr(PyObject *type) {
+        return ((PyTypeObject *)type)->tp_getattro == PyObject_GenericGetAttr;
+    }
+    static int board_b_plain_setattr(PyObject *type) {
+        return ((PyTypeObject *)type)->tp_setattro == PyObject_GenericSetAttr;
+    }
+    /* The type's version tag: CPython resets it to 0 (invalid) whenever the type or one
+       of its bases is changed, and gives it a new, unused one at its next lookup; what
+       was read from a type holds while the tag is the same. */
+    static unsigned int board_b_type_tag(PyObject *type) {
+    #if PY_VERSION_HEX < 0x030C0000
+        if (!PyType_HasFeature((PyTypeObject *)type, Py_TPFLAGS_VALID_VERSION_TAG)) return 0;
+    #endif
+        return ((PyTypeObject *)type)->tp_version_tag;
+    }
     
 #ifdef _OPENMP
 #include <omp.h>
@@ -1859,8 +1885,10 @@ static const char* const __pyx_f[] = {
 struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind;
 struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr;
 struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr;
+struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr;
+struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr;
 
-/* "chassis_sdk/devices/board/_compiled.pyx":157
+/* "chassis_sdk/devices/board/_compiled.pyx":187
  * # _try_frame's results (core.framing's NEED_DATA and INVALID), and the frame's layout:
  * # head, type, length, data (length - 1 bytes), check; the IMU frame's length byte.
  * cdef enum:             # <<<<<<<<<<<<<<
@@ -1877,7 +1905,7 @@ enum  {
   __pyx_e_11chassis_sdk_7devices_5board_9_compiled_A_HEAD = 1
 };
 
-/* "chassis_sdk/devices/board/_compiled.pyx":184
+/* "chassis_sdk/devices/board/_compiled.pyx":228
  * 
  * 
  * def bind(             # <<<<<<<<<<<<<<
@@ -1887,11 +1915,12 @@ enum  {
 struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind {
   PyObject_HEAD
   PyObject *__pyx_v_imu_cls;
+  PyObject *__pyx_v_stats_cls;
   PyObject *__pyx_v_types;
 };
 
 
-/* "chassis_sdk/devices/board/_compiled.pyx":215
+/* "chassis_sdk/devices/board/_compiled.pyx":262
  * 
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)             # <<<<<<<<<<<<<<
@@ -1909,14 +1938,46 @@ struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_g
 };
 
 
-/* "chassis_sdk/devices/board/_compiled.pyx":216
+/* "chassis_sdk/devices/board/_compiled.pyx":263
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):             # <<<<<<<<<<<<<<
  *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
- *     for cls in (vector_cls, counts_cls):
+ *     stats_slots = tuple(
 */
 struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr {
+  PyObject_HEAD
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *__pyx_outer_scope;
+  PyObject *__pyx_genexpr_arg_0;
+  PyObject *__pyx_v_s;
+};
+
+
+/* "chassis_sdk/devices/board/_compiled.pyx":266
+ *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+ *     stats_slots = tuple(
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")             # <<<<<<<<<<<<<<
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+*/
+struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr {
+  PyObject_HEAD
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *__pyx_outer_scope;
+  PyObject *__pyx_genexpr_arg_0;
+  PyObject *__pyx_v_name;
+  PyObject *__pyx_t_0;
+  Py_ssize_t __pyx_t_1;
+};
+
+
+/* "chassis_sdk/devices/board/_compiled.pyx":268
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):             # <<<<<<<<<<<<<<
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
+ *     for cls in (vector_cls, counts_cls):
+*/
+struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr {
   PyObject_HEAD
   struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *__pyx_outer_scope;
   PyObject *__pyx_genexpr_arg_0;
@@ -2333,6 +2394,34 @@ static int __Pyx_GetException(PyObject **type, PyObject **value, PyObject **tb);
 /* pep479.proto */
 static void __Pyx_Generator_Replace_StopIteration(int in_async_gen);
 
+/* FormatTypeName.proto (used by RaiseErrorWithObjectType1) */
+#if CYTHON_COMPILING_IN_LIMITED_API && __PYX_LIMITED_VERSION_HEX >= 0x030d0000
+typedef PyObject *__Pyx_TypeName;
+#define __Pyx_FMT_TYPENAME "%N"
+#define __Pyx_PyType_GetFullyQualifiedName(tp) Py_NewRef((PyObject*)tp)
+#define __Pyx_DECREF_TypeName(obj) Py_DECREF(obj)
+#elif CYTHON_COMPILING_IN_LIMITED_API
+typedef PyObject *__Pyx_TypeName;
+#define __Pyx_FMT_TYPENAME "%U"
+#define __Pyx_DECREF_TypeName(obj) Py_XDECREF(obj)
+static __Pyx_TypeName __Pyx_PyType_GetFullyQualifiedName(PyTypeObject* tp);
+#else  // !LIMITED_API
+typedef const char *__Pyx_TypeName;
+#define __Pyx_FMT_TYPENAME "%.200s"
+#define __Pyx_PyType_GetFullyQualifiedName(tp) ((tp)->tp_name)
+#define __Pyx_DECREF_TypeName(obj)
+#endif
+
+/* RaiseErrorWithObjectType1.proto (used by RaiseUnexpectedTypeError) */
+#define __Pyx_RaiseTypeErrorWithObjectType1(message, arg, obj) __Pyx_RaiseErrorWithObjectType1(PyExc_TypeError, message, arg, obj)
+#define __Pyx_RaiseErrorWithObjectType1(exc_type, message, arg, obj) __Pyx_RaiseErrorWithType1(exc_type, message, arg, Py_TYPE(obj))
+CYTHON_UNUSED
+static void __Pyx_RaiseErrorWithType1(PyObject* exc_type, const char* message, const char *arg, PyTypeObject *type_obj);
+
+/* RaiseUnexpectedTypeError.proto */
+CYTHON_UNUSED
+static int __Pyx_RaiseUnexpectedTypeError(const char *expected, PyObject *obj);
+
 /* PyErrExceptionMatches.proto (used by PyObjectGetAttrStrNoError) */
 #if CYTHON_FAST_THREAD_STATE
 #define __Pyx_PyErr_ExceptionMatches(err) __Pyx_PyErr_ExceptionMatchesInState(__pyx_tstate, err)
@@ -2415,33 +2504,17 @@ static void __Pyx_Raise(PyObject *type, PyObject *value, PyObject *tb, PyObject 
 /* PyLongCompare.proto */
 static CYTHON_INLINE int __Pyx_PyLong_BoolEqObjC(PyObject *op1, PyObject *op2, long intval, long inplace);
 
-/* FormatTypeName.proto (used by RaiseErrorWithObjectType1) */
-#if CYTHON_COMPILING_IN_LIMITED_API && __PYX_LIMITED_VERSION_HEX >= 0x030d0000
-typedef PyObject *__Pyx_TypeName;
-#define __Pyx_FMT_TYPENAME "%N"
-#define __Pyx_PyType_GetFullyQualifiedName(tp) Py_NewRef((PyObject*)tp)
-#define __Pyx_DECREF_TypeName(obj) Py_DECREF(obj)
-#elif CYTHON_COMPILING_IN_LIMITED_API
-typedef PyObject *__Pyx_TypeName;
-#define __Pyx_FMT_TYPENAME "%U"
-#define __Pyx_DECREF_TypeName(obj) Py_XDECREF(obj)
-static __Pyx_TypeName __Pyx_PyType_GetFullyQualifiedName(PyTypeObject* tp);
-#else  // !LIMITED_API
-typedef const char *__Pyx_TypeName;
-#define __Pyx_FMT_TYPENAME "%.200s"
-#define __Pyx_PyType_GetFullyQualifiedName(tp) ((tp)->tp_name)
-#define __Pyx_DECREF_TypeName(obj)
-#endif
+/* RaiseTooManyValuesToUnpack.proto */
+static CYTHON_INLINE void __Pyx_RaiseTooManyValuesError(Py_ssize_t expected);
 
-/* RaiseErrorWithObjectType1.proto (used by RaiseUnexpectedTypeError) */
-#define __Pyx_RaiseTypeErrorWithObjectType1(message, arg, obj) __Pyx_RaiseErrorWithObjectType1(PyExc_TypeError, message, arg, obj)
-#define __Pyx_RaiseErrorWithObjectType1(exc_type, message, arg, obj) __Pyx_RaiseErrorWithType1(exc_type, message, arg, Py_TYPE(obj))
-CYTHON_UNUSED
-static void __Pyx_RaiseErrorWithType1(PyObject* exc_type, const char* message, const char *arg, PyTypeObject *type_obj);
+/* RaiseNeedMoreValuesToUnpack.proto */
+static CYTHON_INLINE void __Pyx_RaiseNeedMoreValuesError(Py_ssize_t index);
 
-/* RaiseUnexpectedTypeError.proto */
-CYTHON_UNUSED
-static int __Pyx_RaiseUnexpectedTypeError(const char *expected, PyObject *obj);
+/* IterFinish.proto */
+static CYTHON_INLINE int __Pyx_IterFinish(void);
+
+/* UnpackItemEndCheck.proto */
+static int __Pyx_IternextUnpackEndCheck(PyObject *retval, Py_ssize_t expected);
 
 /* PyObjectCompare.proto */
 static CYTHON_INLINE PyObject* __Pyx_PyObject_CompareNe_int_object(PyObject *op1, PyObject *op2, int pyop);
@@ -2517,18 +2590,6 @@ static PyObject *__Pyx_GetItemInt_Generic(PyObject *o, PyObject* j);
 static CYTHON_INLINE PyObject *__Pyx_GetItemInt_Fast(PyObject *o, Py_ssize_t i,
                                                      int wraparound, int boundscheck, int unsafe_shared);
 
-/* RaiseTooManyValuesToUnpack.proto */
-static CYTHON_INLINE void __Pyx_RaiseTooManyValuesError(Py_ssize_t expected);
-
-/* RaiseNeedMoreValuesToUnpack.proto */
-static CYTHON_INLINE void __Pyx_RaiseNeedMoreValuesError(Py_ssize_t index);
-
-/* IterFinish.proto */
-static CYTHON_INLINE int __Pyx_IterFinish(void);
-
-/* UnpackItemEndCheck.proto */
-static int __Pyx_IternextUnpackEndCheck(PyObject *retval, Py_ssize_t expected);
-
 /* PyLongBinop.proto */
 #if !CYTHON_COMPILING_IN_PYPY
 static CYTHON_INLINE PyObject* __Pyx_PyLong_AddObjC(PyObject *op1, PyObject *op2, long intval, int inplace, int zerodivision_check);
@@ -2552,6 +2613,15 @@ static CYTHON_INLINE int __Pyx_PyObject_SetAttrStr(PyObject* obj, PyObject* attr
 #define __Pyx_PyObject_DelAttrStr(o,n)   __Pyx_PyObject_DelAttr(o,n)
 #define __Pyx_PyObject_SetAttrStr(o,n,v) PyObject_SetAttr(o,n,v)
 #endif
+
+/* SetItemInt.proto */
+#define __Pyx_SetItemInt(o, i, v, type, is_signed, to_py_func, wraparound, boundscheck, has_gil, unsafe_shared)\
+    (__Pyx_fits_Py_ssize_t(i, type, is_signed) ?\
+    __Pyx_SetItemInt_Fast(o, (Py_ssize_t)i, v, wraparound, boundscheck, unsafe_shared) :\
+    __Pyx_SetItemInt_Generic(o, to_py_func(i), v))
+static int __Pyx_SetItemInt_Generic(PyObject *o, PyObject *j, PyObject *v);
+static CYTHON_INLINE int __Pyx_SetItemInt_Fast(PyObject *o, Py_ssize_t i, PyObject *v,
+                                               int wraparound, int boundscheck, int unsafe_shared);
 
 /* PySequenceContains.proto */
 static CYTHON_INLINE int __Pyx_PySequence_ContainsTF(PyObject* item, PyObject* seq, int eq) {
@@ -2954,6 +3024,9 @@ static CYTHON_INLINE PyObject* __Pyx_PyLong_From_long(long value);
 /* CIntToPy.proto */
 static CYTHON_INLINE PyObject* __Pyx_PyLong_From_unsigned_int(unsigned int value);
 
+/* CIntToPy.proto */
+static CYTHON_INLINE PyObject* __Pyx_PyLong_From_int(int value);
+
 /* CIntFromPy.proto */
 static CYTHON_INLINE long __Pyx_PyLong_As_long(PyObject *);
 
@@ -3196,8 +3269,17 @@ static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__counts_cls = 
 static double __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel;
 static double __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro;
 static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots = 0;
+static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls = 0;
+static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot = 0;
+static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot = 0;
+static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot = 0;
+static unsigned int __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_tag;
 static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__no_args = 0;
 static int __pyx_v_11chassis_sdk_7devices_5board_9_compiled__bound;
+static unsigned int __pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_tag[2];
+static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head = 0;
+static PyObject *__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table = 0;
+static int __pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_align[2];
 static CYTHON_INLINE int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__i16(unsigned char const *, Py_ssize_t); /*proto*/
 static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned char const *, Py_ssize_t, PyObject *); /*proto*/
 static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigned char const *, Py_ssize_t, Py_ssize_t, unsigned char, unsigned char); /*proto*/
@@ -3205,6 +3287,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *,
 static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject *, unsigned int); /*proto*/
 static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(unsigned char const *, Py_ssize_t, Py_ssize_t, Py_ssize_t, PyObject *, unsigned char, unsigned char); /*proto*/
 static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject *, unsigned char const *, Py_ssize_t, Py_ssize_t, PyObject *, PyObject *, PyObject *, unsigned char, unsigned char, PyObject *, int *, PyObject *); /*proto*/
+static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__stats_plain(void); /*proto*/
 static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(PyObject *, PyObject *, PyTypeObject *); /*proto*/
 /* #### Code section: typeinfo ### */
 /* #### Code section: before_global_var ### */
@@ -3219,7 +3302,9 @@ static const char __pyx_k_The_compiled_twin_of_protocol_B[] = "The compiled twin
 /* #### Code section: decls ### */
 static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0); /* proto */
 static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_3genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0); /* proto */
-static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_UNUSED PyObject *__pyx_self, PyObject *__pyx_v_decoder_cls, PyObject *__pyx_v_command_cls, PyObject *__pyx_v_pure_feed, PyObject *__pyx_v_try_frame, PyObject *__pyx_v_swallows_a_head, PyObject *__pyx_v_parse_imu, PyObject *__pyx_v_imu_cls, PyObject *__pyx_v_vector_cls, PyObject *__pyx_v_counts_cls, PyObject *__pyx_v_accel_scale, PyObject *__pyx_v_gyro_scale); /* proto */
+static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_6genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0); /* proto */
+static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_9genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0); /* proto */
+static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_UNUSED PyObject *__pyx_self, PyObject *__pyx_v_decoder_cls, PyObject *__pyx_v_command_cls, PyObject *__pyx_v_pure_feed, PyObject *__pyx_v_try_frame, PyObject *__pyx_v_swallows_a_head, PyObject *__pyx_v_parse_imu, PyObject *__pyx_v_imu_cls, PyObject *__pyx_v_vector_cls, PyObject *__pyx_v_counts_cls, PyObject *__pyx_v_stats_cls, PyObject *__pyx_v_accel_scale, PyObject *__pyx_v_gyro_scale); /* proto */
 static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_UNUSED PyObject *__pyx_self, PyObject *__pyx_v_self, PyObject *__pyx_v_data, PyObject *__pyx_v_timestamp); /* proto */
 static PyObject *__pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind(PyObject *o, 
 #if CYTHON_VECTORCALL_TPNEW
@@ -3290,6 +3375,52 @@ static PyObject *__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_sco
 #if CYTHON_VECTORCALL_TPNEW
 static PyObject *__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr(PyObject *t, PyObject *const *args, size_t nargsf, PyObject *kwnames); /*proto*/
 #endif
+static PyObject *__pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyObject *o, 
+#if CYTHON_VECTORCALL_TPNEW
+    PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames
+#else
+    PyObject *a, PyObject *k
+#endif
+); /*proto*/
+static PyObject *__pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyTypeObject *t, 
+#if CYTHON_VECTORCALL_TPNEW
+    PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames
+#else
+    PyObject *a, PyObject *k
+#endif
+); /*proto*/
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyTypeObject *t, PyObject *a, PyObject *k); /*proto*/
+#endif
+#if !CYTHON_VECTORCALL_TPNEW
+#define __pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr __pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr
+#endif
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyObject *t, PyObject *const *args, size_t nargsf, PyObject *kwnames); /*proto*/
+#endif
+static PyObject *__pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyObject *o, 
+#if CYTHON_VECTORCALL_TPNEW
+    PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames
+#else
+    PyObject *a, PyObject *k
+#endif
+); /*proto*/
+static PyObject *__pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyTypeObject *t, 
+#if CYTHON_VECTORCALL_TPNEW
+    PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames
+#else
+    PyObject *a, PyObject *k
+#endif
+); /*proto*/
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyTypeObject *t, PyObject *a, PyObject *k); /*proto*/
+#endif
+#if !CYTHON_VECTORCALL_TPNEW
+#define __pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr __pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr
+#endif
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyObject *t, PyObject *const *args, size_t nargsf, PyObject *kwnames); /*proto*/
+#endif
 /* #### Code section: late_includes ### */
 /* #### Code section: module_state ### */
 /* SmallCodeConfig */
@@ -3317,15 +3448,19 @@ namespace {
     PyObject *__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind;
     PyObject *__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr;
     PyObject *__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr;
+    PyObject *__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr;
+    PyObject *__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr;
     PyTypeObject *__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind;
     PyTypeObject *__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr;
     PyTypeObject *__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr;
+    PyTypeObject *__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr;
+    PyTypeObject *__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr;
     __Pyx_CachedCFunction __pyx_umethod_PyDict_Type_items;
     __Pyx_CachedCFunction __pyx_umethod_PyDict_Type_pop;
     __Pyx_CachedCFunction __pyx_umethod_PyDict_Type_values;
-    PyObject *__pyx_tuple[1];
-    PyObject *__pyx_codeobj_tab[4];
-    PyObject *__pyx_string_tab[98];
+    PyObject *__pyx_tuple[2];
+    PyObject *__pyx_codeobj_tab[6];
+    PyObject *__pyx_string_tab[107];
     PyObject *__pyx_number_tab[3];
 /* #### Code section: module_state_contents ### */
 /* PyFrozenDict.module_state_decls */
@@ -3347,6 +3482,16 @@ int __pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_
 #if CYTHON_USE_FREELISTS
 struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr *__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr[8];
 int __pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr;
+#endif
+
+#if CYTHON_USE_FREELISTS
+struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr[8];
+int __pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr;
+#endif
+
+#if CYTHON_USE_FREELISTS
+struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr[8];
+int __pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr;
 #endif
 /* CommonTypesMetaclass.module_state_decls */
 PyTypeObject *__pyx_CommonTypesMetaclassType;
@@ -3406,96 +3551,105 @@ static __pyx_mstatetype * const __pyx_mstate_global = &__pyx_mstate_global_stati
 #define __pyx_kp_u_enable __pyx_string_tab[5]
 #define __pyx_kp_u_gc __pyx_string_tab[6]
 #define __pyx_kp_u_isenabled __pyx_string_tab[7]
-#define __pyx_kp_u_the_IMU_scales_must_be_floats __pyx_string_tab[8]
-#define __pyx_kp_u_the_buffer_changed_size __pyx_string_tab[9]
-#define __pyx_n_u_MemberDescriptorType __pyx_string_tab[10]
-#define __pyx_n_u_Pyx_PyDict_NextRef __pyx_string_tab[11]
-#define __pyx_n_u_annotate __pyx_string_tab[12]
-#define __pyx_n_u_dict __pyx_string_tab[13]
-#define __pyx_n_u_dictoffset __pyx_string_tab[14]
-#define __pyx_n_u_func __pyx_string_tab[15]
-#define __pyx_n_u_main __pyx_string_tab[16]
-#define __pyx_n_u_module __pyx_string_tab[17]
-#define __pyx_n_u_name_2 __pyx_string_tab[18]
-#define __pyx_n_u_qualname __pyx_string_tab[19]
-#define __pyx_n_u_test __pyx_string_tab[20]
-#define __pyx_n_u_buf __pyx_string_tab[21]
-#define __pyx_n_u_head __pyx_string_tab[22]
-#define __pyx_n_u_is_coroutine __pyx_string_tab[23]
-#define __pyx_n_u_swallows_a_head_2 __pyx_string_tab[24]
-#define __pyx_n_u_table __pyx_string_tab[25]
-#define __pyx_n_u_try_frame_2 __pyx_string_tab[26]
-#define __pyx_n_u_accel_scale __pyx_string_tab[27]
-#define __pyx_n_u_align __pyx_string_tab[28]
-#define __pyx_n_u_alignment __pyx_string_tab[29]
-#define __pyx_n_u_asyncio_coroutines __pyx_string_tab[30]
-#define __pyx_n_u_attrs __pyx_string_tab[31]
-#define __pyx_n_u_bind __pyx_string_tab[32]
-#define __pyx_n_u_bind_locals_genexpr __pyx_string_tab[33]
-#define __pyx_n_u_buf_2 __pyx_string_tab[34]
-#define __pyx_n_u_bytes_dropped __pyx_string_tab[35]
-#define __pyx_n_u_bytes_received __pyx_string_tab[36]
-#define __pyx_n_u_chassis_sdk_devices_board__compi __pyx_string_tab[37]
-#define __pyx_n_u_check_alignment __pyx_string_tab[38]
-#define __pyx_n_u_checksum_errors __pyx_string_tab[39]
-#define __pyx_n_u_cline_in_traceback __pyx_string_tab[40]
-#define __pyx_n_u_close __pyx_string_tab[41]
-#define __pyx_n_u_cls __pyx_string_tab[42]
-#define __pyx_n_u_command_cls __pyx_string_tab[43]
-#define __pyx_n_u_consumed __pyx_string_tab[44]
-#define __pyx_n_u_counts_cls __pyx_string_tab[45]
-#define __pyx_n_u_data __pyx_string_tab[46]
-#define __pyx_n_u_dataclasses __pyx_string_tab[47]
-#define __pyx_n_u_decoder_cls __pyx_string_tab[48]
-#define __pyx_n_u_dropped __pyx_string_tab[49]
-#define __pyx_n_u_f __pyx_string_tab[50]
-#define __pyx_n_u_feed __pyx_string_tab[51]
-#define __pyx_n_u_fields __pyx_string_tab[52]
-#define __pyx_n_u_found __pyx_string_tab[53]
-#define __pyx_n_u_frames __pyx_string_tab[54]
-#define __pyx_n_u_genexpr __pyx_string_tab[55]
-#define __pyx_n_u_get __pyx_string_tab[56]
-#define __pyx_n_u_gyro_scale __pyx_string_tab[57]
-#define __pyx_n_u_h0 __pyx_string_tab[58]
-#define __pyx_n_u_h1 __pyx_string_tab[59]
-#define __pyx_n_u_head_2 __pyx_string_tab[60]
-#define __pyx_n_u_imu_cls __pyx_string_tab[61]
-#define __pyx_n_u_items __pyx_string_tab[62]
-#define __pyx_n_u_keep __pyx_string_tab[63]
-#define __pyx_n_u_malformed_frames __pyx_string_tab[64]
-#define __pyx_n_u_misaligned_frames __pyx_string_tab[65]
-#define __pyx_n_u_n __pyx_string_tab[66]
-#define __pyx_n_u_name __pyx_string_tab[67]
-#define __pyx_n_u_names __pyx_string_tab[68]
-#define __pyx_n_u_next __pyx_string_tab[69]
-#define __pyx_n_u_out __pyx_string_tab[70]
-#define __pyx_n_u_p __pyx_string_tab[71]
-#define __pyx_n_u_parse_imu __pyx_string_tab[72]
-#define __pyx_n_u_pop __pyx_string_tab[73]
-#define __pyx_n_u_pos __pyx_string_tab[74]
-#define __pyx_n_u_pure_feed __pyx_string_tab[75]
-#define __pyx_n_u_s __pyx_string_tab[76]
-#define __pyx_n_u_self __pyx_string_tab[77]
-#define __pyx_n_u_send __pyx_string_tab[78]
-#define __pyx_n_u_setdefault __pyx_string_tab[79]
-#define __pyx_n_u_slots __pyx_string_tab[80]
-#define __pyx_n_u_start __pyx_string_tab[81]
-#define __pyx_n_u_stats __pyx_string_tab[82]
-#define __pyx_n_u_stored __pyx_string_tab[83]
-#define __pyx_n_u_swallows_a_head __pyx_string_tab[84]
-#define __pyx_n_u_table_2 __pyx_string_tab[85]
-#define __pyx_n_u_throw __pyx_string_tab[86]
-#define __pyx_n_u_timestamp __pyx_string_tab[87]
-#define __pyx_n_u_try_frame __pyx_string_tab[88]
-#define __pyx_n_u_types __pyx_string_tab[89]
-#define __pyx_n_u_value __pyx_string_tab[90]
-#define __pyx_n_u_values __pyx_string_tab[91]
-#define __pyx_n_u_vector_cls __pyx_string_tab[92]
-#define __pyx_n_u_view __pyx_string_tab[93]
-#define __pyx_kp_b_iso88591_2_AQfD_q_E_a_s_7_Rs_iq_1_q_A_5 __pyx_string_tab[94]
-#define __pyx_kp_b_iso88591_a __pyx_string_tab[95]
-#define __pyx_kp_b_iso88591__2 __pyx_string_tab[96]
-#define __pyx_kp_b_iso88591_Q_a_aq_t7_d_d_gQ_z_a_auA_vS_S_g __pyx_string_tab[97]
+#define __pyx_kp_u_not_slot_descriptors __pyx_string_tab[8]
+#define __pyx_kp_u_the_IMU_scales_must_be_floats __pyx_string_tab[9]
+#define __pyx_kp_u_the_buffer_changed_size __pyx_string_tab[10]
+#define __pyx_n_u_MemberDescriptorType __pyx_string_tab[11]
+#define __pyx_n_u_Pyx_PyDict_NextRef __pyx_string_tab[12]
+#define __pyx_n_u_annotate __pyx_string_tab[13]
+#define __pyx_n_u_dict __pyx_string_tab[14]
+#define __pyx_n_u_dictoffset __pyx_string_tab[15]
+#define __pyx_n_u_func __pyx_string_tab[16]
+#define __pyx_n_u_main __pyx_string_tab[17]
+#define __pyx_n_u_module __pyx_string_tab[18]
+#define __pyx_n_u_name_2 __pyx_string_tab[19]
+#define __pyx_n_u_qualname __pyx_string_tab[20]
+#define __pyx_n_u_test __pyx_string_tab[21]
+#define __pyx_n_u_buf __pyx_string_tab[22]
+#define __pyx_n_u_head __pyx_string_tab[23]
+#define __pyx_n_u_is_coroutine __pyx_string_tab[24]
+#define __pyx_n_u_swallows_a_head_2 __pyx_string_tab[25]
+#define __pyx_n_u_table __pyx_string_tab[26]
+#define __pyx_n_u_try_frame_2 __pyx_string_tab[27]
+#define __pyx_n_u_accel_scale __pyx_string_tab[28]
+#define __pyx_n_u_align __pyx_string_tab[29]
+#define __pyx_n_u_alignment __pyx_string_tab[30]
+#define __pyx_n_u_asyncio_coroutines __pyx_string_tab[31]
+#define __pyx_n_u_attrs __pyx_string_tab[32]
+#define __pyx_n_u_bind __pyx_string_tab[33]
+#define __pyx_n_u_bind_locals_genexpr __pyx_string_tab[34]
+#define __pyx_n_u_buf_2 __pyx_string_tab[35]
+#define __pyx_n_u_bytes_dropped __pyx_string_tab[36]
+#define __pyx_n_u_bytes_received __pyx_string_tab[37]
+#define __pyx_n_u_chassis_sdk_devices_board__compi __pyx_string_tab[38]
+#define __pyx_n_u_check_alignment __pyx_string_tab[39]
+#define __pyx_n_u_checksum_errors __pyx_string_tab[40]
+#define __pyx_n_u_cline_in_traceback __pyx_string_tab[41]
+#define __pyx_n_u_close __pyx_string_tab[42]
+#define __pyx_n_u_cls __pyx_string_tab[43]
+#define __pyx_n_u_command_cls __pyx_string_tab[44]
+#define __pyx_n_u_consumed __pyx_string_tab[45]
+#define __pyx_n_u_count __pyx_string_tab[46]
+#define __pyx_n_u_counts_cls __pyx_string_tab[47]
+#define __pyx_n_u_data __pyx_string_tab[48]
+#define __pyx_n_u_dataclasses __pyx_string_tab[49]
+#define __pyx_n_u_decoder_cls __pyx_string_tab[50]
+#define __pyx_n_u_dropped __pyx_string_tab[51]
+#define __pyx_n_u_f __pyx_string_tab[52]
+#define __pyx_n_u_fast_stats __pyx_string_tab[53]
+#define __pyx_n_u_feed __pyx_string_tab[54]
+#define __pyx_n_u_fields __pyx_string_tab[55]
+#define __pyx_n_u_found __pyx_string_tab[56]
+#define __pyx_n_u_frames __pyx_string_tab[57]
+#define __pyx_n_u_genexpr __pyx_string_tab[58]
+#define __pyx_n_u_get __pyx_string_tab[59]
+#define __pyx_n_u_gyro_scale __pyx_string_tab[60]
+#define __pyx_n_u_h0 __pyx_string_tab[61]
+#define __pyx_n_u_h1 __pyx_string_tab[62]
+#define __pyx_n_u_head_2 __pyx_string_tab[63]
+#define __pyx_n_u_imu_cls __pyx_string_tab[64]
+#define __pyx_n_u_items __pyx_string_tab[65]
+#define __pyx_n_u_keep __pyx_string_tab[66]
+#define __pyx_n_u_malformed_frames __pyx_string_tab[67]
+#define __pyx_n_u_misaligned_frames __pyx_string_tab[68]
+#define __pyx_n_u_n __pyx_string_tab[69]
+#define __pyx_n_u_name __pyx_string_tab[70]
+#define __pyx_n_u_names __pyx_string_tab[71]
+#define __pyx_n_u_next __pyx_string_tab[72]
+#define __pyx_n_u_out __pyx_string_tab[73]
+#define __pyx_n_u_p __pyx_string_tab[74]
+#define __pyx_n_u_parse_imu __pyx_string_tab[75]
+#define __pyx_n_u_pop __pyx_string_tab[76]
+#define __pyx_n_u_pos __pyx_string_tab[77]
+#define __pyx_n_u_pure_feed __pyx_string_tab[78]
+#define __pyx_n_u_s __pyx_string_tab[79]
+#define __pyx_n_u_self __pyx_string_tab[80]
+#define __pyx_n_u_send __pyx_string_tab[81]
+#define __pyx_n_u_setdefault __pyx_string_tab[82]
+#define __pyx_n_u_slots __pyx_string_tab[83]
+#define __pyx_n_u_start __pyx_string_tab[84]
+#define __pyx_n_u_stats __pyx_string_tab[85]
+#define __pyx_n_u_stats_cls __pyx_string_tab[86]
+#define __pyx_n_u_stats_slots __pyx_string_tab[87]
+#define __pyx_n_u_stored __pyx_string_tab[88]
+#define __pyx_n_u_swallows_a_head __pyx_string_tab[89]
+#define __pyx_n_u_table_2 __pyx_string_tab[90]
+#define __pyx_n_u_tag __pyx_string_tab[91]
+#define __pyx_n_u_throw __pyx_string_tab[92]
+#define __pyx_n_u_timestamp __pyx_string_tab[93]
+#define __pyx_n_u_try_frame __pyx_string_tab[94]
+#define __pyx_n_u_types __pyx_string_tab[95]
+#define __pyx_n_u_value __pyx_string_tab[96]
+#define __pyx_n_u_values __pyx_string_tab[97]
+#define __pyx_n_u_vector_cls __pyx_string_tab[98]
+#define __pyx_n_u_view __pyx_string_tab[99]
+#define __pyx_n_u_which __pyx_string_tab[100]
+#define __pyx_kp_b_iso88591_6_AQfD_q_E_a_s_7_Rs_iq_1_q_q_iq __pyx_string_tab[101]
+#define __pyx_kp_b_iso88591_q __pyx_string_tab[102]
+#define __pyx_kp_b_iso88591_a_2 __pyx_string_tab[103]
+#define __pyx_kp_b_iso88591_a __pyx_string_tab[104]
+#define __pyx_kp_b_iso88591__2 __pyx_string_tab[105]
+#define __pyx_kp_b_iso88591_Q_a_aq_t1_z_a_t3a_S_z_a_1F_8_q __pyx_string_tab[106]
 #define __pyx_float_0_0 __pyx_number_tab[0]
 #define __pyx_int_0 __pyx_number_tab[1]
 #define __pyx_int_1 __pyx_number_tab[2]
@@ -3520,12 +3674,16 @@ static CYTHON_SMALL_CODE int __pyx_m_clear(PyObject *m) {
   Py_CLEAR(clear_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr);
   Py_CLEAR(clear_module_state->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr);
   Py_CLEAR(clear_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr);
+  Py_CLEAR(clear_module_state->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr);
+  Py_CLEAR(clear_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr);
+  Py_CLEAR(clear_module_state->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr);
+  Py_CLEAR(clear_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr);
   Py_CLEAR(clear_module_state->__pyx_umethod_PyDict_Type_items.method);
   Py_CLEAR(clear_module_state->__pyx_umethod_PyDict_Type_pop.method);
   Py_CLEAR(clear_module_state->__pyx_umethod_PyDict_Type_values.method);
-  for (int i=0; i<1; ++i) { Py_CLEAR(clear_module_state->__pyx_tuple[i]); }
-  for (int i=0; i<4; ++i) { Py_CLEAR(clear_module_state->__pyx_codeobj_tab[i]); }
-  for (int i=0; i<98; ++i) { Py_CLEAR(clear_module_state->__pyx_string_tab[i]); }
+  for (int i=0; i<2; ++i) { Py_CLEAR(clear_module_state->__pyx_tuple[i]); }
+  for (int i=0; i<6; ++i) { Py_CLEAR(clear_module_state->__pyx_codeobj_tab[i]); }
+  for (int i=0; i<107; ++i) { Py_CLEAR(clear_module_state->__pyx_string_tab[i]); }
   for (int i=0; i<3; ++i) { Py_CLEAR(clear_module_state->__pyx_number_tab[i]); }
 /* #### Code section: module_state_clear_contents ### */
 /* CommonTypesMetaclass.module_state_clear */
@@ -3559,12 +3717,16 @@ static CYTHON_SMALL_CODE int __pyx_m_traverse(PyObject *m, visitproc visit, void
   Py_VISIT(traverse_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr);
   Py_VISIT(traverse_module_state->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr);
   Py_VISIT(traverse_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr);
+  Py_VISIT(traverse_module_state->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr);
+  Py_VISIT(traverse_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr);
+  Py_VISIT(traverse_module_state->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr);
+  Py_VISIT(traverse_module_state->__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr);
   Py_VISIT(traverse_module_state->__pyx_umethod_PyDict_Type_items.method);
   Py_VISIT(traverse_module_state->__pyx_umethod_PyDict_Type_pop.method);
   Py_VISIT(traverse_module_state->__pyx_umethod_PyDict_Type_values.method);
-  for (int i=0; i<1; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_tuple[i]); }
-  for (int i=0; i<4; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_codeobj_tab[i]); }
-  for (int i=0; i<98; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_string_tab[i]); }
+  for (int i=0; i<2; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_tuple[i]); }
+  for (int i=0; i<6; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_codeobj_tab[i]); }
+  for (int i=0; i<107; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_string_tab[i]); }
   for (int i=0; i<3; ++i) { __Pyx_VISIT_CONST(traverse_module_state->__pyx_number_tab[i]); }
 /* #### Code section: module_state_traverse_contents ### */
 /* CommonTypesMetaclass.module_state_traverse */
@@ -3582,7 +3744,7 @@ return 0;
 #endif
 /* #### Code section: module_code ### */
 
-/* "chassis_sdk/devices/board/_compiled.pyx":184
+/* "chassis_sdk/devices/board/_compiled.pyx":228
  * 
  * 
  * def bind(             # <<<<<<<<<<<<<<
@@ -3598,7 +3760,7 @@ PyObject *const *__pyx_args, Py_ssize_t __pyx_nargs, PyObject *__pyx_kwds
 PyObject *__pyx_args, PyObject *__pyx_kwds
 #endif
 ); /*proto*/
-PyDoc_STRVAR(__pyx_doc_11chassis_sdk_7devices_5board_9_compiled_bind, "Give this module the pure code\047s objects it mirrors (protocol.py calls it once).\n\n    The two scales are read here, once: they are the module\047s constants, which the pure\n    ``_parse_imu`` divides by.\n\n    Raises:\n        TypeError: ``imu_cls`` is not a slotted dataclass of five fields held in slot\n            descriptors, ``vector_cls`` or ``counts_cls`` is not a tuple subclass\n            without a ``__dict__`` (its instances are left untracked by the collector),\n            or a scale is not a float.\n    ");
+PyDoc_STRVAR(__pyx_doc_11chassis_sdk_7devices_5board_9_compiled_bind, "Give this module the pure code\047s objects it mirrors (protocol.py calls it once).\n\n    The two scales are read here, once: they are the module\047s constants, which the pure\n    ``_parse_imu`` divides by.\n\n    Raises:\n        TypeError: ``imu_cls`` is not a slotted dataclass of five fields held in slot\n            descriptors, ``vector_cls`` or ``counts_cls`` is not a tuple subclass\n            without a ``__dict__`` (its instances are left untracked by the collector),\n            ``stats_cls`` does not hold its counters in slot descriptors, or a scale is\n            not a float.\n    ");
 static PyMethodDef __pyx_mdef_11chassis_sdk_7devices_5board_9_compiled_1bind = {"bind", (PyCFunction)(void(*)(void))(__Pyx_PyCFunction_FastCallWithKeywords)__pyx_pw_11chassis_sdk_7devices_5board_9_compiled_1bind, __Pyx_METH_FASTCALL|METH_KEYWORDS, __pyx_doc_11chassis_sdk_7devices_5board_9_compiled_bind};
 static PyObject *__pyx_pw_11chassis_sdk_7devices_5board_9_compiled_1bind(PyObject *__pyx_self, 
 #if CYTHON_VECTORCALL
@@ -3616,13 +3778,14 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
   PyObject *__pyx_v_imu_cls = 0;
   PyObject *__pyx_v_vector_cls = 0;
   PyObject *__pyx_v_counts_cls = 0;
+  PyObject *__pyx_v_stats_cls = 0;
   PyObject *__pyx_v_accel_scale = 0;
   PyObject *__pyx_v_gyro_scale = 0;
   #if !CYTHON_VECTORCALL
   CYTHON_UNUSED Py_ssize_t __pyx_nargs;
   #endif
   CYTHON_UNUSED PyObject *const *__pyx_kwvalues;
-  PyObject* values[11] = {0,0,0,0,0,0,0,0,0,0,0};
+  PyObject* values[12] = {0,0,0,0,0,0,0,0,0,0,0,0};
   int __pyx_lineno = 0;
   const char *__pyx_filename = NULL;
   int __pyx_clineno = 0;
@@ -3638,22 +3801,22 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
   #endif
   __pyx_kwvalues = __Pyx_KwValues_FASTCALL(__pyx_args, __pyx_nargs);
   {
-    PyObject ** const __pyx_pyargnames[] = {&__pyx_mstate_global->__pyx_n_u_decoder_cls,&__pyx_mstate_global->__pyx_n_u_command_cls,&__pyx_mstate_global->__pyx_n_u_pure_feed,&__pyx_mstate_global->__pyx_n_u_try_frame,&__pyx_mstate_global->__pyx_n_u_swallows_a_head,&__pyx_mstate_global->__pyx_n_u_parse_imu,&__pyx_mstate_global->__pyx_n_u_imu_cls,&__pyx_mstate_global->__pyx_n_u_vector_cls,&__pyx_mstate_global->__pyx_n_u_counts_cls,&__pyx_mstate_global->__pyx_n_u_accel_scale,&__pyx_mstate_global->__pyx_n_u_gyro_scale,0};
+    PyObject ** const __pyx_pyargnames[] = {&__pyx_mstate_global->__pyx_n_u_decoder_cls,&__pyx_mstate_global->__pyx_n_u_command_cls,&__pyx_mstate_global->__pyx_n_u_pure_feed,&__pyx_mstate_global->__pyx_n_u_try_frame,&__pyx_mstate_global->__pyx_n_u_swallows_a_head,&__pyx_mstate_global->__pyx_n_u_parse_imu,&__pyx_mstate_global->__pyx_n_u_imu_cls,&__pyx_mstate_global->__pyx_n_u_vector_cls,&__pyx_mstate_global->__pyx_n_u_counts_cls,&__pyx_mstate_global->__pyx_n_u_stats_cls,&__pyx_mstate_global->__pyx_n_u_accel_scale,&__pyx_mstate_global->__pyx_n_u_gyro_scale,0};
     const Py_ssize_t __pyx_kwds_len = (__pyx_kwds) ? __Pyx_NumKwargs_FASTCALL(__pyx_kwds) : 0;
-    if (unlikely(__pyx_kwds_len < 0)) __PYX_ERR(0, 184, __pyx_L3_error)
+    if (unlikely(__pyx_kwds_len < 0)) __PYX_ERR(0, 228, __pyx_L3_error)
     if (likely(__pyx_kwds_len > 0)) {
       switch (__pyx_nargs) {
         case  0: break;
         default: goto __pyx_L5_argtuple_error;
       }
-      if (__Pyx_ParseKeywords(__pyx_kwds, __pyx_kwvalues, __pyx_pyargnames, 0, values, 0, __pyx_kwds_len, "bind", 0) < (0)) __PYX_ERR(0, 184, __pyx_L3_error)
-      for (Py_ssize_t i = 0; i < 11; i++) {
-        if (unlikely(!values[i])) { __Pyx_RaiseKeywordRequired("bind", *(__pyx_pyargnames[i - 0])); __PYX_ERR(0, 184, __pyx_L3_error) }
+      if (__Pyx_ParseKeywords(__pyx_kwds, __pyx_kwvalues, __pyx_pyargnames, 0, values, 0, __pyx_kwds_len, "bind", 0) < (0)) __PYX_ERR(0, 228, __pyx_L3_error)
+      for (Py_ssize_t i = 0; i < 12; i++) {
+        if (unlikely(!values[i])) { __Pyx_RaiseKeywordRequired("bind", *(__pyx_pyargnames[i - 0])); __PYX_ERR(0, 228, __pyx_L3_error) }
       }
     } else if (unlikely(__pyx_nargs != 0)) {
       goto __pyx_L5_argtuple_error;
     } else {
-      __Pyx_RaiseKeywordRequired("bind", __pyx_mstate_global->__pyx_n_u_decoder_cls); __PYX_ERR(0, 184, __pyx_L3_error)
+      __Pyx_RaiseKeywordRequired("bind", __pyx_mstate_global->__pyx_n_u_decoder_cls); __PYX_ERR(0, 228, __pyx_L3_error)
     }
     __pyx_v_decoder_cls = values[0];
     __pyx_v_command_cls = values[1];
@@ -3664,12 +3827,13 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
     __pyx_v_imu_cls = values[6];
     __pyx_v_vector_cls = values[7];
     __pyx_v_counts_cls = values[8];
-    __pyx_v_accel_scale = values[9];
-    __pyx_v_gyro_scale = values[10];
+    __pyx_v_stats_cls = values[9];
+    __pyx_v_accel_scale = values[10];
+    __pyx_v_gyro_scale = values[11];
   }
   goto __pyx_L6_skip;
   __pyx_L5_argtuple_error:;
-  __Pyx_RaiseArgtupleInvalid("bind", 1, 0, 0, __pyx_nargs); __PYX_ERR(0, 184, __pyx_L3_error)
+  __Pyx_RaiseArgtupleInvalid("bind", 1, 0, 0, __pyx_nargs); __PYX_ERR(0, 228, __pyx_L3_error)
   __pyx_L6_skip:;
   goto __pyx_L4_argument_unpacking_done;
   __pyx_L3_error:;
@@ -3680,7 +3844,7 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
   __Pyx_RefNannyFinishContext();
   return NULL;
   __pyx_L4_argument_unpacking_done:;
-  __pyx_r = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(__pyx_self, __pyx_v_decoder_cls, __pyx_v_command_cls, __pyx_v_pure_feed, __pyx_v_try_frame, __pyx_v_swallows_a_head, __pyx_v_parse_imu, __pyx_v_imu_cls, __pyx_v_vector_cls, __pyx_v_counts_cls, __pyx_v_accel_scale, __pyx_v_gyro_scale);
+  __pyx_r = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(__pyx_self, __pyx_v_decoder_cls, __pyx_v_command_cls, __pyx_v_pure_feed, __pyx_v_try_frame, __pyx_v_swallows_a_head, __pyx_v_parse_imu, __pyx_v_imu_cls, __pyx_v_vector_cls, __pyx_v_counts_cls, __pyx_v_stats_cls, __pyx_v_accel_scale, __pyx_v_gyro_scale);
 
   /* function exit code */
   for (Py_ssize_t __pyx_temp=0; __pyx_temp < (Py_ssize_t)(sizeof(values)/sizeof(values[0])); ++__pyx_temp) {
@@ -3691,7 +3855,7 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
 }
 static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2generator(__pyx_CoroutineObject *__pyx_generator, CYTHON_UNUSED PyThreadState *__pyx_tstate, PyObject *__pyx_sent_value); /* proto */
 
-/* "chassis_sdk/devices/board/_compiled.pyx":215
+/* "chassis_sdk/devices/board/_compiled.pyx":262
  * 
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)             # <<<<<<<<<<<<<<
@@ -3711,7 +3875,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_genexpr
   if (unlikely(!__pyx_cur_scope)) {
     __pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr *)Py_None);
     __Pyx_INCREF(Py_None);
-    __PYX_ERR(0, 215, __pyx_L1_error)
+    __PYX_ERR(0, 262, __pyx_L1_error)
   } else {
     __Pyx_GOTREF((PyObject *)__pyx_cur_scope);
   }
@@ -3722,7 +3886,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_genexpr
   __Pyx_INCREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
   __Pyx_GIVEREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
   {
-    __pyx_CoroutineObject *gen = __Pyx_Generator_New((__pyx_coroutine_body_t) __pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2generator, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[0]), (PyObject *) __pyx_cur_scope, __pyx_mstate_global->__pyx_n_u_genexpr, __pyx_mstate_global->__pyx_n_u_bind_locals_genexpr, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi); if (unlikely(!gen)) __PYX_ERR(0, 215, __pyx_L1_error)
+    __pyx_CoroutineObject *gen = __Pyx_Generator_New((__pyx_coroutine_body_t) __pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2generator, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[0]), (PyObject *) __pyx_cur_scope, __pyx_mstate_global->__pyx_n_u_genexpr, __pyx_mstate_global->__pyx_n_u_bind_locals_genexpr, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi); if (unlikely(!gen)) __PYX_ERR(0, 262, __pyx_L1_error)
     __Pyx_DECREF(__pyx_cur_scope);
     __Pyx_RefNannyFinishContext();
     return (PyObject *) gen;
@@ -3764,17 +3928,17 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
   __pyx_L3_first_run:;
   if (unlikely(__pyx_sent_value != Py_None)) {
     if (unlikely(__pyx_sent_value)) PyErr_SetString(PyExc_TypeError, "can't send non-None value to a just-started generator");
-    __PYX_ERR(0, 215, __pyx_L1_error)
+    __PYX_ERR(0, 262, __pyx_L1_error)
   }
-  if (unlikely(!__pyx_cur_scope->__pyx_genexpr_arg_0)) { __Pyx_RaiseUnboundLocalError(".0"); __PYX_ERR(0, 215, __pyx_L1_error) }
+  if (unlikely(!__pyx_cur_scope->__pyx_genexpr_arg_0)) { __Pyx_RaiseUnboundLocalError(".0"); __PYX_ERR(0, 262, __pyx_L1_error) }
   if (likely(PyList_CheckExact(__pyx_cur_scope->__pyx_genexpr_arg_0)) || PyTuple_CheckExact(__pyx_cur_scope->__pyx_genexpr_arg_0)) {
     __pyx_t_1 = __pyx_cur_scope->__pyx_genexpr_arg_0; __Pyx_INCREF(__pyx_t_1);
     __pyx_t_2 = 0;
     __pyx_t_3 = NULL;
   } else {
-    __pyx_t_2 = -1; __pyx_t_1 = PyObject_GetIter(__pyx_cur_scope->__pyx_genexpr_arg_0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 215, __pyx_L1_error)
+    __pyx_t_2 = -1; __pyx_t_1 = PyObject_GetIter(__pyx_cur_scope->__pyx_genexpr_arg_0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 262, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_1);
-    __pyx_t_3 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_1); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 215, __pyx_L1_error)
+    __pyx_t_3 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_1); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 262, __pyx_L1_error)
   }
   for (;;) {
     if (likely(!__pyx_t_3)) {
@@ -3782,7 +3946,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
         {
           Py_ssize_t __pyx_temp = __Pyx_PyList_GET_SIZE(__pyx_t_1);
           #if !CYTHON_ASSUME_SAFE_SIZE
-          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 215, __pyx_L1_error)
+          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 262, __pyx_L1_error)
           #endif
           if (__pyx_t_2 >= __pyx_temp) break;
         }
@@ -3792,7 +3956,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
         {
           Py_ssize_t __pyx_temp = __Pyx_PyTuple_GET_SIZE(__pyx_t_1);
           #if !CYTHON_ASSUME_SAFE_SIZE
-          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 215, __pyx_L1_error)
+          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 262, __pyx_L1_error)
           #endif
           if (__pyx_t_2 >= __pyx_temp) break;
         }
@@ -3803,13 +3967,13 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
         #endif
         ++__pyx_t_2;
       }
-      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 215, __pyx_L1_error)
+      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 262, __pyx_L1_error)
     } else {
       __pyx_t_4 = __pyx_t_3(__pyx_t_1);
       if (unlikely(!__pyx_t_4)) {
         PyObject* exc_type = PyErr_Occurred();
         if (exc_type) {
-          if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 215, __pyx_L1_error)
+          if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 262, __pyx_L1_error)
           PyErr_Clear();
         }
         break;
@@ -3820,8 +3984,8 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
     __Pyx_XDECREF_SET(__pyx_cur_scope->__pyx_v_name, __pyx_t_4);
     __Pyx_GIVEREF(__pyx_t_4);
     __pyx_t_4 = 0;
-    if (unlikely(!__pyx_cur_scope->__pyx_outer_scope->__pyx_v_imu_cls)) { __Pyx_RaiseClosureNameError("imu_cls"); __PYX_ERR(0, 215, __pyx_L1_error) }
-    __pyx_t_6 = __Pyx_PyObject_GetAttrStr(__pyx_cur_scope->__pyx_outer_scope->__pyx_v_imu_cls, __pyx_mstate_global->__pyx_n_u_dict); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 215, __pyx_L1_error)
+    if (unlikely(!__pyx_cur_scope->__pyx_outer_scope->__pyx_v_imu_cls)) { __Pyx_RaiseClosureNameError("imu_cls"); __PYX_ERR(0, 262, __pyx_L1_error) }
+    __pyx_t_6 = __Pyx_PyObject_GetAttrStr(__pyx_cur_scope->__pyx_outer_scope->__pyx_v_imu_cls, __pyx_mstate_global->__pyx_n_u_dict); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 262, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_6);
     __pyx_t_5 = __pyx_t_6;
     __Pyx_INCREF(__pyx_t_5);
@@ -3831,7 +3995,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
       __pyx_t_4 = __Pyx_PyObject_FastCallMethod((PyObject*)__pyx_mstate_global->__pyx_n_u_get, __pyx_callargs+__pyx_t_7, (2-__pyx_t_7) | (1*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
       __Pyx_XDECREF(__pyx_t_5); __pyx_t_5 = 0;
       __Pyx_DECREF(__pyx_t_6); __pyx_t_6 = 0;
-      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 215, __pyx_L1_error)
+      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 262, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_4);
     }
     __pyx_r = __pyx_t_4;
@@ -3854,7 +4018,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
     __Pyx_XGOTREF(__pyx_t_1);
     __pyx_t_2 = __pyx_cur_scope->__pyx_t_1;
     __pyx_t_3 = __pyx_cur_scope->__pyx_t_2;
-    if (unlikely(!__pyx_sent_value)) __PYX_ERR(0, 215, __pyx_L1_error)
+    if (unlikely(!__pyx_sent_value)) __PYX_ERR(0, 262, __pyx_L1_error)
   }
   __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
   CYTHON_MAYBE_UNUSED_VAR(__pyx_cur_scope);
@@ -3883,12 +4047,12 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2genera
 }
 static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5generator1(__pyx_CoroutineObject *__pyx_generator, CYTHON_UNUSED PyThreadState *__pyx_tstate, PyObject *__pyx_sent_value); /* proto */
 
-/* "chassis_sdk/devices/board/_compiled.pyx":216
+/* "chassis_sdk/devices/board/_compiled.pyx":263
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):             # <<<<<<<<<<<<<<
  *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
- *     for cls in (vector_cls, counts_cls):
+ *     stats_slots = tuple(
 */
 
 static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_3genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0) {
@@ -3903,7 +4067,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_3genexp
   if (unlikely(!__pyx_cur_scope)) {
     __pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr *)Py_None);
     __Pyx_INCREF(Py_None);
-    __PYX_ERR(0, 216, __pyx_L1_error)
+    __PYX_ERR(0, 263, __pyx_L1_error)
   } else {
     __Pyx_GOTREF((PyObject *)__pyx_cur_scope);
   }
@@ -3914,7 +4078,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_3genexp
   __Pyx_INCREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
   __Pyx_GIVEREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
   {
-    __pyx_CoroutineObject *gen = __Pyx_Generator_New((__pyx_coroutine_body_t) __pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5generator1, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[1]), (PyObject *) __pyx_cur_scope, __pyx_mstate_global->__pyx_n_u_genexpr, __pyx_mstate_global->__pyx_n_u_bind_locals_genexpr, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi); if (unlikely(!gen)) __PYX_ERR(0, 216, __pyx_L1_error)
+    __pyx_CoroutineObject *gen = __Pyx_Generator_New((__pyx_coroutine_body_t) __pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5generator1, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[1]), (PyObject *) __pyx_cur_scope, __pyx_mstate_global->__pyx_n_u_genexpr, __pyx_mstate_global->__pyx_n_u_bind_locals_genexpr, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi); if (unlikely(!gen)) __PYX_ERR(0, 263, __pyx_L1_error)
     __Pyx_DECREF(__pyx_cur_scope);
     __Pyx_RefNannyFinishContext();
     return (PyObject *) gen;
@@ -3952,16 +4116,16 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
     return NULL;
   }
   __pyx_L3_first_run:;
-  if (unlikely(!__pyx_sent_value)) __PYX_ERR(0, 216, __pyx_L1_error)
-  if (unlikely(!__pyx_cur_scope->__pyx_genexpr_arg_0)) { __Pyx_RaiseUnboundLocalError(".0"); __PYX_ERR(0, 216, __pyx_L1_error) }
+  if (unlikely(!__pyx_sent_value)) __PYX_ERR(0, 263, __pyx_L1_error)
+  if (unlikely(!__pyx_cur_scope->__pyx_genexpr_arg_0)) { __Pyx_RaiseUnboundLocalError(".0"); __PYX_ERR(0, 263, __pyx_L1_error) }
   if (likely(PyList_CheckExact(__pyx_cur_scope->__pyx_genexpr_arg_0)) || PyTuple_CheckExact(__pyx_cur_scope->__pyx_genexpr_arg_0)) {
     __pyx_t_1 = __pyx_cur_scope->__pyx_genexpr_arg_0; __Pyx_INCREF(__pyx_t_1);
     __pyx_t_2 = 0;
     __pyx_t_3 = NULL;
   } else {
-    __pyx_t_2 = -1; __pyx_t_1 = PyObject_GetIter(__pyx_cur_scope->__pyx_genexpr_arg_0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 216, __pyx_L1_error)
+    __pyx_t_2 = -1; __pyx_t_1 = PyObject_GetIter(__pyx_cur_scope->__pyx_genexpr_arg_0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 263, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_1);
-    __pyx_t_3 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_1); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 216, __pyx_L1_error)
+    __pyx_t_3 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_1); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 263, __pyx_L1_error)
   }
   for (;;) {
     if (likely(!__pyx_t_3)) {
@@ -3969,7 +4133,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
         {
           Py_ssize_t __pyx_temp = __Pyx_PyList_GET_SIZE(__pyx_t_1);
           #if !CYTHON_ASSUME_SAFE_SIZE
-          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 216, __pyx_L1_error)
+          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 263, __pyx_L1_error)
           #endif
           if (__pyx_t_2 >= __pyx_temp) break;
         }
@@ -3979,7 +4143,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
         {
           Py_ssize_t __pyx_temp = __Pyx_PyTuple_GET_SIZE(__pyx_t_1);
           #if !CYTHON_ASSUME_SAFE_SIZE
-          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 216, __pyx_L1_error)
+          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 263, __pyx_L1_error)
           #endif
           if (__pyx_t_2 >= __pyx_temp) break;
         }
@@ -3990,13 +4154,13 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
         #endif
         ++__pyx_t_2;
       }
-      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 216, __pyx_L1_error)
+      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 263, __pyx_L1_error)
     } else {
       __pyx_t_4 = __pyx_t_3(__pyx_t_1);
       if (unlikely(!__pyx_t_4)) {
         PyObject* exc_type = PyErr_Occurred();
         if (exc_type) {
-          if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 216, __pyx_L1_error)
+          if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 263, __pyx_L1_error)
           PyErr_Clear();
         }
         break;
@@ -4007,8 +4171,349 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
     __Pyx_XDECREF_SET(__pyx_cur_scope->__pyx_v_s, __pyx_t_4);
     __Pyx_GIVEREF(__pyx_t_4);
     __pyx_t_4 = 0;
-    if (unlikely(!__pyx_cur_scope->__pyx_outer_scope->__pyx_v_types)) { __Pyx_RaiseClosureNameError("types"); __PYX_ERR(0, 216, __pyx_L1_error) }
-    __pyx_t_4 = __Pyx_PyObject_GetAttrStr(__pyx_cur_scope->__pyx_outer_scope->__pyx_v_types, __pyx_mstate_global->__pyx_n_u_MemberDescriptorType); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 216, __pyx_L1_error)
+    if (unlikely(!__pyx_cur_scope->__pyx_outer_scope->__pyx_v_types)) { __Pyx_RaiseClosureNameError("types"); __PYX_ERR(0, 263, __pyx_L1_error) }
+    __pyx_t_4 = __Pyx_PyObject_GetAttrStr(__pyx_cur_scope->__pyx_outer_scope->__pyx_v_types, __pyx_mstate_global->__pyx_n_u_MemberDescriptorType); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 263, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_4);
+    __pyx_t_5 = (((PyObject *)Py_TYPE(__pyx_cur_scope->__pyx_v_s)) == __pyx_t_4);
+    __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+    __pyx_t_6 = (!__pyx_t_5);
+
+
+    if (__pyx_t_6) {
+
+      {
+        PyObject *__pyx_temp;
+        {
+          __pyx_temp = __pyx_r;
+          __Pyx_INCREF(Py_False);
+          __pyx_r = Py_False;
+        }
+        __Pyx_XDECREF(__pyx_temp);
+      }
+      __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+      goto __pyx_L0;
+    }
+  }
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  /*else*/ {
+    {
+      PyObject *__pyx_temp;
+      {
+        __pyx_temp = __pyx_r;
+        __Pyx_INCREF(Py_True);
+        __pyx_r = Py_True;
+      }
+      __Pyx_XDECREF(__pyx_temp);
+    }
+    goto __pyx_L0;
+  }
+  CYTHON_MAYBE_UNUSED_VAR(__pyx_cur_scope);
+
+  /* function exit code */
+  goto __pyx_L0;
+  __pyx_L1_error:;
+  __Pyx_XDECREF(__pyx_t_1);
+  __Pyx_XDECREF(__pyx_t_4);
+  if (__Pyx_PyErr_Occurred()) {
+    __Pyx_Generator_Replace_StopIteration(0);
+    __Pyx_AddTraceback("genexpr", __pyx_clineno, __pyx_lineno, __pyx_filename);
+  }
+  __pyx_L0:;
+  __Pyx_XGIVEREF(__pyx_r);
+  #if !CYTHON_USE_EXC_INFO_STACK
+  __Pyx_Coroutine_ResetAndClearException(__pyx_generator);
+  #endif
+  __pyx_generator->resume_label = -1;
+  __Pyx_Coroutine_clear((PyObject*)__pyx_generator);
+  __Pyx_RefNannyFinishContext();
+  return __pyx_r;
+}
+static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_8generator2(__pyx_CoroutineObject *__pyx_generator, CYTHON_UNUSED PyThreadState *__pyx_tstate, PyObject *__pyx_sent_value); /* proto */
+
+/* "chassis_sdk/devices/board/_compiled.pyx":266
+ *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+ *     stats_slots = tuple(
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")             # <<<<<<<<<<<<<<
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+*/
+
+static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_6genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0) {
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *__pyx_cur_scope;
+  PyObject *__pyx_r = NULL;
+  __Pyx_RefNannyDeclarations
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  __Pyx_RefNannySetupContext("genexpr", 0);
+  __pyx_cur_scope = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *)__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(__pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, __pyx_mstate_global->__pyx_empty_tuple, NULL);
+  if (unlikely(!__pyx_cur_scope)) {
+    __pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *)Py_None);
+    __Pyx_INCREF(Py_None);
+    __PYX_ERR(0, 266, __pyx_L1_error)
+  } else {
+    __Pyx_GOTREF((PyObject *)__pyx_cur_scope);
+  }
+  __pyx_cur_scope->__pyx_outer_scope = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *) __pyx_self;
+  __Pyx_INCREF((PyObject *)__pyx_cur_scope->__pyx_outer_scope);
+  __Pyx_GIVEREF((PyObject *)__pyx_cur_scope->__pyx_outer_scope);
+  __pyx_cur_scope->__pyx_genexpr_arg_0 = __pyx_genexpr_arg_0;
+  __Pyx_INCREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
+  __Pyx_GIVEREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
+  {
+    __pyx_CoroutineObject *gen = __Pyx_Generator_New((__pyx_coroutine_body_t) __pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_8generator2, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[2]), (PyObject *) __pyx_cur_scope, __pyx_mstate_global->__pyx_n_u_genexpr, __pyx_mstate_global->__pyx_n_u_bind_locals_genexpr, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi); if (unlikely(!gen)) __PYX_ERR(0, 266, __pyx_L1_error)
+    __Pyx_DECREF(__pyx_cur_scope);
+    __Pyx_RefNannyFinishContext();
+    return (PyObject *) gen;
+  }
+
+  /* function exit code */
+  __pyx_L1_error:;
+  __Pyx_AddTraceback("chassis_sdk.devices.board._compiled.bind.genexpr", __pyx_clineno, __pyx_lineno, __pyx_filename);
+  __pyx_r = NULL;
+  __Pyx_DECREF((PyObject *)__pyx_cur_scope);
+  __Pyx_XGIVEREF(__pyx_r);
+  __Pyx_RefNannyFinishContext();
+  return __pyx_r;
+}
+
+static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_8generator2(__pyx_CoroutineObject *__pyx_generator, CYTHON_UNUSED PyThreadState *__pyx_tstate, PyObject *__pyx_sent_value) /* generator body */
+{
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *__pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *)__pyx_generator->closure);
+  PyObject *__pyx_r = NULL;
+  PyObject *__pyx_t_1 = NULL;
+  Py_ssize_t __pyx_t_2;
+  PyObject *__pyx_t_3 = NULL;
+  PyObject *__pyx_t_4 = NULL;
+  PyObject *__pyx_t_5 = NULL;
+  size_t __pyx_t_6;
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  __Pyx_RefNannyDeclarations
+  __Pyx_RefNannySetupContext("genexpr", 0);
+  switch (__pyx_generator->resume_label) {
+    case 0: goto __pyx_L3_first_run;
+    case 1: goto __pyx_L6_resume_from_yield;
+    default: /* CPython raises the right error here */
+    __Pyx_RefNannyFinishContext();
+    return NULL;
+  }
+  __pyx_L3_first_run:;
+  if (unlikely(__pyx_sent_value != Py_None)) {
+    if (unlikely(__pyx_sent_value)) PyErr_SetString(PyExc_TypeError, "can't send non-None value to a just-started generator");
+    __PYX_ERR(0, 266, __pyx_L1_error)
+  }
+  if (unlikely(!__pyx_cur_scope->__pyx_genexpr_arg_0)) { __Pyx_RaiseUnboundLocalError(".0"); __PYX_ERR(0, 266, __pyx_L1_error) }
+  __pyx_t_1 = __pyx_cur_scope->__pyx_genexpr_arg_0; __Pyx_INCREF(__pyx_t_1);
+  __pyx_t_2 = 0;
+  for (;;) {
+    {
+      Py_ssize_t __pyx_temp = __Pyx_PyTuple_GET_SIZE(__pyx_t_1);
+      #if !CYTHON_ASSUME_SAFE_SIZE
+      if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 266, __pyx_L1_error)
+      #endif
+      if (__pyx_t_2 >= __pyx_temp) break;
+    }
+    #if CYTHON_ASSUME_SAFE_MACROS && !CYTHON_AVOID_BORROWED_REFS
+    __pyx_t_3 = __Pyx_NewRef(PyTuple_GET_ITEM(__pyx_t_1, __pyx_t_2));
+    #else
+    __pyx_t_3 = __Pyx_PySequence_ITEM(__pyx_t_1, __pyx_t_2);
+    #endif
+    ++__pyx_t_2;
+    if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 266, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    if (!(likely(PyUnicode_CheckExact(__pyx_t_3))||((__pyx_t_3) == Py_None) || __Pyx_RaiseUnexpectedTypeError("str", __pyx_t_3))) __PYX_ERR(0, 266, __pyx_L1_error)
+    __Pyx_XGOTREF(__pyx_cur_scope->__pyx_v_name);
+    __Pyx_XDECREF_SET(__pyx_cur_scope->__pyx_v_name, __pyx_t_3);
+    __Pyx_GIVEREF(__pyx_t_3);
+    __pyx_t_3 = 0;
+    if (unlikely(!__pyx_cur_scope->__pyx_outer_scope->__pyx_v_stats_cls)) { __Pyx_RaiseClosureNameError("stats_cls"); __PYX_ERR(0, 266, __pyx_L1_error) }
+    __pyx_t_5 = __Pyx_PyObject_GetAttrStr(__pyx_cur_scope->__pyx_outer_scope->__pyx_v_stats_cls, __pyx_mstate_global->__pyx_n_u_dict); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 266, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_5);
+    __pyx_t_4 = __pyx_t_5;
+    __Pyx_INCREF(__pyx_t_4);
+    __pyx_t_6 = 0;
+    {
+      PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_cur_scope->__pyx_v_name};
+      __pyx_t_3 = __Pyx_PyObject_FastCallMethod((PyObject*)__pyx_mstate_global->__pyx_n_u_get, __pyx_callargs+__pyx_t_6, (2-__pyx_t_6) | (1*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+      __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
+      __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
+      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 266, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_3);
+    }
+    __pyx_r = __pyx_t_3;
+    __pyx_t_3 = 0;
+    __Pyx_XGIVEREF(__pyx_t_1);
+    __pyx_cur_scope->__pyx_t_0 = __pyx_t_1;
+
+    __pyx_cur_scope->__pyx_t_1 = __pyx_t_2;
+    __Pyx_XGIVEREF(__pyx_r);
+    __Pyx_RefNannyFinishContext();
+    __Pyx_Coroutine_ResetAndClearException(__pyx_generator);
+    /* return from generator, yielding value */
+    __pyx_generator->resume_label = 1;
+    return __pyx_r;
+    __pyx_L6_resume_from_yield:;
+    __pyx_t_1 = __pyx_cur_scope->__pyx_t_0;
+    __pyx_cur_scope->__pyx_t_0 = 0;
+    __Pyx_XGOTREF(__pyx_t_1);
+    __pyx_t_2 = __pyx_cur_scope->__pyx_t_1;
+    if (unlikely(!__pyx_sent_value)) __PYX_ERR(0, 266, __pyx_L1_error)
+  }
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  CYTHON_MAYBE_UNUSED_VAR(__pyx_cur_scope);
+
+  /* function exit code */
+  __pyx_r = Py_None; __Pyx_INCREF(Py_None);
+  goto __pyx_L0;
+  __pyx_L1_error:;
+  __Pyx_XDECREF(__pyx_t_1);
+  __Pyx_XDECREF(__pyx_t_3);
+  __Pyx_XDECREF(__pyx_t_4);
+  __Pyx_XDECREF(__pyx_t_5);
+  if (__Pyx_PyErr_Occurred()) {
+    __Pyx_Generator_Replace_StopIteration(0);
+    __Pyx_AddTraceback("genexpr", __pyx_clineno, __pyx_lineno, __pyx_filename);
+  }
+  __pyx_L0:;
+  __Pyx_XGIVEREF(__pyx_r);
+  #if !CYTHON_USE_EXC_INFO_STACK
+  __Pyx_Coroutine_ResetAndClearException(__pyx_generator);
+  #endif
+  __pyx_generator->resume_label = -1;
+  __Pyx_Coroutine_clear((PyObject*)__pyx_generator);
+  __Pyx_RefNannyFinishContext();
+  return __pyx_r;
+}
+static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_11generator3(__pyx_CoroutineObject *__pyx_generator, CYTHON_UNUSED PyThreadState *__pyx_tstate, PyObject *__pyx_sent_value); /* proto */
+
+/* "chassis_sdk/devices/board/_compiled.pyx":268
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):             # <<<<<<<<<<<<<<
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
+ *     for cls in (vector_cls, counts_cls):
+*/
+
+static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_9genexpr(PyObject *__pyx_self, PyObject *__pyx_genexpr_arg_0) {
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *__pyx_cur_scope;
+  PyObject *__pyx_r = NULL;
+  __Pyx_RefNannyDeclarations
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  __Pyx_RefNannySetupContext("genexpr", 0);
+  __pyx_cur_scope = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *)__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(__pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, __pyx_mstate_global->__pyx_empty_tuple, NULL);
+  if (unlikely(!__pyx_cur_scope)) {
+    __pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *)Py_None);
+    __Pyx_INCREF(Py_None);
+    __PYX_ERR(0, 268, __pyx_L1_error)
+  } else {
+    __Pyx_GOTREF((PyObject *)__pyx_cur_scope);
+  }
+  __pyx_cur_scope->__pyx_outer_scope = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *) __pyx_self;
+  __Pyx_INCREF((PyObject *)__pyx_cur_scope->__pyx_outer_scope);
+  __Pyx_GIVEREF((PyObject *)__pyx_cur_scope->__pyx_outer_scope);
+  __pyx_cur_scope->__pyx_genexpr_arg_0 = __pyx_genexpr_arg_0;
+  __Pyx_INCREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
+  __Pyx_GIVEREF(__pyx_cur_scope->__pyx_genexpr_arg_0);
+  {
+    __pyx_CoroutineObject *gen = __Pyx_Generator_New((__pyx_coroutine_body_t) __pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_11generator3, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[3]), (PyObject *) __pyx_cur_scope, __pyx_mstate_global->__pyx_n_u_genexpr, __pyx_mstate_global->__pyx_n_u_bind_locals_genexpr, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi); if (unlikely(!gen)) __PYX_ERR(0, 268, __pyx_L1_error)
+    __Pyx_DECREF(__pyx_cur_scope);
+    __Pyx_RefNannyFinishContext();
+    return (PyObject *) gen;
+  }
+
+  /* function exit code */
+  __pyx_L1_error:;
+  __Pyx_AddTraceback("chassis_sdk.devices.board._compiled.bind.genexpr", __pyx_clineno, __pyx_lineno, __pyx_filename);
+  __pyx_r = NULL;
+  __Pyx_DECREF((PyObject *)__pyx_cur_scope);
+  __Pyx_XGIVEREF(__pyx_r);
+  __Pyx_RefNannyFinishContext();
+  return __pyx_r;
+}
+
+static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_11generator3(__pyx_CoroutineObject *__pyx_generator, CYTHON_UNUSED PyThreadState *__pyx_tstate, PyObject *__pyx_sent_value) /* generator body */
+{
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *__pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *)__pyx_generator->closure);
+  PyObject *__pyx_r = NULL;
+  PyObject *__pyx_t_1 = NULL;
+  Py_ssize_t __pyx_t_2;
+  PyObject *(*__pyx_t_3)(PyObject *);
+  PyObject *__pyx_t_4 = NULL;
+  int __pyx_t_5;
+  int __pyx_t_6;
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  __Pyx_RefNannyDeclarations
+  __Pyx_RefNannySetupContext("genexpr", 0);
+  switch (__pyx_generator->resume_label) {
+    case 0: goto __pyx_L3_first_run;
+    default: /* CPython raises the right error here */
+    __Pyx_RefNannyFinishContext();
+    return NULL;
+  }
+  __pyx_L3_first_run:;
+  if (unlikely(!__pyx_sent_value)) __PYX_ERR(0, 268, __pyx_L1_error)
+  if (unlikely(!__pyx_cur_scope->__pyx_genexpr_arg_0)) { __Pyx_RaiseUnboundLocalError(".0"); __PYX_ERR(0, 268, __pyx_L1_error) }
+  if (likely(PyList_CheckExact(__pyx_cur_scope->__pyx_genexpr_arg_0)) || PyTuple_CheckExact(__pyx_cur_scope->__pyx_genexpr_arg_0)) {
+    __pyx_t_1 = __pyx_cur_scope->__pyx_genexpr_arg_0; __Pyx_INCREF(__pyx_t_1);
+    __pyx_t_2 = 0;
+    __pyx_t_3 = NULL;
+  } else {
+    __pyx_t_2 = -1; __pyx_t_1 = PyObject_GetIter(__pyx_cur_scope->__pyx_genexpr_arg_0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 268, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_1);
+    __pyx_t_3 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_1); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 268, __pyx_L1_error)
+  }
+  for (;;) {
+    if (likely(!__pyx_t_3)) {
+      if (likely(PyList_CheckExact(__pyx_t_1))) {
+        {
+          Py_ssize_t __pyx_temp = __Pyx_PyList_GET_SIZE(__pyx_t_1);
+          #if !CYTHON_ASSUME_SAFE_SIZE
+          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 268, __pyx_L1_error)
+          #endif
+          if (__pyx_t_2 >= __pyx_temp) break;
+        }
+        __pyx_t_4 = __Pyx_PyList_GET_ITEM_REF(__pyx_t_1, __pyx_t_2, __Pyx_ReferenceSharing_OwnStrongReference);
+        ++__pyx_t_2;
+      } else {
+        {
+          Py_ssize_t __pyx_temp = __Pyx_PyTuple_GET_SIZE(__pyx_t_1);
+          #if !CYTHON_ASSUME_SAFE_SIZE
+          if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 268, __pyx_L1_error)
+          #endif
+          if (__pyx_t_2 >= __pyx_temp) break;
+        }
+        #if CYTHON_ASSUME_SAFE_MACROS && !CYTHON_AVOID_BORROWED_REFS
+        __pyx_t_4 = __Pyx_NewRef(PyTuple_GET_ITEM(__pyx_t_1, __pyx_t_2));
+        #else
+        __pyx_t_4 = __Pyx_PySequence_ITEM(__pyx_t_1, __pyx_t_2);
+        #endif
+        ++__pyx_t_2;
+      }
+      if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 268, __pyx_L1_error)
+    } else {
+      __pyx_t_4 = __pyx_t_3(__pyx_t_1);
+      if (unlikely(!__pyx_t_4)) {
+        PyObject* exc_type = PyErr_Occurred();
+        if (exc_type) {
+          if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 268, __pyx_L1_error)
+          PyErr_Clear();
+        }
+        break;
+      }
+    }
+    __Pyx_GOTREF(__pyx_t_4);
+    __Pyx_XGOTREF(__pyx_cur_scope->__pyx_v_s);
+    __Pyx_XDECREF_SET(__pyx_cur_scope->__pyx_v_s, __pyx_t_4);
+    __Pyx_GIVEREF(__pyx_t_4);
+    __pyx_t_4 = 0;
+    if (unlikely(!__pyx_cur_scope->__pyx_outer_scope->__pyx_v_types)) { __Pyx_RaiseClosureNameError("types"); __PYX_ERR(0, 268, __pyx_L1_error) }
+    __pyx_t_4 = __Pyx_PyObject_GetAttrStr(__pyx_cur_scope->__pyx_outer_scope->__pyx_v_types, __pyx_mstate_global->__pyx_n_u_MemberDescriptorType); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 268, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_4);
     __pyx_t_5 = (((PyObject *)Py_TYPE(__pyx_cur_scope->__pyx_v_s)) == __pyx_t_4);
     __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
@@ -4065,7 +4570,7 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":184
+/* "chassis_sdk/devices/board/_compiled.pyx":228
  * 
  * 
  * def bind(             # <<<<<<<<<<<<<<
@@ -4073,15 +4578,18 @@ static PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5genera
  *     decoder_cls,
 */
 
-static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_UNUSED PyObject *__pyx_self, PyObject *__pyx_v_decoder_cls, PyObject *__pyx_v_command_cls, PyObject *__pyx_v_pure_feed, PyObject *__pyx_v_try_frame, PyObject *__pyx_v_swallows_a_head, PyObject *__pyx_v_parse_imu, PyObject *__pyx_v_imu_cls, PyObject *__pyx_v_vector_cls, PyObject *__pyx_v_counts_cls, PyObject *__pyx_v_accel_scale, PyObject *__pyx_v_gyro_scale) {
+static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_UNUSED PyObject *__pyx_self, PyObject *__pyx_v_decoder_cls, PyObject *__pyx_v_command_cls, PyObject *__pyx_v_pure_feed, PyObject *__pyx_v_try_frame, PyObject *__pyx_v_swallows_a_head, PyObject *__pyx_v_parse_imu, PyObject *__pyx_v_imu_cls, PyObject *__pyx_v_vector_cls, PyObject *__pyx_v_counts_cls, PyObject *__pyx_v_stats_cls, PyObject *__pyx_v_accel_scale, PyObject *__pyx_v_gyro_scale) {
   struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *__pyx_cur_scope;
   PyObject *__pyx_v_dataclasses = 0;
   PyObject *__pyx_v_names = 0;
   PyObject *__pyx_v_slots = 0;
+  PyObject *__pyx_v_stats_slots = 0;
   PyObject *__pyx_v_cls = 0;
   PyObject *__pyx_7genexpr__pyx_v_f = NULL;
   PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2generator = 0;
   PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5generator1 = 0;
+  PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_8generator2 = 0;
+  PyObject *__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_11generator3 = 0;
   PyObject *__pyx_r = NULL;
   __Pyx_RefNannyDeclarations
   PyObject *__pyx_t_1 = NULL;
@@ -4097,6 +4605,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   PyObject *__pyx_t_11 = NULL;
   PyObject *__pyx_t_12 = NULL;
   double __pyx_t_13;
+  PyObject *(*__pyx_t_14)(PyObject *);
   int __pyx_lineno = 0;
   const char *__pyx_filename = NULL;
   int __pyx_clineno = 0;
@@ -4105,42 +4614,45 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   if (unlikely(!__pyx_cur_scope)) {
     __pyx_cur_scope = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *)Py_None);
     __Pyx_INCREF(Py_None);
-    __PYX_ERR(0, 184, __pyx_L1_error)
+    __PYX_ERR(0, 228, __pyx_L1_error)
   } else {
     __Pyx_GOTREF((PyObject *)__pyx_cur_scope);
   }
   __pyx_cur_scope->__pyx_v_imu_cls = __pyx_v_imu_cls;
   __Pyx_INCREF(__pyx_cur_scope->__pyx_v_imu_cls);
   __Pyx_GIVEREF(__pyx_cur_scope->__pyx_v_imu_cls);
+  __pyx_cur_scope->__pyx_v_stats_cls = __pyx_v_stats_cls;
+  __Pyx_INCREF(__pyx_cur_scope->__pyx_v_stats_cls);
+  __Pyx_GIVEREF(__pyx_cur_scope->__pyx_v_stats_cls);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":211
- *     global _decoder_cls, _command_cls, _pure_feed, _try_frame, _swallows, _parse_imu
+  /* "chassis_sdk/devices/board/_compiled.pyx":258
  *     global _imu_cls, _vector_cls, _counts_cls, _accel, _gyro, _slots, _bound
+ *     global _stats_cls, _received_slot, _frames_slot, _dropped_slot
  *     import dataclasses             # <<<<<<<<<<<<<<
  *     import types
  * 
 */
-  __pyx_t_2 = __Pyx_Import(__pyx_mstate_global->__pyx_n_u_dataclasses, 0, 0, NULL, 0); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 211, __pyx_L1_error)
+  __pyx_t_2 = __Pyx_Import(__pyx_mstate_global->__pyx_n_u_dataclasses, 0, 0, NULL, 0); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 258, __pyx_L1_error)
   __pyx_t_1 = __pyx_t_2;
   __Pyx_GOTREF(__pyx_t_1);
   __pyx_v_dataclasses = __pyx_t_1;
   __pyx_t_1 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":212
- *     global _imu_cls, _vector_cls, _counts_cls, _accel, _gyro, _slots, _bound
+  /* "chassis_sdk/devices/board/_compiled.pyx":259
+ *     global _stats_cls, _received_slot, _frames_slot, _dropped_slot
  *     import dataclasses
  *     import types             # <<<<<<<<<<<<<<
  * 
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
 */
-  __pyx_t_2 = __Pyx_Import(__pyx_mstate_global->__pyx_n_u_types, 0, 0, NULL, 0); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 212, __pyx_L1_error)
+  __pyx_t_2 = __Pyx_Import(__pyx_mstate_global->__pyx_n_u_types, 0, 0, NULL, 0); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 259, __pyx_L1_error)
   __pyx_t_1 = __pyx_t_2;
   __Pyx_GOTREF(__pyx_t_1);
   __Pyx_GIVEREF(__pyx_t_1);
   __pyx_cur_scope->__pyx_v_types = __pyx_t_1;
   __pyx_t_1 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":214
+  /* "chassis_sdk/devices/board/_compiled.pyx":261
  *     import types
  * 
  *     names = [f.name for f in dataclasses.fields(imu_cls)]             # <<<<<<<<<<<<<<
@@ -4148,7 +4660,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
 */
   { /* enter inner scope */
-    __pyx_t_1 = PyList_New(0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 214, __pyx_L5_error)
+    __pyx_t_1 = PyList_New(0); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 261, __pyx_L5_error)
     __Pyx_GOTREF(__pyx_t_1);
     __pyx_t_4 = __pyx_v_dataclasses;
     __Pyx_INCREF(__pyx_t_4);
@@ -4157,7 +4669,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
       PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_cur_scope->__pyx_v_imu_cls};
       __pyx_t_3 = __Pyx_PyObject_FastCallMethod((PyObject*)__pyx_mstate_global->__pyx_n_u_fields, __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (1*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
       __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
-      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 214, __pyx_L5_error)
+      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 261, __pyx_L5_error)
       __Pyx_GOTREF(__pyx_t_3);
     }
     if (likely(PyList_CheckExact(__pyx_t_3)) || PyTuple_CheckExact(__pyx_t_3)) {
@@ -4165,9 +4677,9 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
       __pyx_t_6 = 0;
       __pyx_t_7 = NULL;
     } else {
-      __pyx_t_6 = -1; __pyx_t_4 = PyObject_GetIter(__pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 214, __pyx_L5_error)
+      __pyx_t_6 = -1; __pyx_t_4 = PyObject_GetIter(__pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 261, __pyx_L5_error)
       __Pyx_GOTREF(__pyx_t_4);
-      __pyx_t_7 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_4); if (unlikely(!__pyx_t_7)) __PYX_ERR(0, 214, __pyx_L5_error)
+      __pyx_t_7 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_4); if (unlikely(!__pyx_t_7)) __PYX_ERR(0, 261, __pyx_L5_error)
     }
     __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
     for (;;) {
@@ -4176,7 +4688,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
           {
             Py_ssize_t __pyx_temp = __Pyx_PyList_GET_SIZE(__pyx_t_4);
             #if !CYTHON_ASSUME_SAFE_SIZE
-            if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 214, __pyx_L5_error)
+            if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 261, __pyx_L5_error)
             #endif
             if (__pyx_t_6 >= __pyx_temp) break;
           }
@@ -4186,7 +4698,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
           {
             Py_ssize_t __pyx_temp = __Pyx_PyTuple_GET_SIZE(__pyx_t_4);
             #if !CYTHON_ASSUME_SAFE_SIZE
-            if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 214, __pyx_L5_error)
+            if (unlikely((__pyx_temp < 0))) __PYX_ERR(0, 261, __pyx_L5_error)
             #endif
             if (__pyx_t_6 >= __pyx_temp) break;
           }
@@ -4197,13 +4709,13 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
           #endif
           ++__pyx_t_6;
         }
-        if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 214, __pyx_L5_error)
+        if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 261, __pyx_L5_error)
       } else {
         __pyx_t_3 = __pyx_t_7(__pyx_t_4);
         if (unlikely(!__pyx_t_3)) {
           PyObject* exc_type = PyErr_Occurred();
           if (exc_type) {
-            if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 214, __pyx_L5_error)
+            if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration))) __PYX_ERR(0, 261, __pyx_L5_error)
             PyErr_Clear();
           }
           break;
@@ -4212,10 +4724,10 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
       __Pyx_GOTREF(__pyx_t_3);
       __Pyx_XDECREF_SET(__pyx_7genexpr__pyx_v_f, __pyx_t_3);
       __pyx_t_3 = 0;
-      __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_7genexpr__pyx_v_f, __pyx_mstate_global->__pyx_n_u_name); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 214, __pyx_L5_error)
+      __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_7genexpr__pyx_v_f, __pyx_mstate_global->__pyx_n_u_name); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 261, __pyx_L5_error)
       __Pyx_GOTREF(__pyx_t_3);
       __Pyx_GIVEREF(__pyx_t_3);
-      if (unlikely(__Pyx_ListComp_AppendAndDecref(__pyx_t_1, __pyx_t_3))) __PYX_ERR(0, 214, __pyx_L5_error)
+      if (unlikely(__Pyx_ListComp_AppendAndDecref(__pyx_t_1, __pyx_t_3))) __PYX_ERR(0, 261, __pyx_L5_error)
       __pyx_t_3 = 0;
     }
     __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
@@ -4229,29 +4741,29 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __pyx_v_names = __pyx_t_1;
   __pyx_t_1 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":215
+  /* "chassis_sdk/devices/board/_compiled.pyx":262
  * 
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)             # <<<<<<<<<<<<<<
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
  *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
 */
-  __pyx_t_1 = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_genexpr(((PyObject*)__pyx_cur_scope), __pyx_v_names); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 215, __pyx_L1_error)
+  __pyx_t_1 = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_genexpr(((PyObject*)__pyx_cur_scope), __pyx_v_names); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 262, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_1);
-  __pyx_t_4 = __Pyx_PySequence_Tuple(__pyx_t_1); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 215, __pyx_L1_error)
+  __pyx_t_4 = __Pyx_PySequence_Tuple(__pyx_t_1); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 262, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_4);
   __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
   __pyx_v_slots = __pyx_t_4;
   __pyx_t_4 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":216
+  /* "chassis_sdk/devices/board/_compiled.pyx":263
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):             # <<<<<<<<<<<<<<
  *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
- *     for cls in (vector_cls, counts_cls):
+ *     stats_slots = tuple(
 */
-  __pyx_t_6 = PyObject_Length(__pyx_v_slots); if (unlikely(__pyx_t_6 == ((Py_ssize_t)-1))) __PYX_ERR(0, 216, __pyx_L1_error)
+  __pyx_t_6 = PyObject_Length(__pyx_v_slots); if (unlikely(__pyx_t_6 == ((Py_ssize_t)-1))) __PYX_ERR(0, 263, __pyx_L1_error)
   __pyx_t_9 = (__pyx_t_6 != 5);
 
 
@@ -4263,12 +4775,12 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
 
     goto __pyx_L11_bool_binop_done;
   }
-  __pyx_t_4 = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_3genexpr(((PyObject*)__pyx_cur_scope), __pyx_v_slots); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 216, __pyx_L1_error)
+  __pyx_t_4 = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_3genexpr(((PyObject*)__pyx_cur_scope), __pyx_v_slots); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 263, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_4);
-  __pyx_t_1 = __Pyx_Generator_GetInlinedResult(__pyx_t_4); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 216, __pyx_L1_error)
+  __pyx_t_1 = __Pyx_Generator_GetInlinedResult(__pyx_t_4); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 263, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_1);
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
-  __pyx_t_9 = __Pyx_PyObject_IsTrue(__pyx_t_1); if (unlikely((__pyx_t_9 < 0))) __PYX_ERR(0, 216, __pyx_L1_error)
+  __pyx_t_9 = __Pyx_PyObject_IsTrue(__pyx_t_1); if (unlikely((__pyx_t_9 < 0))) __PYX_ERR(0, 263, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
   __pyx_t_10 = (!__pyx_t_9);
 
@@ -4280,17 +4792,17 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   if (unlikely(__pyx_t_8)) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":217
+    /* "chassis_sdk/devices/board/_compiled.pyx":264
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
  *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")             # <<<<<<<<<<<<<<
- *     for cls in (vector_cls, counts_cls):
- *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
+ *     stats_slots = tuple(
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
 */
     __pyx_t_4 = NULL;
-    __pyx_t_3 = __Pyx_PyObject_FormatSimpleAndDecref(PyObject_Repr(__pyx_cur_scope->__pyx_v_imu_cls), __pyx_mstate_global->__pyx_empty_unicode); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 217, __pyx_L1_error)
+    __pyx_t_3 = __Pyx_PyObject_FormatSimpleAndDecref(PyObject_Repr(__pyx_cur_scope->__pyx_v_imu_cls), __pyx_mstate_global->__pyx_empty_unicode); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 264, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_3);
-    __pyx_t_11 = __Pyx_PyUnicode_Concat__Pyx_ReferenceSharing_OwnStrongReferenceInPlace(__pyx_t_3, __pyx_mstate_global->__pyx_kp_u_is_not_a_slotted_dataclass_of_5); if (unlikely(!__pyx_t_11)) __PYX_ERR(0, 217, __pyx_L1_error)
+    __pyx_t_11 = __Pyx_PyUnicode_Concat__Pyx_ReferenceSharing_OwnStrongReferenceInPlace(__pyx_t_3, __pyx_mstate_global->__pyx_kp_u_is_not_a_slotted_dataclass_of_5); if (unlikely(!__pyx_t_11)) __PYX_ERR(0, 264, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_11);
     __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
     __pyx_t_5 = 1;
@@ -4299,111 +4811,189 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
       __pyx_t_1 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_TypeError)), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
       __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
       __Pyx_DECREF(__pyx_t_11); __pyx_t_11 = 0;
-      if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 217, __pyx_L1_error)
+      if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 264, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_1);
     }
     __Pyx_Raise(__pyx_t_1, 0, 0, 0);
     __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
-    __PYX_ERR(0, 217, __pyx_L1_error)
+    __PYX_ERR(0, 264, __pyx_L1_error)
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":216
+    /* "chassis_sdk/devices/board/_compiled.pyx":263
  *     names = [f.name for f in dataclasses.fields(imu_cls)]
  *     slots = tuple(imu_cls.__dict__.get(name) for name in names)
  *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):             # <<<<<<<<<<<<<<
  *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+ *     stats_slots = tuple(
+*/
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":266
+ *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+ *     stats_slots = tuple(
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")             # <<<<<<<<<<<<<<
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+*/
+  __pyx_t_1 = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_6genexpr(((PyObject*)__pyx_cur_scope), __pyx_mstate_global->__pyx_tuple[0]); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 266, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_1);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":265
+ *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
+ *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+ *     stats_slots = tuple(             # <<<<<<<<<<<<<<
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
+ *     )
+*/
+  __pyx_t_11 = __Pyx_PySequence_Tuple(__pyx_t_1); if (unlikely(!__pyx_t_11)) __PYX_ERR(0, 265, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_11);
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  __pyx_v_stats_slots = __pyx_t_11;
+  __pyx_t_11 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":268
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):             # <<<<<<<<<<<<<<
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
+ *     for cls in (vector_cls, counts_cls):
+*/
+  __pyx_t_11 = __pyx_pf_11chassis_sdk_7devices_5board_9_compiled_4bind_9genexpr(((PyObject*)__pyx_cur_scope), __pyx_v_stats_slots); if (unlikely(!__pyx_t_11)) __PYX_ERR(0, 268, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_11);
+  __pyx_t_1 = __Pyx_Generator_GetInlinedResult(__pyx_t_11); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 268, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_1);
+  __Pyx_DECREF(__pyx_t_11); __pyx_t_11 = 0;
+  __pyx_t_8 = __Pyx_PyObject_IsTrue(__pyx_t_1); if (unlikely((__pyx_t_8 < 0))) __PYX_ERR(0, 268, __pyx_L1_error)
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  __pyx_t_10 = (!__pyx_t_8);
+
+
+  if (unlikely(__pyx_t_10)) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":269
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")             # <<<<<<<<<<<<<<
+ *     for cls in (vector_cls, counts_cls):
+ *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
+*/
+    __pyx_t_11 = NULL;
+    __pyx_t_4 = __Pyx_PyObject_FormatSimpleAndDecref(PyObject_Repr(__pyx_v_stats_slots), __pyx_mstate_global->__pyx_empty_unicode); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 269, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_4);
+    __pyx_t_3 = __Pyx_PyUnicode_Concat(__pyx_mstate_global->__pyx_kp_u_not_slot_descriptors, __pyx_t_4); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 269, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+    __pyx_t_5 = 1;
+    {
+      PyObject *__pyx_callargs[2] = {__pyx_t_11, __pyx_t_3};
+      __pyx_t_1 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_TypeError)), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+      __Pyx_XDECREF(__pyx_t_11); __pyx_t_11 = 0;
+      __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+      if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 269, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_1);
+    }
+    __Pyx_Raise(__pyx_t_1, 0, 0, 0);
+    __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+    __PYX_ERR(0, 269, __pyx_L1_error)
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":268
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):             # <<<<<<<<<<<<<<
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
  *     for cls in (vector_cls, counts_cls):
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":218
- *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
- *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+  /* "chassis_sdk/devices/board/_compiled.pyx":270
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
  *     for cls in (vector_cls, counts_cls):             # <<<<<<<<<<<<<<
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
 */
-  __pyx_t_1 = PyTuple_New(2); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 218, __pyx_L1_error)
+  __pyx_t_1 = PyTuple_New(2); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 270, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_1);
   __Pyx_INCREF(__pyx_v_vector_cls);
   __Pyx_GIVEREF(__pyx_v_vector_cls);
-  if (__Pyx_PyTuple_SET_ITEM(__pyx_t_1, 0, __pyx_v_vector_cls) != (0)) __PYX_ERR(0, 218, __pyx_L1_error);
+  if (__Pyx_PyTuple_SET_ITEM(__pyx_t_1, 0, __pyx_v_vector_cls) != (0)) __PYX_ERR(0, 270, __pyx_L1_error);
   __Pyx_INCREF(__pyx_v_counts_cls);
   __Pyx_GIVEREF(__pyx_v_counts_cls);
-  if (__Pyx_PyTuple_SET_ITEM(__pyx_t_1, 1, __pyx_v_counts_cls) != (0)) __PYX_ERR(0, 218, __pyx_L1_error);
-  __pyx_t_11 = __pyx_t_1; __Pyx_INCREF(__pyx_t_11);
+  if (__Pyx_PyTuple_SET_ITEM(__pyx_t_1, 1, __pyx_v_counts_cls) != (0)) __PYX_ERR(0, 270, __pyx_L1_error);
+  __pyx_t_3 = __pyx_t_1; __Pyx_INCREF(__pyx_t_3);
   __pyx_t_6 = 0;
   __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
   for (;;) {
     if (__pyx_t_6 >= 2) break;
     #if CYTHON_ASSUME_SAFE_MACROS && !CYTHON_AVOID_BORROWED_REFS
-    __pyx_t_1 = __Pyx_NewRef(PyTuple_GET_ITEM(__pyx_t_11, __pyx_t_6));
+    __pyx_t_1 = __Pyx_NewRef(PyTuple_GET_ITEM(__pyx_t_3, __pyx_t_6));
     #else
-    __pyx_t_1 = __Pyx_PySequence_ITEM(__pyx_t_11, __pyx_t_6);
+    __pyx_t_1 = __Pyx_PySequence_ITEM(__pyx_t_3, __pyx_t_6);
     #endif
     ++__pyx_t_6;
-    if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 218, __pyx_L1_error)
+    if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 270, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_1);
     __Pyx_XDECREF_SET(__pyx_v_cls, __pyx_t_1);
     __pyx_t_1 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":219
- *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+    /* "chassis_sdk/devices/board/_compiled.pyx":271
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
  *     for cls in (vector_cls, counts_cls):
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):             # <<<<<<<<<<<<<<
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
  *     if type(accel_scale) is not float or type(gyro_scale) is not float:
 */
-    __pyx_t_10 = PyObject_IsSubclass(__pyx_v_cls, ((PyObject *)(&PyTuple_Type))); if (unlikely(__pyx_t_10 == ((int)-1))) __PYX_ERR(0, 219, __pyx_L1_error)
-    if (__pyx_t_10) {
+    __pyx_t_8 = PyObject_IsSubclass(__pyx_v_cls, ((PyObject *)(&PyTuple_Type))); if (unlikely(__pyx_t_8 == ((int)-1))) __PYX_ERR(0, 271, __pyx_L1_error)
+    if (__pyx_t_8) {
 
     } else {
 
-      __pyx_t_8 = __pyx_t_10;
+      __pyx_t_10 = __pyx_t_8;
 
-      goto __pyx_L16_bool_binop_done;
+      goto __pyx_L17_bool_binop_done;
     }
-    __pyx_t_1 = __Pyx_PyObject_GetAttrStr(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_dictoffset); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 219, __pyx_L1_error)
+    __pyx_t_1 = __Pyx_PyObject_GetAttrStr(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_dictoffset); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 271, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_1);
-    __pyx_t_10 = (__Pyx_PyLong_BoolEqObjC(__pyx_t_1, __pyx_mstate_global->__pyx_int_0, 0, 0)); if (unlikely((__pyx_t_10 < 0))) __PYX_ERR(0, 219, __pyx_L1_error)
+    __pyx_t_8 = (__Pyx_PyLong_BoolEqObjC(__pyx_t_1, __pyx_mstate_global->__pyx_int_0, 0, 0)); if (unlikely((__pyx_t_8 < 0))) __PYX_ERR(0, 271, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
 
-    __pyx_t_8 = __pyx_t_10;
+    __pyx_t_10 = __pyx_t_8;
 
-    __pyx_L16_bool_binop_done:;
-    __pyx_t_10 = (!__pyx_t_8);
-
-
-    if (unlikely(__pyx_t_10)) {
+    __pyx_L17_bool_binop_done:;
+    __pyx_t_8 = (!__pyx_t_10);
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":220
+    if (unlikely(__pyx_t_8)) {
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":272
  *     for cls in (vector_cls, counts_cls):
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")             # <<<<<<<<<<<<<<
  *     if type(accel_scale) is not float or type(gyro_scale) is not float:
  *         raise TypeError("the IMU scales must be floats")
 */
-      __pyx_t_4 = NULL;
-      __pyx_t_3 = __Pyx_PyObject_FormatSimpleAndDecref(PyObject_Repr(__pyx_v_cls), __pyx_mstate_global->__pyx_empty_unicode); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 220, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_3);
-      __pyx_t_12 = __Pyx_PyUnicode_Concat__Pyx_ReferenceSharing_OwnStrongReferenceInPlace(__pyx_t_3, __pyx_mstate_global->__pyx_kp_u_is_not_a_tuple_subclass_without); if (unlikely(!__pyx_t_12)) __PYX_ERR(0, 220, __pyx_L1_error)
+      __pyx_t_11 = NULL;
+      __pyx_t_4 = __Pyx_PyObject_FormatSimpleAndDecref(PyObject_Repr(__pyx_v_cls), __pyx_mstate_global->__pyx_empty_unicode); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 272, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_4);
+      __pyx_t_12 = __Pyx_PyUnicode_Concat__Pyx_ReferenceSharing_OwnStrongReferenceInPlace(__pyx_t_4, __pyx_mstate_global->__pyx_kp_u_is_not_a_tuple_subclass_without); if (unlikely(!__pyx_t_12)) __PYX_ERR(0, 272, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_12);
-      __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+      __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
       __pyx_t_5 = 1;
       {
-        PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_t_12};
+        PyObject *__pyx_callargs[2] = {__pyx_t_11, __pyx_t_12};
         __pyx_t_1 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_TypeError)), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
-        __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
+        __Pyx_XDECREF(__pyx_t_11); __pyx_t_11 = 0;
         __Pyx_DECREF(__pyx_t_12); __pyx_t_12 = 0;
-        if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 220, __pyx_L1_error)
+        if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 272, __pyx_L1_error)
         __Pyx_GOTREF(__pyx_t_1);
       }
       __Pyx_Raise(__pyx_t_1, 0, 0, 0);
       __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
-      __PYX_ERR(0, 220, __pyx_L1_error)
+      __PYX_ERR(0, 272, __pyx_L1_error)
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":219
- *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+      /* "chassis_sdk/devices/board/_compiled.pyx":271
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
  *     for cls in (vector_cls, counts_cls):
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):             # <<<<<<<<<<<<<<
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
@@ -4411,41 +5001,41 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":218
- *     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
- *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+    /* "chassis_sdk/devices/board/_compiled.pyx":270
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+ *         raise TypeError(f"not slot descriptors: {stats_slots!r}")
  *     for cls in (vector_cls, counts_cls):             # <<<<<<<<<<<<<<
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
 */
   }
-  __Pyx_DECREF(__pyx_t_11); __pyx_t_11 = 0;
+  __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":221
+  /* "chassis_sdk/devices/board/_compiled.pyx":273
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
  *     if type(accel_scale) is not float or type(gyro_scale) is not float:             # <<<<<<<<<<<<<<
  *         raise TypeError("the IMU scales must be floats")
  *     _decoder_cls = decoder_cls
 */
-  __pyx_t_8 = (((PyObject *)Py_TYPE(__pyx_v_accel_scale)) != ((PyObject *)(&PyFloat_Type)));
-  if (!__pyx_t_8) {
+  __pyx_t_10 = (((PyObject *)Py_TYPE(__pyx_v_accel_scale)) != ((PyObject *)(&PyFloat_Type)));
+  if (!__pyx_t_10) {
 
   } else {
 
-    __pyx_t_10 = __pyx_t_8;
+    __pyx_t_8 = __pyx_t_10;
 
-    goto __pyx_L20_bool_binop_done;
+    goto __pyx_L21_bool_binop_done;
   }
-  __pyx_t_8 = (((PyObject *)Py_TYPE(__pyx_v_gyro_scale)) != ((PyObject *)(&PyFloat_Type)));
+  __pyx_t_10 = (((PyObject *)Py_TYPE(__pyx_v_gyro_scale)) != ((PyObject *)(&PyFloat_Type)));
 
-  __pyx_t_10 = __pyx_t_8;
+  __pyx_t_8 = __pyx_t_10;
 
-  __pyx_L20_bool_binop_done:;
-  if (unlikely(__pyx_t_10)) {
+  __pyx_L21_bool_binop_done:;
+  if (unlikely(__pyx_t_8)) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":222
+    /* "chassis_sdk/devices/board/_compiled.pyx":274
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
  *     if type(accel_scale) is not float or type(gyro_scale) is not float:
  *         raise TypeError("the IMU scales must be floats")             # <<<<<<<<<<<<<<
@@ -4456,16 +5046,16 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
     __pyx_t_5 = 1;
     {
       PyObject *__pyx_callargs[2] = {__pyx_t_1, __pyx_mstate_global->__pyx_kp_u_the_IMU_scales_must_be_floats};
-      __pyx_t_11 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_TypeError)), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+      __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_TypeError)), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
       __Pyx_XDECREF(__pyx_t_1); __pyx_t_1 = 0;
-      if (unlikely(!__pyx_t_11)) __PYX_ERR(0, 222, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_11);
+      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 274, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_3);
     }
-    __Pyx_Raise(__pyx_t_11, 0, 0, 0);
-    __Pyx_DECREF(__pyx_t_11); __pyx_t_11 = 0;
-    __PYX_ERR(0, 222, __pyx_L1_error)
+    __Pyx_Raise(__pyx_t_3, 0, 0, 0);
+    __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+    __PYX_ERR(0, 274, __pyx_L1_error)
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":221
+    /* "chassis_sdk/devices/board/_compiled.pyx":273
  *         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
  *             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
  *     if type(accel_scale) is not float or type(gyro_scale) is not float:             # <<<<<<<<<<<<<<
@@ -4474,7 +5064,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":223
+  /* "chassis_sdk/devices/board/_compiled.pyx":275
  *     if type(accel_scale) is not float or type(gyro_scale) is not float:
  *         raise TypeError("the IMU scales must be floats")
  *     _decoder_cls = decoder_cls             # <<<<<<<<<<<<<<
@@ -4486,7 +5076,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__decoder_cls, __pyx_v_decoder_cls);
   __Pyx_GIVEREF(__pyx_v_decoder_cls);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":224
+  /* "chassis_sdk/devices/board/_compiled.pyx":276
  *         raise TypeError("the IMU scales must be floats")
  *     _decoder_cls = decoder_cls
  *     _command_cls = command_cls             # <<<<<<<<<<<<<<
@@ -4498,7 +5088,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__command_cls, __pyx_v_command_cls);
   __Pyx_GIVEREF(__pyx_v_command_cls);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":225
+  /* "chassis_sdk/devices/board/_compiled.pyx":277
  *     _decoder_cls = decoder_cls
  *     _command_cls = command_cls
  *     _pure_feed = pure_feed             # <<<<<<<<<<<<<<
@@ -4510,7 +5100,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed, __pyx_v_pure_feed);
   __Pyx_GIVEREF(__pyx_v_pure_feed);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":226
+  /* "chassis_sdk/devices/board/_compiled.pyx":278
  *     _command_cls = command_cls
  *     _pure_feed = pure_feed
  *     _try_frame = try_frame             # <<<<<<<<<<<<<<
@@ -4522,7 +5112,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__try_frame, __pyx_v_try_frame);
   __Pyx_GIVEREF(__pyx_v_try_frame);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":227
+  /* "chassis_sdk/devices/board/_compiled.pyx":279
  *     _pure_feed = pure_feed
  *     _try_frame = try_frame
  *     _swallows = swallows_a_head             # <<<<<<<<<<<<<<
@@ -4534,7 +5124,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__swallows, __pyx_v_swallows_a_head);
   __Pyx_GIVEREF(__pyx_v_swallows_a_head);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":228
+  /* "chassis_sdk/devices/board/_compiled.pyx":280
  *     _try_frame = try_frame
  *     _swallows = swallows_a_head
  *     _parse_imu = parse_imu             # <<<<<<<<<<<<<<
@@ -4546,7 +5136,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__parse_imu, __pyx_v_parse_imu);
   __Pyx_GIVEREF(__pyx_v_parse_imu);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":229
+  /* "chassis_sdk/devices/board/_compiled.pyx":281
  *     _swallows = swallows_a_head
  *     _parse_imu = parse_imu
  *     _imu_cls = imu_cls             # <<<<<<<<<<<<<<
@@ -4558,7 +5148,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__imu_cls, __pyx_cur_scope->__pyx_v_imu_cls);
   __Pyx_GIVEREF(__pyx_cur_scope->__pyx_v_imu_cls);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":230
+  /* "chassis_sdk/devices/board/_compiled.pyx":282
  *     _parse_imu = parse_imu
  *     _imu_cls = imu_cls
  *     _vector_cls = vector_cls             # <<<<<<<<<<<<<<
@@ -4570,7 +5160,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__vector_cls, __pyx_v_vector_cls);
   __Pyx_GIVEREF(__pyx_v_vector_cls);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":231
+  /* "chassis_sdk/devices/board/_compiled.pyx":283
  *     _imu_cls = imu_cls
  *     _vector_cls = vector_cls
  *     _counts_cls = counts_cls             # <<<<<<<<<<<<<<
@@ -4582,51 +5172,140 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__counts_cls, __pyx_v_counts_cls);
   __Pyx_GIVEREF(__pyx_v_counts_cls);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":232
+  /* "chassis_sdk/devices/board/_compiled.pyx":284
  *     _vector_cls = vector_cls
  *     _counts_cls = counts_cls
  *     _accel = accel_scale             # <<<<<<<<<<<<<<
  *     _gyro = gyro_scale
  *     _slots = slots
 */
-  __pyx_t_13 = __Pyx_PyFloat_AsDouble(__pyx_v_accel_scale); if (unlikely((__pyx_t_13 == (double)-1) && PyErr_Occurred())) __PYX_ERR(0, 232, __pyx_L1_error)
+  __pyx_t_13 = __Pyx_PyFloat_AsDouble(__pyx_v_accel_scale); if (unlikely((__pyx_t_13 == (double)-1) && PyErr_Occurred())) __PYX_ERR(0, 284, __pyx_L1_error)
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel = __pyx_t_13;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":233
+  /* "chassis_sdk/devices/board/_compiled.pyx":285
  *     _counts_cls = counts_cls
  *     _accel = accel_scale
  *     _gyro = gyro_scale             # <<<<<<<<<<<<<<
  *     _slots = slots
- *     _bound = True
+ *     _stats_cls = stats_cls
 */
-  __pyx_t_13 = __Pyx_PyFloat_AsDouble(__pyx_v_gyro_scale); if (unlikely((__pyx_t_13 == (double)-1) && PyErr_Occurred())) __PYX_ERR(0, 233, __pyx_L1_error)
+  __pyx_t_13 = __Pyx_PyFloat_AsDouble(__pyx_v_gyro_scale); if (unlikely((__pyx_t_13 == (double)-1) && PyErr_Occurred())) __PYX_ERR(0, 285, __pyx_L1_error)
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro = __pyx_t_13;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":234
+  /* "chassis_sdk/devices/board/_compiled.pyx":286
  *     _accel = accel_scale
  *     _gyro = gyro_scale
  *     _slots = slots             # <<<<<<<<<<<<<<
+ *     _stats_cls = stats_cls
+ *     _received_slot, _frames_slot, _dropped_slot = stats_slots
+*/
+  __pyx_t_3 = __pyx_v_slots;
+  __Pyx_INCREF(__pyx_t_3);
+  if (!(likely(PyTuple_CheckExact(__pyx_t_3)) || __Pyx_RaiseUnexpectedTypeError("tuple", __pyx_t_3))) __PYX_ERR(0, 286, __pyx_L1_error)
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots, ((PyObject*)__pyx_t_3));
+  __Pyx_GIVEREF(__pyx_t_3);
+  __pyx_t_3 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":287
+ *     _gyro = gyro_scale
+ *     _slots = slots
+ *     _stats_cls = stats_cls             # <<<<<<<<<<<<<<
+ *     _received_slot, _frames_slot, _dropped_slot = stats_slots
+ *     _bound = True
+*/
+  __Pyx_INCREF(__pyx_cur_scope->__pyx_v_stats_cls);
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls, __pyx_cur_scope->__pyx_v_stats_cls);
+  __Pyx_GIVEREF(__pyx_cur_scope->__pyx_v_stats_cls);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":288
+ *     _slots = slots
+ *     _stats_cls = stats_cls
+ *     _received_slot, _frames_slot, _dropped_slot = stats_slots             # <<<<<<<<<<<<<<
  *     _bound = True
  * 
 */
-  __pyx_t_11 = __pyx_v_slots;
-  __Pyx_INCREF(__pyx_t_11);
-  if (!(likely(PyTuple_CheckExact(__pyx_t_11)) || __Pyx_RaiseUnexpectedTypeError("tuple", __pyx_t_11))) __PYX_ERR(0, 234, __pyx_L1_error)
-  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots);
-  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots, ((PyObject*)__pyx_t_11));
-  __Pyx_GIVEREF(__pyx_t_11);
-  __pyx_t_11 = 0;
+  if ((likely(PyTuple_CheckExact(__pyx_v_stats_slots))) || (PyList_CheckExact(__pyx_v_stats_slots))) {
+    PyObject* sequence = __pyx_v_stats_slots;
+    Py_ssize_t size = __Pyx_PySequence_SIZE(sequence);
+    if (unlikely(size != 3)) {
+      if (size > 3) __Pyx_RaiseTooManyValuesError(3);
+      else if (size >= 0) __Pyx_RaiseNeedMoreValuesError(size);
+      __PYX_ERR(0, 288, __pyx_L1_error)
+    }
+    #if CYTHON_ASSUME_SAFE_MACROS && !CYTHON_AVOID_BORROWED_REFS
+    if (likely(PyTuple_CheckExact(sequence))) {
+      __pyx_t_3 = PyTuple_GET_ITEM(sequence, 0);
+      __Pyx_INCREF(__pyx_t_3);
+      __pyx_t_1 = PyTuple_GET_ITEM(sequence, 1);
+      __Pyx_INCREF(__pyx_t_1);
+      __pyx_t_12 = PyTuple_GET_ITEM(sequence, 2);
+      __Pyx_INCREF(__pyx_t_12);
+    } else {
+      __pyx_t_3 = __Pyx_PyList_GET_ITEM_REF(sequence, 0, __Pyx_ReferenceSharing_SharedReference);
+      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 288, __pyx_L1_error)
+      __Pyx_XGOTREF(__pyx_t_3);
+      __pyx_t_1 = __Pyx_PyList_GET_ITEM_REF(sequence, 1, __Pyx_ReferenceSharing_SharedReference);
+      if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 288, __pyx_L1_error)
+      __Pyx_XGOTREF(__pyx_t_1);
+      __pyx_t_12 = __Pyx_PyList_GET_ITEM_REF(sequence, 2, __Pyx_ReferenceSharing_SharedReference);
+      if (unlikely(!__pyx_t_12)) __PYX_ERR(0, 288, __pyx_L1_error)
+      __Pyx_XGOTREF(__pyx_t_12);
+    }
+    #else
+    __pyx_t_3 = __Pyx_PySequence_ITEM(sequence, 0); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 288, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    __pyx_t_1 = __Pyx_PySequence_ITEM(sequence, 1); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 288, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_1);
+    __pyx_t_12 = __Pyx_PySequence_ITEM(sequence, 2); if (unlikely(!__pyx_t_12)) __PYX_ERR(0, 288, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_12);
+    #endif
+  } else {
+    Py_ssize_t index = -1;
+    __pyx_t_11 = PyObject_GetIter(__pyx_v_stats_slots); if (unlikely(!__pyx_t_11)) __PYX_ERR(0, 288, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_11);
+    __pyx_t_14 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_11);
+    index = 0; __pyx_t_3 = __pyx_t_14(__pyx_t_11); if (unlikely(!__pyx_t_3)) goto __pyx_L23_unpacking_failed;
+    __Pyx_GOTREF(__pyx_t_3);
+    index = 1; __pyx_t_1 = __pyx_t_14(__pyx_t_11); if (unlikely(!__pyx_t_1)) goto __pyx_L23_unpacking_failed;
+    __Pyx_GOTREF(__pyx_t_1);
+    index = 2; __pyx_t_12 = __pyx_t_14(__pyx_t_11); if (unlikely(!__pyx_t_12)) goto __pyx_L23_unpacking_failed;
+    __Pyx_GOTREF(__pyx_t_12);
+    if (__Pyx_IternextUnpackEndCheck(__pyx_t_14(__pyx_t_11), 3) < (0)) __PYX_ERR(0, 288, __pyx_L1_error)
+    __pyx_t_14 = NULL;
+    __Pyx_DECREF(__pyx_t_11); __pyx_t_11 = 0;
+    goto __pyx_L24_unpacking_done;
+    __pyx_L23_unpacking_failed:;
+    __Pyx_DECREF(__pyx_t_11); __pyx_t_11 = 0;
+    __pyx_t_14 = NULL;
+    if (__Pyx_IterFinish() == 0) __Pyx_RaiseNeedMoreValuesError(index);
+    __PYX_ERR(0, 288, __pyx_L1_error)
+    __pyx_L24_unpacking_done:;
+  }
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot, __pyx_t_3);
+  __Pyx_GIVEREF(__pyx_t_3);
+  __pyx_t_3 = 0;
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot, __pyx_t_1);
+  __Pyx_GIVEREF(__pyx_t_1);
+  __pyx_t_1 = 0;
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot, __pyx_t_12);
+  __Pyx_GIVEREF(__pyx_t_12);
+  __pyx_t_12 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":235
- *     _gyro = gyro_scale
- *     _slots = slots
+  /* "chassis_sdk/devices/board/_compiled.pyx":289
+ *     _stats_cls = stats_cls
+ *     _received_slot, _frames_slot, _dropped_slot = stats_slots
  *     _bound = True             # <<<<<<<<<<<<<<
  * 
  * 
 */
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__bound = 1;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":184
+  /* "chassis_sdk/devices/board/_compiled.pyx":228
  * 
  * 
  * def bind(             # <<<<<<<<<<<<<<
@@ -4649,17 +5328,20 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_bind(CYTHON_U
   __Pyx_XDECREF(__pyx_v_dataclasses);
   __Pyx_XDECREF(__pyx_v_names);
   __Pyx_XDECREF(__pyx_v_slots);
+  __Pyx_XDECREF(__pyx_v_stats_slots);
   __Pyx_XDECREF(__pyx_v_cls);
   __Pyx_XDECREF(__pyx_7genexpr__pyx_v_f);
   __Pyx_XDECREF(__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_2generator);
   __Pyx_XDECREF(__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_5generator1);
+  __Pyx_XDECREF(__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_8generator2);
+  __Pyx_XDECREF(__pyx_gb_11chassis_sdk_7devices_5board_9_compiled_4bind_11generator3);
   __Pyx_DECREF((PyObject *)__pyx_cur_scope);
   __Pyx_XGIVEREF(__pyx_r);
   __Pyx_RefNannyFinishContext();
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":238
+/* "chassis_sdk/devices/board/_compiled.pyx":292
  * 
  * 
  * cdef inline int _i16(const unsigned char *p, Py_ssize_t i) noexcept:             # <<<<<<<<<<<<<<
@@ -4673,7 +5355,7 @@ static CYTHON_INLINE int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__i16(u
   long __pyx_t_1;
   int __pyx_t_2;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":239
+  /* "chassis_sdk/devices/board/_compiled.pyx":293
  * 
  * cdef inline int _i16(const unsigned char *p, Py_ssize_t i) noexcept:
  *     cdef unsigned int u = p[i] | (<unsigned int>p[i + 1] << 8)             # <<<<<<<<<<<<<<
@@ -4682,7 +5364,7 @@ static CYTHON_INLINE int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__i16(u
 */
   __pyx_v_u = ((__pyx_v_p[__pyx_v_i]) | (((unsigned int)(__pyx_v_p[(__pyx_v_i + 1)])) << 8));
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":240
+  /* "chassis_sdk/devices/board/_compiled.pyx":294
  * cdef inline int _i16(const unsigned char *p, Py_ssize_t i) noexcept:
  *     cdef unsigned int u = p[i] | (<unsigned int>p[i + 1] << 8)
  *     return <int>u - 0x10000 if u >= 0x8000 else <int>u             # <<<<<<<<<<<<<<
@@ -4704,7 +5386,7 @@ static CYTHON_INLINE int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__i16(u
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":238
+  /* "chassis_sdk/devices/board/_compiled.pyx":292
  * 
  * 
  * cdef inline int _i16(const unsigned char *p, Py_ssize_t i) noexcept:             # <<<<<<<<<<<<<<
@@ -4719,7 +5401,7 @@ static CYTHON_INLINE int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__i16(u
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":243
+/* "chassis_sdk/devices/board/_compiled.pyx":297
  * 
  * 
  * cdef object _imu(const unsigned char *p, Py_ssize_t o, object ts):             # <<<<<<<<<<<<<<
@@ -4747,7 +5429,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
   int __pyx_clineno = 0;
   __Pyx_RefNannySetupContext("_imu", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":247
+  /* "chassis_sdk/devices/board/_compiled.pyx":301
  *     cdef int c[9]
  *     cdef int i
  *     for i in range(9):             # <<<<<<<<<<<<<<
@@ -4757,7 +5439,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
   for (__pyx_t_1 = 0; __pyx_t_1 < 9; __pyx_t_1+=1) {
     __pyx_v_i = __pyx_t_1;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":248
+    /* "chassis_sdk/devices/board/_compiled.pyx":302
  *     cdef int i
  *     for i in range(9):
  *         c[i] = _i16(p, o + 2 * i)             # <<<<<<<<<<<<<<
@@ -4767,7 +5449,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
     (__pyx_v_c[__pyx_v_i]) = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__i16(__pyx_v_p, (__pyx_v_o + (2 * __pyx_v_i)));
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":250
+  /* "chassis_sdk/devices/board/_compiled.pyx":304
  *         c[i] = _i16(p, o + 2 * i)
  *     # Python's int / float converts the (exact) int to a double and divides: the same.
  *     accel = board_b_vector(_vector_cls, c[0] / _accel, c[1] / _accel, c[2] / _accel)             # <<<<<<<<<<<<<<
@@ -4776,13 +5458,13 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   __pyx_t_2 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__vector_cls;
   __Pyx_INCREF(__pyx_t_2);
-  __pyx_t_3 = board_b_vector(__pyx_t_2, (((double)(__pyx_v_c[0])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel), (((double)(__pyx_v_c[1])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel), (((double)(__pyx_v_c[2])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel)); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 250, __pyx_L1_error)
+  __pyx_t_3 = board_b_vector(__pyx_t_2, (((double)(__pyx_v_c[0])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel), (((double)(__pyx_v_c[1])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel), (((double)(__pyx_v_c[2])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel)); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 304, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_3);
   __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
   __pyx_v_accel = __pyx_t_3;
   __pyx_t_3 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":251
+  /* "chassis_sdk/devices/board/_compiled.pyx":305
  *     # Python's int / float converts the (exact) int to a double and divides: the same.
  *     accel = board_b_vector(_vector_cls, c[0] / _accel, c[1] / _accel, c[2] / _accel)
  *     gyro = board_b_vector(_vector_cls, c[3] / _gyro, c[4] / _gyro, c[5] / _gyro)             # <<<<<<<<<<<<<<
@@ -4791,13 +5473,13 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   __pyx_t_3 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__vector_cls;
   __Pyx_INCREF(__pyx_t_3);
-  __pyx_t_2 = board_b_vector(__pyx_t_3, (((double)(__pyx_v_c[3])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro), (((double)(__pyx_v_c[4])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro), (((double)(__pyx_v_c[5])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro)); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 251, __pyx_L1_error)
+  __pyx_t_2 = board_b_vector(__pyx_t_3, (((double)(__pyx_v_c[3])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro), (((double)(__pyx_v_c[4])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro), (((double)(__pyx_v_c[5])) / __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro)); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 305, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_2);
   __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
   __pyx_v_gyro = __pyx_t_2;
   __pyx_t_2 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":252
+  /* "chassis_sdk/devices/board/_compiled.pyx":306
  *     accel = board_b_vector(_vector_cls, c[0] / _accel, c[1] / _accel, c[2] / _accel)
  *     gyro = board_b_vector(_vector_cls, c[3] / _gyro, c[4] / _gyro, c[5] / _gyro)
  *     mag = board_b_vector(_vector_cls, <double>c[6], <double>c[7], <double>c[8])             # <<<<<<<<<<<<<<
@@ -4806,13 +5488,13 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   __pyx_t_2 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__vector_cls;
   __Pyx_INCREF(__pyx_t_2);
-  __pyx_t_3 = board_b_vector(__pyx_t_2, ((double)(__pyx_v_c[6])), ((double)(__pyx_v_c[7])), ((double)(__pyx_v_c[8]))); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 252, __pyx_L1_error)
+  __pyx_t_3 = board_b_vector(__pyx_t_2, ((double)(__pyx_v_c[6])), ((double)(__pyx_v_c[7])), ((double)(__pyx_v_c[8]))); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 306, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_3);
   __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
   __pyx_v_mag = __pyx_t_3;
   __pyx_t_3 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":253
+  /* "chassis_sdk/devices/board/_compiled.pyx":307
  *     gyro = board_b_vector(_vector_cls, c[3] / _gyro, c[4] / _gyro, c[5] / _gyro)
  *     mag = board_b_vector(_vector_cls, <double>c[6], <double>c[7], <double>c[8])
  *     counts = board_b_counts(_counts_cls, c)             # <<<<<<<<<<<<<<
@@ -4821,13 +5503,13 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   __pyx_t_3 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__counts_cls;
   __Pyx_INCREF(__pyx_t_3);
-  __pyx_t_2 = board_b_counts(__pyx_t_3, __pyx_v_c); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 253, __pyx_L1_error)
+  __pyx_t_2 = board_b_counts(__pyx_t_3, __pyx_v_c); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 307, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_2);
   __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
   __pyx_v_counts = __pyx_t_2;
   __pyx_t_2 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":255
+  /* "chassis_sdk/devices/board/_compiled.pyx":309
  *     counts = board_b_counts(_counts_cls, c)
  *     # frozen_builder(ImuSample): object.__new__, then each field through its slot.
  *     msg = board_b_new_object(_imu_cls, _no_args)             # <<<<<<<<<<<<<<
@@ -4838,14 +5520,14 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
   __Pyx_INCREF(__pyx_t_2);
   __pyx_t_3 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__no_args;
   __Pyx_INCREF(__pyx_t_3);
-  __pyx_t_4 = board_b_new_object(__pyx_t_2, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 255, __pyx_L1_error)
+  __pyx_t_4 = board_b_new_object(__pyx_t_2, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 309, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_4);
   __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
   __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
   __pyx_v_msg = __pyx_t_4;
   __pyx_t_4 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":256
+  /* "chassis_sdk/devices/board/_compiled.pyx":310
  *     # frozen_builder(ImuSample): object.__new__, then each field through its slot.
  *     msg = board_b_new_object(_imu_cls, _no_args)
  *     cdef tuple s = _slots             # <<<<<<<<<<<<<<
@@ -4855,7 +5537,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
   __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots);
   __pyx_v_s = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":257
+  /* "chassis_sdk/devices/board/_compiled.pyx":311
  *     msg = board_b_new_object(_imu_cls, _no_args)
  *     cdef tuple s = _slots
  *     board_b_descr_set(s[0], msg, accel)             # <<<<<<<<<<<<<<
@@ -4864,15 +5546,15 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   if (unlikely(__pyx_v_s == Py_None)) {
     PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
-    __PYX_ERR(0, 257, __pyx_L1_error)
+    __PYX_ERR(0, 311, __pyx_L1_error)
   }
   __pyx_t_4 = __Pyx_PyTuple_GET_ITEM(__pyx_v_s, 0);
   __Pyx_INCREF(__pyx_t_4);
-  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_accel); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 257, __pyx_L1_error)
+  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_accel); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 311, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":258
+  /* "chassis_sdk/devices/board/_compiled.pyx":312
  *     cdef tuple s = _slots
  *     board_b_descr_set(s[0], msg, accel)
  *     board_b_descr_set(s[1], msg, gyro)             # <<<<<<<<<<<<<<
@@ -4881,15 +5563,15 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   if (unlikely(__pyx_v_s == Py_None)) {
     PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
-    __PYX_ERR(0, 258, __pyx_L1_error)
+    __PYX_ERR(0, 312, __pyx_L1_error)
   }
   __pyx_t_4 = __Pyx_PyTuple_GET_ITEM(__pyx_v_s, 1);
   __Pyx_INCREF(__pyx_t_4);
-  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_gyro); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 258, __pyx_L1_error)
+  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_gyro); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 312, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":259
+  /* "chassis_sdk/devices/board/_compiled.pyx":313
  *     board_b_descr_set(s[0], msg, accel)
  *     board_b_descr_set(s[1], msg, gyro)
  *     board_b_descr_set(s[2], msg, mag)             # <<<<<<<<<<<<<<
@@ -4898,15 +5580,15 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   if (unlikely(__pyx_v_s == Py_None)) {
     PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
-    __PYX_ERR(0, 259, __pyx_L1_error)
+    __PYX_ERR(0, 313, __pyx_L1_error)
   }
   __pyx_t_4 = __Pyx_PyTuple_GET_ITEM(__pyx_v_s, 2);
   __Pyx_INCREF(__pyx_t_4);
-  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_mag); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 259, __pyx_L1_error)
+  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_mag); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 313, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":260
+  /* "chassis_sdk/devices/board/_compiled.pyx":314
  *     board_b_descr_set(s[1], msg, gyro)
  *     board_b_descr_set(s[2], msg, mag)
  *     board_b_descr_set(s[3], msg, ts)             # <<<<<<<<<<<<<<
@@ -4915,15 +5597,15 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   if (unlikely(__pyx_v_s == Py_None)) {
     PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
-    __PYX_ERR(0, 260, __pyx_L1_error)
+    __PYX_ERR(0, 314, __pyx_L1_error)
   }
   __pyx_t_4 = __Pyx_PyTuple_GET_ITEM(__pyx_v_s, 3);
   __Pyx_INCREF(__pyx_t_4);
-  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_ts); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 260, __pyx_L1_error)
+  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_ts); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 314, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":261
+  /* "chassis_sdk/devices/board/_compiled.pyx":315
  *     board_b_descr_set(s[2], msg, mag)
  *     board_b_descr_set(s[3], msg, ts)
  *     board_b_descr_set(s[4], msg, counts)             # <<<<<<<<<<<<<<
@@ -4932,15 +5614,15 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
 */
   if (unlikely(__pyx_v_s == Py_None)) {
     PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
-    __PYX_ERR(0, 261, __pyx_L1_error)
+    __PYX_ERR(0, 315, __pyx_L1_error)
   }
   __pyx_t_4 = __Pyx_PyTuple_GET_ITEM(__pyx_v_s, 4);
   __Pyx_INCREF(__pyx_t_4);
-  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_counts); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 261, __pyx_L1_error)
+  __pyx_t_1 = board_b_descr_set(__pyx_t_4, __pyx_v_msg, __pyx_v_counts); if (unlikely(__pyx_t_1 == ((int)-1))) __PYX_ERR(0, 315, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":262
+  /* "chassis_sdk/devices/board/_compiled.pyx":316
  *     board_b_descr_set(s[3], msg, ts)
  *     board_b_descr_set(s[4], msg, counts)
  *     return msg             # <<<<<<<<<<<<<<
@@ -4958,7 +5640,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":243
+  /* "chassis_sdk/devices/board/_compiled.pyx":297
  * 
  * 
  * cdef object _imu(const unsigned char *p, Py_ssize_t o, object ts):             # <<<<<<<<<<<<<<
@@ -4987,7 +5669,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(unsigned 
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":265
+/* "chassis_sdk/devices/board/_compiled.pyx":319
  * 
  * 
  * cdef Py_ssize_t _find(const unsigned char *p, Py_ssize_t pos, Py_ssize_t n,             # <<<<<<<<<<<<<<
@@ -5001,7 +5683,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
   int __pyx_t_1;
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":269
+  /* "chassis_sdk/devices/board/_compiled.pyx":323
  *     """buf.find(head, pos, n) for a two-byte head (``n`` at most the buffer's size), or -1."""
  *     cdef const unsigned char *hit
  *     while n - pos >= 2:             # <<<<<<<<<<<<<<
@@ -5014,7 +5696,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
 
     if (!__pyx_t_1) break;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":270
+    /* "chassis_sdk/devices/board/_compiled.pyx":324
  *     cdef const unsigned char *hit
  *     while n - pos >= 2:
  *         hit = <const unsigned char *>memchr(p + pos, h0, <size_t>(n - 1 - pos))             # <<<<<<<<<<<<<<
@@ -5023,7 +5705,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
 */
     __pyx_v_hit = ((unsigned char const *)memchr((__pyx_v_p + __pyx_v_pos), __pyx_v_h0, ((size_t)((__pyx_v_n - 1) - __pyx_v_pos))));
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":271
+    /* "chassis_sdk/devices/board/_compiled.pyx":325
  *     while n - pos >= 2:
  *         hit = <const unsigned char *>memchr(p + pos, h0, <size_t>(n - 1 - pos))
  *         if hit == NULL:             # <<<<<<<<<<<<<<
@@ -5035,7 +5717,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
     if (__pyx_t_1) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":272
+      /* "chassis_sdk/devices/board/_compiled.pyx":326
  *         hit = <const unsigned char *>memchr(p + pos, h0, <size_t>(n - 1 - pos))
  *         if hit == NULL:
  *             return -1             # <<<<<<<<<<<<<<
@@ -5048,7 +5730,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
       }
       goto __pyx_L0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":271
+      /* "chassis_sdk/devices/board/_compiled.pyx":325
  *     while n - pos >= 2:
  *         hit = <const unsigned char *>memchr(p + pos, h0, <size_t>(n - 1 - pos))
  *         if hit == NULL:             # <<<<<<<<<<<<<<
@@ -5057,7 +5739,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":273
+    /* "chassis_sdk/devices/board/_compiled.pyx":327
  *         if hit == NULL:
  *             return -1
  *         pos = hit - p             # <<<<<<<<<<<<<<
@@ -5066,7 +5748,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
 */
     __pyx_v_pos = (__pyx_v_hit - __pyx_v_p);
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":274
+    /* "chassis_sdk/devices/board/_compiled.pyx":328
  *             return -1
  *         pos = hit - p
  *         if p[pos + 1] == h1:             # <<<<<<<<<<<<<<
@@ -5078,7 +5760,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
     if (__pyx_t_1) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":275
+      /* "chassis_sdk/devices/board/_compiled.pyx":329
  *         pos = hit - p
  *         if p[pos + 1] == h1:
  *             return pos             # <<<<<<<<<<<<<<
@@ -5091,7 +5773,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
       }
       goto __pyx_L0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":274
+      /* "chassis_sdk/devices/board/_compiled.pyx":328
  *             return -1
  *         pos = hit - p
  *         if p[pos + 1] == h1:             # <<<<<<<<<<<<<<
@@ -5100,7 +5782,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":276
+    /* "chassis_sdk/devices/board/_compiled.pyx":330
  *         if p[pos + 1] == h1:
  *             return pos
  *         pos += 1             # <<<<<<<<<<<<<<
@@ -5110,7 +5792,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
     __pyx_v_pos = (__pyx_v_pos + 1);
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":277
+  /* "chassis_sdk/devices/board/_compiled.pyx":331
  *             return pos
  *         pos += 1
  *     return -1             # <<<<<<<<<<<<<<
@@ -5123,7 +5805,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":265
+  /* "chassis_sdk/devices/board/_compiled.pyx":319
  * 
  * 
  * cdef Py_ssize_t _find(const unsigned char *p, Py_ssize_t pos, Py_ssize_t n,             # <<<<<<<<<<<<<<
@@ -5139,7 +5821,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(unsigne
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":280
+/* "chassis_sdk/devices/board/_compiled.pyx":334
  * 
  * 
  * cdef int _refused(object expected, unsigned int length) except -1:             # <<<<<<<<<<<<<<
@@ -5163,7 +5845,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
   int __pyx_clineno = 0;
   __Pyx_RefNannySetupContext("_refused", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":282
+  /* "chassis_sdk/devices/board/_compiled.pyx":336
  * cdef int _refused(object expected, unsigned int length) except -1:
  *     """_try_frame's ``length != expected if expected else length == 0``."""
  *     cdef int overflow = 0             # <<<<<<<<<<<<<<
@@ -5172,7 +5854,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
 */
   __pyx_v_overflow = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":284
+  /* "chassis_sdk/devices/board/_compiled.pyx":338
  *     cdef int overflow = 0
  *     cdef long value
  *     if type(expected) is int:             # <<<<<<<<<<<<<<
@@ -5183,17 +5865,17 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":285
+    /* "chassis_sdk/devices/board/_compiled.pyx":339
  *     cdef long value
  *     if type(expected) is int:
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)             # <<<<<<<<<<<<<<
  *         if overflow:
  *             return 1  # not 0, and no byte holds it
 */
-    __pyx_t_2 = PyLong_AsLongAndOverflow(__pyx_v_expected, (&__pyx_v_overflow)); if (unlikely(__pyx_t_2 == ((long)-1L) && PyErr_Occurred())) __PYX_ERR(0, 285, __pyx_L1_error)
+    __pyx_t_2 = PyLong_AsLongAndOverflow(__pyx_v_expected, (&__pyx_v_overflow)); if (unlikely(__pyx_t_2 == ((long)-1L) && PyErr_Occurred())) __PYX_ERR(0, 339, __pyx_L1_error)
     __pyx_v_value = __pyx_t_2;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":286
+    /* "chassis_sdk/devices/board/_compiled.pyx":340
  *     if type(expected) is int:
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)
  *         if overflow:             # <<<<<<<<<<<<<<
@@ -5205,7 +5887,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
     if (__pyx_t_1) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":287
+      /* "chassis_sdk/devices/board/_compiled.pyx":341
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)
  *         if overflow:
  *             return 1  # not 0, and no byte holds it             # <<<<<<<<<<<<<<
@@ -5218,7 +5900,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
       }
       goto __pyx_L0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":286
+      /* "chassis_sdk/devices/board/_compiled.pyx":340
  *     if type(expected) is int:
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)
  *         if overflow:             # <<<<<<<<<<<<<<
@@ -5227,7 +5909,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":288
+    /* "chassis_sdk/devices/board/_compiled.pyx":342
  *         if overflow:
  *             return 1  # not 0, and no byte holds it
  *         return length != value if value else length == 0             # <<<<<<<<<<<<<<
@@ -5249,7 +5931,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":284
+    /* "chassis_sdk/devices/board/_compiled.pyx":338
  *     cdef int overflow = 0
  *     cdef long value
  *     if type(expected) is int:             # <<<<<<<<<<<<<<
@@ -5258,34 +5940,34 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":290
+  /* "chassis_sdk/devices/board/_compiled.pyx":344
  *         return length != value if value else length == 0
  *     # Another type in a changed table: Python decides, as in the pure code.
  *     if (length != expected) if expected else (length == 0):             # <<<<<<<<<<<<<<
  *         return 1
  *     return 0
 */
-  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_v_expected); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 290, __pyx_L1_error)
+  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_v_expected); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 344, __pyx_L1_error)
   if (__pyx_t_1) {
-    __pyx_t_5 = __Pyx_PyLong_From_unsigned_int(__pyx_v_length); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 290, __pyx_L1_error)
+    __pyx_t_5 = __Pyx_PyLong_From_unsigned_int(__pyx_v_length); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 344, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_5);
-    __pyx_t_6 = __Pyx_PyObject_CompareNe_int_object(__pyx_t_5, __pyx_v_expected, Py_NE); __Pyx_XGOTREF(__pyx_t_6); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 290, __pyx_L1_error)
+    __pyx_t_6 = __Pyx_PyObject_CompareNe_int_object(__pyx_t_5, __pyx_v_expected, Py_NE); __Pyx_XGOTREF(__pyx_t_6); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 344, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
     __pyx_t_4 = __pyx_t_6;
     __pyx_t_6 = 0;
   } else {
-    __pyx_t_6 = __Pyx_PyBool_FromLong((__pyx_v_length == 0)); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 290, __pyx_L1_error)
+    __pyx_t_6 = __Pyx_PyBool_FromLong((__pyx_v_length == 0)); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 344, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_6);
     __pyx_t_4 = __pyx_t_6;
     __pyx_t_6 = 0;
   }
 
-  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_t_4); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 290, __pyx_L1_error)
+  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_t_4); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 344, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":291
+    /* "chassis_sdk/devices/board/_compiled.pyx":345
  *     # Another type in a changed table: Python decides, as in the pure code.
  *     if (length != expected) if expected else (length == 0):
  *         return 1             # <<<<<<<<<<<<<<
@@ -5298,7 +5980,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":290
+    /* "chassis_sdk/devices/board/_compiled.pyx":344
  *         return length != value if value else length == 0
  *     # Another type in a changed table: Python decides, as in the pure code.
  *     if (length != expected) if expected else (length == 0):             # <<<<<<<<<<<<<<
@@ -5307,7 +5989,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":292
+  /* "chassis_sdk/devices/board/_compiled.pyx":346
  *     if (length != expected) if expected else (length == 0):
  *         return 1
  *     return 0             # <<<<<<<<<<<<<<
@@ -5320,7 +6002,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":280
+  /* "chassis_sdk/devices/board/_compiled.pyx":334
  * 
  * 
  * cdef int _refused(object expected, unsigned int length) except -1:             # <<<<<<<<<<<<<<
@@ -5343,7 +6025,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(PyObject *_
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":295
+/* "chassis_sdk/devices/board/_compiled.pyx":349
  * 
  * 
  * cdef int _plausible(object expected, unsigned int length) except -1:             # <<<<<<<<<<<<<<
@@ -5367,7 +6049,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
   int __pyx_clineno = 0;
   __Pyx_RefNannySetupContext("_plausible", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":297
+  /* "chassis_sdk/devices/board/_compiled.pyx":351
  * cdef int _plausible(object expected, unsigned int length) except -1:
  *     """_swallows_a_head's ``length == expected if expected else length != 0``."""
  *     cdef int overflow = 0             # <<<<<<<<<<<<<<
@@ -5376,7 +6058,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
 */
   __pyx_v_overflow = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":299
+  /* "chassis_sdk/devices/board/_compiled.pyx":353
  *     cdef int overflow = 0
  *     cdef long value
  *     if type(expected) is int:             # <<<<<<<<<<<<<<
@@ -5387,17 +6069,17 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":300
+    /* "chassis_sdk/devices/board/_compiled.pyx":354
  *     cdef long value
  *     if type(expected) is int:
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)             # <<<<<<<<<<<<<<
  *         if overflow:
  *             return 0
 */
-    __pyx_t_2 = PyLong_AsLongAndOverflow(__pyx_v_expected, (&__pyx_v_overflow)); if (unlikely(__pyx_t_2 == ((long)-1L) && PyErr_Occurred())) __PYX_ERR(0, 300, __pyx_L1_error)
+    __pyx_t_2 = PyLong_AsLongAndOverflow(__pyx_v_expected, (&__pyx_v_overflow)); if (unlikely(__pyx_t_2 == ((long)-1L) && PyErr_Occurred())) __PYX_ERR(0, 354, __pyx_L1_error)
     __pyx_v_value = __pyx_t_2;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":301
+    /* "chassis_sdk/devices/board/_compiled.pyx":355
  *     if type(expected) is int:
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)
  *         if overflow:             # <<<<<<<<<<<<<<
@@ -5409,7 +6091,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
     if (__pyx_t_1) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":302
+      /* "chassis_sdk/devices/board/_compiled.pyx":356
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)
  *         if overflow:
  *             return 0             # <<<<<<<<<<<<<<
@@ -5422,7 +6104,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
       }
       goto __pyx_L0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":301
+      /* "chassis_sdk/devices/board/_compiled.pyx":355
  *     if type(expected) is int:
  *         value = PyLong_AsLongAndOverflow(expected, &overflow)
  *         if overflow:             # <<<<<<<<<<<<<<
@@ -5431,7 +6113,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":303
+    /* "chassis_sdk/devices/board/_compiled.pyx":357
  *         if overflow:
  *             return 0
  *         return length == value if value else length != 0             # <<<<<<<<<<<<<<
@@ -5453,7 +6135,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":299
+    /* "chassis_sdk/devices/board/_compiled.pyx":353
  *     cdef int overflow = 0
  *     cdef long value
  *     if type(expected) is int:             # <<<<<<<<<<<<<<
@@ -5462,34 +6144,34 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":304
+  /* "chassis_sdk/devices/board/_compiled.pyx":358
  *             return 0
  *         return length == value if value else length != 0
  *     if (length == expected) if expected else (length != 0):             # <<<<<<<<<<<<<<
  *         return 1
  *     return 0
 */
-  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_v_expected); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 304, __pyx_L1_error)
+  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_v_expected); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 358, __pyx_L1_error)
   if (__pyx_t_1) {
-    __pyx_t_5 = __Pyx_PyLong_From_unsigned_int(__pyx_v_length); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 304, __pyx_L1_error)
+    __pyx_t_5 = __Pyx_PyLong_From_unsigned_int(__pyx_v_length); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 358, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_5);
-    __pyx_t_6 = __Pyx_PyObject_CompareEq_int_object(__pyx_t_5, __pyx_v_expected, Py_EQ); __Pyx_XGOTREF(__pyx_t_6); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 304, __pyx_L1_error)
+    __pyx_t_6 = __Pyx_PyObject_CompareEq_int_object(__pyx_t_5, __pyx_v_expected, Py_EQ); __Pyx_XGOTREF(__pyx_t_6); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 358, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
     __pyx_t_4 = __pyx_t_6;
     __pyx_t_6 = 0;
   } else {
-    __pyx_t_6 = __Pyx_PyBool_FromLong((__pyx_v_length != 0)); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 304, __pyx_L1_error)
+    __pyx_t_6 = __Pyx_PyBool_FromLong((__pyx_v_length != 0)); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 358, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_6);
     __pyx_t_4 = __pyx_t_6;
     __pyx_t_6 = 0;
   }
 
-  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_t_4); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 304, __pyx_L1_error)
+  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_t_4); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 358, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":305
+    /* "chassis_sdk/devices/board/_compiled.pyx":359
  *         return length == value if value else length != 0
  *     if (length == expected) if expected else (length != 0):
  *         return 1             # <<<<<<<<<<<<<<
@@ -5502,7 +6184,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":304
+    /* "chassis_sdk/devices/board/_compiled.pyx":358
  *             return 0
  *         return length == value if value else length != 0
  *     if (length == expected) if expected else (length != 0):             # <<<<<<<<<<<<<<
@@ -5511,7 +6193,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":306
+  /* "chassis_sdk/devices/board/_compiled.pyx":360
  *     if (length == expected) if expected else (length != 0):
  *         return 1
  *     return 0             # <<<<<<<<<<<<<<
@@ -5524,7 +6206,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":295
+  /* "chassis_sdk/devices/board/_compiled.pyx":349
  * 
  * 
  * cdef int _plausible(object expected, unsigned int length) except -1:             # <<<<<<<<<<<<<<
@@ -5547,7 +6229,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(PyObject 
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":309
+/* "chassis_sdk/devices/board/_compiled.pyx":363
  * 
  * 
  * cdef int _swallows_a_head(const unsigned char *p, Py_ssize_t start, Py_ssize_t stop,             # <<<<<<<<<<<<<<
@@ -5572,7 +6254,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
   int __pyx_clineno = 0;
   __Pyx_RefNannySetupContext("_swallows_a_head", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":313
+  /* "chassis_sdk/devices/board/_compiled.pyx":367
  *                           unsigned char h1) except -2:
  *     """_ProtocolBDecoder._swallows_a_head: A_HEAD, NO_HEAD or UNDECIDED (its None)."""
  *     cdef Py_ssize_t limit = stop + 1 if stop + 1 < end else end  # find() clips to the end             # <<<<<<<<<<<<<<
@@ -5591,7 +6273,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 
   __pyx_v_limit = __pyx_t_1;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":314
+  /* "chassis_sdk/devices/board/_compiled.pyx":368
  *     """_ProtocolBDecoder._swallows_a_head: A_HEAD, NO_HEAD or UNDECIDED (its None)."""
  *     cdef Py_ssize_t limit = stop + 1 if stop + 1 < end else end  # find() clips to the end
  *     cdef Py_ssize_t i = _find(p, start + 1, limit, h0, h1)             # <<<<<<<<<<<<<<
@@ -5600,7 +6282,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 */
   __pyx_v_i = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(__pyx_v_p, (__pyx_v_start + 1), __pyx_v_limit, __pyx_v_h0, __pyx_v_h1);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":316
+  /* "chassis_sdk/devices/board/_compiled.pyx":370
  *     cdef Py_ssize_t i = _find(p, start + 1, limit, h0, h1)
  *     cdef PyObject *found
  *     while i >= 0:             # <<<<<<<<<<<<<<
@@ -5613,7 +6295,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 
     if (!__pyx_t_2) break;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":317
+    /* "chassis_sdk/devices/board/_compiled.pyx":371
  *     cdef PyObject *found
  *     while i >= 0:
  *         if i + 2 >= end:             # <<<<<<<<<<<<<<
@@ -5625,7 +6307,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
     if (__pyx_t_2) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":318
+      /* "chassis_sdk/devices/board/_compiled.pyx":372
  *     while i >= 0:
  *         if i + 2 >= end:
  *             return UNDECIDED             # <<<<<<<<<<<<<<
@@ -5638,7 +6320,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
       }
       goto __pyx_L0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":317
+      /* "chassis_sdk/devices/board/_compiled.pyx":371
  *     cdef PyObject *found
  *     while i >= 0:
  *         if i + 2 >= end:             # <<<<<<<<<<<<<<
@@ -5647,20 +6329,20 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":319
+    /* "chassis_sdk/devices/board/_compiled.pyx":373
  *         if i + 2 >= end:
  *             return UNDECIDED
  *         found = PyDict_GetItemWithError(table, PyLong_FromLong(p[i + 2]))             # <<<<<<<<<<<<<<
  *         if found != NULL and <object>found is not None:
  *             if i + 3 >= end:
 */
-    __pyx_t_3 = PyLong_FromLong((__pyx_v_p[(__pyx_v_i + 2)])); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 319, __pyx_L1_error)
+    __pyx_t_3 = PyLong_FromLong((__pyx_v_p[(__pyx_v_i + 2)])); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 373, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_3);
-    __pyx_t_4 = PyDict_GetItemWithError(__pyx_v_table, __pyx_t_3); if (unlikely(__pyx_t_4 == ((void *)NULL) && PyErr_Occurred())) __PYX_ERR(0, 319, __pyx_L1_error)
+    __pyx_t_4 = PyDict_GetItemWithError(__pyx_v_table, __pyx_t_3); if (unlikely(__pyx_t_4 == ((void *)NULL) && PyErr_Occurred())) __PYX_ERR(0, 373, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
     __pyx_v_found = __pyx_t_4;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":320
+    /* "chassis_sdk/devices/board/_compiled.pyx":374
  *             return UNDECIDED
  *         found = PyDict_GetItemWithError(table, PyLong_FromLong(p[i + 2]))
  *         if found != NULL and <object>found is not None:             # <<<<<<<<<<<<<<
@@ -5685,7 +6367,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
     if (__pyx_t_2) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":321
+      /* "chassis_sdk/devices/board/_compiled.pyx":375
  *         found = PyDict_GetItemWithError(table, PyLong_FromLong(p[i + 2]))
  *         if found != NULL and <object>found is not None:
  *             if i + 3 >= end:             # <<<<<<<<<<<<<<
@@ -5697,7 +6379,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
       if (__pyx_t_2) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":322
+        /* "chassis_sdk/devices/board/_compiled.pyx":376
  *         if found != NULL and <object>found is not None:
  *             if i + 3 >= end:
  *                 return UNDECIDED             # <<<<<<<<<<<<<<
@@ -5710,7 +6392,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
         }
         goto __pyx_L0;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":321
+        /* "chassis_sdk/devices/board/_compiled.pyx":375
  *         found = PyDict_GetItemWithError(table, PyLong_FromLong(p[i + 2]))
  *         if found != NULL and <object>found is not None:
  *             if i + 3 >= end:             # <<<<<<<<<<<<<<
@@ -5719,16 +6401,16 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 */
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":323
+      /* "chassis_sdk/devices/board/_compiled.pyx":377
  *             if i + 3 >= end:
  *                 return UNDECIDED
  *             if _plausible((<object>found)[0], p[i + 3]):             # <<<<<<<<<<<<<<
  *                 return A_HEAD
  *         i = _find(p, i + 1, limit, h0, h1)
 */
-      __pyx_t_3 = __Pyx_GetItemInt(((PyObject *)__pyx_v_found), 0, long, 1, __Pyx_PyLong_From_long, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 323, __pyx_L1_error)
+      __pyx_t_3 = __Pyx_GetItemInt(((PyObject *)__pyx_v_found), 0, long, 1, __Pyx_PyLong_From_long, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 377, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_3);
-      __pyx_t_6 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(__pyx_t_3, (__pyx_v_p[(__pyx_v_i + 3)])); if (unlikely(__pyx_t_6 == ((int)-1))) __PYX_ERR(0, 323, __pyx_L1_error)
+      __pyx_t_6 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__plausible(__pyx_t_3, (__pyx_v_p[(__pyx_v_i + 3)])); if (unlikely(__pyx_t_6 == ((int)-1))) __PYX_ERR(0, 377, __pyx_L1_error)
       __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
       __pyx_t_2 = (__pyx_t_6 != 0);
 
@@ -5736,7 +6418,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
       if (__pyx_t_2) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":324
+        /* "chassis_sdk/devices/board/_compiled.pyx":378
  *                 return UNDECIDED
  *             if _plausible((<object>found)[0], p[i + 3]):
  *                 return A_HEAD             # <<<<<<<<<<<<<<
@@ -5749,7 +6431,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
         }
         goto __pyx_L0;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":323
+        /* "chassis_sdk/devices/board/_compiled.pyx":377
  *             if i + 3 >= end:
  *                 return UNDECIDED
  *             if _plausible((<object>found)[0], p[i + 3]):             # <<<<<<<<<<<<<<
@@ -5758,7 +6440,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 */
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":320
+      /* "chassis_sdk/devices/board/_compiled.pyx":374
  *             return UNDECIDED
  *         found = PyDict_GetItemWithError(table, PyLong_FromLong(p[i + 2]))
  *         if found != NULL and <object>found is not None:             # <<<<<<<<<<<<<<
@@ -5767,7 +6449,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":325
+    /* "chassis_sdk/devices/board/_compiled.pyx":379
  *             if _plausible((<object>found)[0], p[i + 3]):
  *                 return A_HEAD
  *         i = _find(p, i + 1, limit, h0, h1)             # <<<<<<<<<<<<<<
@@ -5777,7 +6459,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
     __pyx_v_i = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(__pyx_v_p, (__pyx_v_i + 1), __pyx_v_limit, __pyx_v_h0, __pyx_v_h1);
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":326
+  /* "chassis_sdk/devices/board/_compiled.pyx":380
  *                 return A_HEAD
  *         i = _find(p, i + 1, limit, h0, h1)
  *     if stop >= end and p[stop - 1] == h0:             # <<<<<<<<<<<<<<
@@ -5803,7 +6485,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
   if (__pyx_t_2) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":327
+    /* "chassis_sdk/devices/board/_compiled.pyx":381
  *         i = _find(p, i + 1, limit, h0, h1)
  *     if stop >= end and p[stop - 1] == h0:
  *         return UNDECIDED             # <<<<<<<<<<<<<<
@@ -5816,7 +6498,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":326
+    /* "chassis_sdk/devices/board/_compiled.pyx":380
  *                 return A_HEAD
  *         i = _find(p, i + 1, limit, h0, h1)
  *     if stop >= end and p[stop - 1] == h0:             # <<<<<<<<<<<<<<
@@ -5825,7 +6507,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":328
+  /* "chassis_sdk/devices/board/_compiled.pyx":382
  *     if stop >= end and p[stop - 1] == h0:
  *         return UNDECIDED
  *     return NO_HEAD             # <<<<<<<<<<<<<<
@@ -5838,7 +6520,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":309
+  /* "chassis_sdk/devices/board/_compiled.pyx":363
  * 
  * 
  * cdef int _swallows_a_head(const unsigned char *p, Py_ssize_t start, Py_ssize_t stop,             # <<<<<<<<<<<<<<
@@ -5860,7 +6542,7 @@ static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(uns
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":331
+/* "chassis_sdk/devices/board/_compiled.pyx":385
  * 
  * 
  * cdef Py_ssize_t _try(object buf, const unsigned char *p, Py_ssize_t start, Py_ssize_t end,             # <<<<<<<<<<<<<<
@@ -5902,7 +6584,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   int __pyx_clineno = 0;
   __Pyx_RefNannySetupContext("_try", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":341
+  /* "chassis_sdk/devices/board/_compiled.pyx":395
  *     cdef bint imu
  *     cdef int swallowed
  *     if end - start < HEADER:             # <<<<<<<<<<<<<<
@@ -5914,7 +6596,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":342
+    /* "chassis_sdk/devices/board/_compiled.pyx":396
  *     cdef int swallowed
  *     if end - start < HEADER:
  *         return NEED_DATA             # <<<<<<<<<<<<<<
@@ -5927,7 +6609,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":341
+    /* "chassis_sdk/devices/board/_compiled.pyx":395
  *     cdef bint imu
  *     cdef int swallowed
  *     if end - start < HEADER:             # <<<<<<<<<<<<<<
@@ -5936,7 +6618,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":343
+  /* "chassis_sdk/devices/board/_compiled.pyx":397
  *     if end - start < HEADER:
  *         return NEED_DATA
  *     msg_type = p[start + 2]             # <<<<<<<<<<<<<<
@@ -5945,20 +6627,20 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   __pyx_v_msg_type = (__pyx_v_p[(__pyx_v_start + 2)]);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":344
+  /* "chassis_sdk/devices/board/_compiled.pyx":398
  *         return NEED_DATA
  *     msg_type = p[start + 2]
  *     found = PyDict_GetItemWithError(table, PyLong_FromLong(msg_type))             # <<<<<<<<<<<<<<
  *     if found == NULL or <object>found is None:
  *         return INVALID
 */
-  __pyx_t_2 = PyLong_FromLong(__pyx_v_msg_type); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 344, __pyx_L1_error)
+  __pyx_t_2 = PyLong_FromLong(__pyx_v_msg_type); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 398, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_2);
-  __pyx_t_3 = PyDict_GetItemWithError(__pyx_v_table, __pyx_t_2); if (unlikely(__pyx_t_3 == ((void *)NULL) && PyErr_Occurred())) __PYX_ERR(0, 344, __pyx_L1_error)
+  __pyx_t_3 = PyDict_GetItemWithError(__pyx_v_table, __pyx_t_2); if (unlikely(__pyx_t_3 == ((void *)NULL) && PyErr_Occurred())) __PYX_ERR(0, 398, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
   __pyx_v_found = __pyx_t_3;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":345
+  /* "chassis_sdk/devices/board/_compiled.pyx":399
  *     msg_type = p[start + 2]
  *     found = PyDict_GetItemWithError(table, PyLong_FromLong(msg_type))
  *     if found == NULL or <object>found is None:             # <<<<<<<<<<<<<<
@@ -5983,7 +6665,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":346
+    /* "chassis_sdk/devices/board/_compiled.pyx":400
  *     found = PyDict_GetItemWithError(table, PyLong_FromLong(msg_type))
  *     if found == NULL or <object>found is None:
  *         return INVALID             # <<<<<<<<<<<<<<
@@ -5996,7 +6678,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":345
+    /* "chassis_sdk/devices/board/_compiled.pyx":399
  *     msg_type = p[start + 2]
  *     found = PyDict_GetItemWithError(table, PyLong_FromLong(msg_type))
  *     if found == NULL or <object>found is None:             # <<<<<<<<<<<<<<
@@ -6005,7 +6687,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":347
+  /* "chassis_sdk/devices/board/_compiled.pyx":401
  *     if found == NULL or <object>found is None:
  *         return INVALID
  *     expected, parser = <object>found             # <<<<<<<<<<<<<<
@@ -6020,7 +6702,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     if (unlikely(size != 2)) {
       if (size > 2) __Pyx_RaiseTooManyValuesError(2);
       else if (size >= 0) __Pyx_RaiseNeedMoreValuesError(size);
-      __PYX_ERR(0, 347, __pyx_L1_error)
+      __PYX_ERR(0, 401, __pyx_L1_error)
     }
     #if CYTHON_ASSUME_SAFE_MACROS && !CYTHON_AVOID_BORROWED_REFS
     if (likely(PyTuple_CheckExact(sequence))) {
@@ -6030,22 +6712,22 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
       __Pyx_INCREF(__pyx_t_6);
     } else {
       __pyx_t_5 = __Pyx_PyList_GET_ITEM_REF(sequence, 0, __Pyx_ReferenceSharing_SharedReference);
-      if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 347, __pyx_L1_error)
+      if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 401, __pyx_L1_error)
       __Pyx_XGOTREF(__pyx_t_5);
       __pyx_t_6 = __Pyx_PyList_GET_ITEM_REF(sequence, 1, __Pyx_ReferenceSharing_SharedReference);
-      if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 347, __pyx_L1_error)
+      if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 401, __pyx_L1_error)
       __Pyx_XGOTREF(__pyx_t_6);
     }
     #else
-    __pyx_t_5 = __Pyx_PySequence_ITEM(sequence, 0); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 347, __pyx_L1_error)
+    __pyx_t_5 = __Pyx_PySequence_ITEM(sequence, 0); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 401, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_5);
-    __pyx_t_6 = __Pyx_PySequence_ITEM(sequence, 1); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 347, __pyx_L1_error)
+    __pyx_t_6 = __Pyx_PySequence_ITEM(sequence, 1); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 401, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_6);
     #endif
     __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
   } else {
     Py_ssize_t index = -1;
-    __pyx_t_7 = PyObject_GetIter(__pyx_t_2); if (unlikely(!__pyx_t_7)) __PYX_ERR(0, 347, __pyx_L1_error)
+    __pyx_t_7 = PyObject_GetIter(__pyx_t_2); if (unlikely(!__pyx_t_7)) __PYX_ERR(0, 401, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_7);
     __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
     __pyx_t_8 = (CYTHON_COMPILING_IN_LIMITED_API) ? PyIter_Next : __Pyx_PyObject_GetIterNextFunc(__pyx_t_7);
@@ -6053,7 +6735,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     __Pyx_GOTREF(__pyx_t_5);
     index = 1; __pyx_t_6 = __pyx_t_8(__pyx_t_7); if (unlikely(!__pyx_t_6)) goto __pyx_L7_unpacking_failed;
     __Pyx_GOTREF(__pyx_t_6);
-    if (__Pyx_IternextUnpackEndCheck(__pyx_t_8(__pyx_t_7), 2) < (0)) __PYX_ERR(0, 347, __pyx_L1_error)
+    if (__Pyx_IternextUnpackEndCheck(__pyx_t_8(__pyx_t_7), 2) < (0)) __PYX_ERR(0, 401, __pyx_L1_error)
     __pyx_t_8 = NULL;
     __Pyx_DECREF(__pyx_t_7); __pyx_t_7 = 0;
     goto __pyx_L8_unpacking_done;
@@ -6061,7 +6743,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     __Pyx_DECREF(__pyx_t_7); __pyx_t_7 = 0;
     __pyx_t_8 = NULL;
     if (__Pyx_IterFinish() == 0) __Pyx_RaiseNeedMoreValuesError(index);
-    __PYX_ERR(0, 347, __pyx_L1_error)
+    __PYX_ERR(0, 401, __pyx_L1_error)
     __pyx_L8_unpacking_done:;
   }
   __pyx_v_expected = __pyx_t_5;
@@ -6069,7 +6751,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   __pyx_v_parser = __pyx_t_6;
   __pyx_t_6 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":348
+  /* "chassis_sdk/devices/board/_compiled.pyx":402
  *         return INVALID
  *     expected, parser = <object>found
  *     length = p[start + 3]             # <<<<<<<<<<<<<<
@@ -6078,21 +6760,21 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   __pyx_v_length = (__pyx_v_p[(__pyx_v_start + 3)]);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":349
+  /* "chassis_sdk/devices/board/_compiled.pyx":403
  *     expected, parser = <object>found
  *     length = p[start + 3]
  *     if _refused(expected, length):             # <<<<<<<<<<<<<<
  *         return INVALID
  *     stop = start + HEADER + length
 */
-  __pyx_t_9 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(__pyx_v_expected, __pyx_v_length); if (unlikely(__pyx_t_9 == ((int)-1))) __PYX_ERR(0, 349, __pyx_L1_error)
+  __pyx_t_9 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__refused(__pyx_v_expected, __pyx_v_length); if (unlikely(__pyx_t_9 == ((int)-1))) __PYX_ERR(0, 403, __pyx_L1_error)
   __pyx_t_1 = (__pyx_t_9 != 0);
 
 
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":350
+    /* "chassis_sdk/devices/board/_compiled.pyx":404
  *     length = p[start + 3]
  *     if _refused(expected, length):
  *         return INVALID             # <<<<<<<<<<<<<<
@@ -6105,7 +6787,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":349
+    /* "chassis_sdk/devices/board/_compiled.pyx":403
  *     expected, parser = <object>found
  *     length = p[start + 3]
  *     if _refused(expected, length):             # <<<<<<<<<<<<<<
@@ -6114,7 +6796,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":351
+  /* "chassis_sdk/devices/board/_compiled.pyx":405
  *     if _refused(expected, length):
  *         return INVALID
  *     stop = start + HEADER + length             # <<<<<<<<<<<<<<
@@ -6123,7 +6805,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   __pyx_v_stop = ((__pyx_v_start + __pyx_e_11chassis_sdk_7devices_5board_9_compiled_HEADER) + __pyx_v_length);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":352
+  /* "chassis_sdk/devices/board/_compiled.pyx":406
  *         return INVALID
  *     stop = start + HEADER + length
  *     if stop > end:             # <<<<<<<<<<<<<<
@@ -6135,7 +6817,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":353
+    /* "chassis_sdk/devices/board/_compiled.pyx":407
  *     stop = start + HEADER + length
  *     if stop > end:
  *         return NEED_DATA             # <<<<<<<<<<<<<<
@@ -6148,7 +6830,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":352
+    /* "chassis_sdk/devices/board/_compiled.pyx":406
  *         return INVALID
  *     stop = start + HEADER + length
  *     if stop > end:             # <<<<<<<<<<<<<<
@@ -6157,7 +6839,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":354
+  /* "chassis_sdk/devices/board/_compiled.pyx":408
  *     if stop > end:
  *         return NEED_DATA
  *     total = msg_type + length             # <<<<<<<<<<<<<<
@@ -6166,7 +6848,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   __pyx_v_total = (__pyx_v_msg_type + __pyx_v_length);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":355
+  /* "chassis_sdk/devices/board/_compiled.pyx":409
  *         return NEED_DATA
  *     total = msg_type + length
  *     for i in range(start + HEADER, stop - 1):             # <<<<<<<<<<<<<<
@@ -6180,7 +6862,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   for (__pyx_t_12 = (__pyx_v_start + __pyx_e_11chassis_sdk_7devices_5board_9_compiled_HEADER); __pyx_t_12 < __pyx_t_11; __pyx_t_12+=1) {
     __pyx_v_i = __pyx_t_12;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":356
+    /* "chassis_sdk/devices/board/_compiled.pyx":410
  *     total = msg_type + length
  *     for i in range(start + HEADER, stop - 1):
  *         total += p[i]             # <<<<<<<<<<<<<<
@@ -6191,7 +6873,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   }
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":357
+  /* "chassis_sdk/devices/board/_compiled.pyx":411
  *     for i in range(start + HEADER, stop - 1):
  *         total += p[i]
  *     if (total & 0xFF) != p[stop - 1]:             # <<<<<<<<<<<<<<
@@ -6203,22 +6885,22 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":358
+    /* "chassis_sdk/devices/board/_compiled.pyx":412
  *         total += p[i]
  *     if (total & 0xFF) != p[stop - 1]:
  *         stats.checksum_errors += 1             # <<<<<<<<<<<<<<
  *         return INVALID
  *     # The IMU sample cannot be malformed: it is built once the alignment rule took it.
 */
-    __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_checksum_errors); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 358, __pyx_L1_error)
+    __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_checksum_errors); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 412, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_2);
-    __pyx_t_6 = __Pyx_PyLong_AddObjC(__pyx_t_2, __pyx_mstate_global->__pyx_int_1, 1, 1, 0); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 358, __pyx_L1_error)
+    __pyx_t_6 = __Pyx_PyLong_AddObjC(__pyx_t_2, __pyx_mstate_global->__pyx_int_1, 1, 1, 0); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 412, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_6);
     __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
-    if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_checksum_errors, __pyx_t_6) < (0)) __PYX_ERR(0, 358, __pyx_L1_error)
+    if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_checksum_errors, __pyx_t_6) < (0)) __PYX_ERR(0, 412, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_6); __pyx_t_6 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":359
+    /* "chassis_sdk/devices/board/_compiled.pyx":413
  *     if (total & 0xFF) != p[stop - 1]:
  *         stats.checksum_errors += 1
  *         return INVALID             # <<<<<<<<<<<<<<
@@ -6231,7 +6913,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":357
+    /* "chassis_sdk/devices/board/_compiled.pyx":411
  *     for i in range(start + HEADER, stop - 1):
  *         total += p[i]
  *     if (total & 0xFF) != p[stop - 1]:             # <<<<<<<<<<<<<<
@@ -6240,7 +6922,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":361
+  /* "chassis_sdk/devices/board/_compiled.pyx":415
  *         return INVALID
  *     # The IMU sample cannot be malformed: it is built once the alignment rule took it.
  *     imu = parser is _parse_imu and length == IMU_LENGTH             # <<<<<<<<<<<<<<
@@ -6264,7 +6946,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   __pyx_L14_bool_binop_done:;
   __pyx_v_imu = __pyx_t_1;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":362
+  /* "chassis_sdk/devices/board/_compiled.pyx":416
  *     # The IMU sample cannot be malformed: it is built once the alignment rule took it.
  *     imu = parser is _parse_imu and length == IMU_LENGTH
  *     if imu:             # <<<<<<<<<<<<<<
@@ -6273,7 +6955,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   if (__pyx_v_imu) {
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":363
+    /* "chassis_sdk/devices/board/_compiled.pyx":417
  *     imu = parser is _parse_imu and length == IMU_LENGTH
  *     if imu:
  *         msg = None             # <<<<<<<<<<<<<<
@@ -6283,7 +6965,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     __Pyx_INCREF(Py_None);
     __pyx_v_msg = Py_None;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":362
+    /* "chassis_sdk/devices/board/_compiled.pyx":416
  *     # The IMU sample cannot be malformed: it is built once the alignment rule took it.
  *     imu = parser is _parse_imu and length == IMU_LENGTH
  *     if imu:             # <<<<<<<<<<<<<<
@@ -6293,7 +6975,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     goto __pyx_L16;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":365
+  /* "chassis_sdk/devices/board/_compiled.pyx":419
  *         msg = None
  *     else:
  *         msg = parser(buf, start + HEADER, length - 1, ts)             # <<<<<<<<<<<<<<
@@ -6304,9 +6986,9 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     __pyx_t_2 = NULL;
     __Pyx_INCREF(__pyx_v_parser);
     __pyx_t_5 = __pyx_v_parser; 
-    __pyx_t_7 = PyLong_FromSsize_t((__pyx_v_start + __pyx_e_11chassis_sdk_7devices_5board_9_compiled_HEADER)); if (unlikely(!__pyx_t_7)) __PYX_ERR(0, 365, __pyx_L1_error)
+    __pyx_t_7 = PyLong_FromSsize_t((__pyx_v_start + __pyx_e_11chassis_sdk_7devices_5board_9_compiled_HEADER)); if (unlikely(!__pyx_t_7)) __PYX_ERR(0, 419, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_7);
-    __pyx_t_13 = __Pyx_PyLong_From_long((__pyx_v_length - 1)); if (unlikely(!__pyx_t_13)) __PYX_ERR(0, 365, __pyx_L1_error)
+    __pyx_t_13 = __Pyx_PyLong_From_long((__pyx_v_length - 1)); if (unlikely(!__pyx_t_13)) __PYX_ERR(0, 419, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_13);
     __pyx_t_14 = 1;
     #if CYTHON_UNPACK_METHODS
@@ -6327,13 +7009,13 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
       __Pyx_DECREF(__pyx_t_7); __pyx_t_7 = 0;
       __Pyx_DECREF(__pyx_t_13); __pyx_t_13 = 0;
       __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-      if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 365, __pyx_L1_error)
+      if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 419, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_6);
     }
     __pyx_v_msg = __pyx_t_6;
     __pyx_t_6 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":366
+    /* "chassis_sdk/devices/board/_compiled.pyx":420
  *     else:
  *         msg = parser(buf, start + HEADER, length - 1, ts)
  *         if msg is None:             # <<<<<<<<<<<<<<
@@ -6344,22 +7026,22 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     if (__pyx_t_1) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":367
+      /* "chassis_sdk/devices/board/_compiled.pyx":421
  *         msg = parser(buf, start + HEADER, length - 1, ts)
  *         if msg is None:
  *             stats.malformed_frames += 1             # <<<<<<<<<<<<<<
  *             return INVALID
  *     if align[0] < 0:
 */
-      __pyx_t_6 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_malformed_frames); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 367, __pyx_L1_error)
+      __pyx_t_6 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_malformed_frames); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 421, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_6);
-      __pyx_t_5 = __Pyx_PyLong_AddObjC(__pyx_t_6, __pyx_mstate_global->__pyx_int_1, 1, 1, 0); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 367, __pyx_L1_error)
+      __pyx_t_5 = __Pyx_PyLong_AddObjC(__pyx_t_6, __pyx_mstate_global->__pyx_int_1, 1, 1, 0); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 421, __pyx_L1_error)
       __Pyx_GOTREF(__pyx_t_5);
       __Pyx_DECREF(__pyx_t_6); __pyx_t_6 = 0;
-      if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_malformed_frames, __pyx_t_5) < (0)) __PYX_ERR(0, 367, __pyx_L1_error)
+      if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_malformed_frames, __pyx_t_5) < (0)) __PYX_ERR(0, 421, __pyx_L1_error)
       __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":368
+      /* "chassis_sdk/devices/board/_compiled.pyx":422
  *         if msg is None:
  *             stats.malformed_frames += 1
  *             return INVALID             # <<<<<<<<<<<<<<
@@ -6372,7 +7054,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
       }
       goto __pyx_L0;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":366
+      /* "chassis_sdk/devices/board/_compiled.pyx":420
  *     else:
  *         msg = parser(buf, start + HEADER, length - 1, ts)
  *         if msg is None:             # <<<<<<<<<<<<<<
@@ -6383,7 +7065,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   }
   __pyx_L16:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":369
+  /* "chassis_sdk/devices/board/_compiled.pyx":423
  *             stats.malformed_frames += 1
  *             return INVALID
  *     if align[0] < 0:             # <<<<<<<<<<<<<<
@@ -6395,16 +7077,16 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":370
+    /* "chassis_sdk/devices/board/_compiled.pyx":424
  *             return INVALID
  *     if align[0] < 0:
  *         align[0] = 1 if self.check_alignment else 0             # <<<<<<<<<<<<<<
  *     if align[0]:
  *         limit = stop + 1 if stop + 1 < end else end
 */
-    __pyx_t_5 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_check_alignment); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 370, __pyx_L1_error)
+    __pyx_t_5 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_check_alignment); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 424, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_5);
-    __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_t_5); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 370, __pyx_L1_error)
+    __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_t_5); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 424, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
     if (__pyx_t_1) {
 
@@ -6417,7 +7099,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     (__pyx_v_align[0]) = __pyx_t_9;
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":369
+    /* "chassis_sdk/devices/board/_compiled.pyx":423
  *             stats.malformed_frames += 1
  *             return INVALID
  *     if align[0] < 0:             # <<<<<<<<<<<<<<
@@ -6426,7 +7108,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":371
+  /* "chassis_sdk/devices/board/_compiled.pyx":425
  *     if align[0] < 0:
  *         align[0] = 1 if self.check_alignment else 0
  *     if align[0]:             # <<<<<<<<<<<<<<
@@ -6438,7 +7120,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":372
+    /* "chassis_sdk/devices/board/_compiled.pyx":426
  *         align[0] = 1 if self.check_alignment else 0
  *     if align[0]:
  *         limit = stop + 1 if stop + 1 < end else end             # <<<<<<<<<<<<<<
@@ -6457,7 +7139,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 
     __pyx_v_limit = __pyx_t_10;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":373
+    /* "chassis_sdk/devices/board/_compiled.pyx":427
  *     if align[0]:
  *         limit = stop + 1 if stop + 1 < end else end
  *         if _find(p, start + 1, limit, h0, h1) >= 0 or (stop >= end and p[stop - 1] == h0):             # <<<<<<<<<<<<<<
@@ -6493,17 +7175,17 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
     if (__pyx_t_1) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":374
+      /* "chassis_sdk/devices/board/_compiled.pyx":428
  *         limit = stop + 1 if stop + 1 < end else end
  *         if _find(p, start + 1, limit, h0, h1) >= 0 or (stop >= end and p[stop - 1] == h0):
  *             swallowed = _swallows_a_head(p, start, stop, end, table, h0, h1)             # <<<<<<<<<<<<<<
  *             if swallowed == UNDECIDED:
  *                 return NEED_DATA
 */
-      __pyx_t_9 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(__pyx_v_p, __pyx_v_start, __pyx_v_stop, __pyx_v_end, __pyx_v_table, __pyx_v_h0, __pyx_v_h1); if (unlikely(__pyx_t_9 == ((int)-2))) __PYX_ERR(0, 374, __pyx_L1_error)
+      __pyx_t_9 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__swallows_a_head(__pyx_v_p, __pyx_v_start, __pyx_v_stop, __pyx_v_end, __pyx_v_table, __pyx_v_h0, __pyx_v_h1); if (unlikely(__pyx_t_9 == ((int)-2))) __PYX_ERR(0, 428, __pyx_L1_error)
       __pyx_v_swallowed = __pyx_t_9;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":375
+      /* "chassis_sdk/devices/board/_compiled.pyx":429
  *         if _find(p, start + 1, limit, h0, h1) >= 0 or (stop >= end and p[stop - 1] == h0):
  *             swallowed = _swallows_a_head(p, start, stop, end, table, h0, h1)
  *             if swallowed == UNDECIDED:             # <<<<<<<<<<<<<<
@@ -6515,7 +7197,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
       if (__pyx_t_1) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":376
+        /* "chassis_sdk/devices/board/_compiled.pyx":430
  *             swallowed = _swallows_a_head(p, start, stop, end, table, h0, h1)
  *             if swallowed == UNDECIDED:
  *                 return NEED_DATA             # <<<<<<<<<<<<<<
@@ -6528,7 +7210,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
         }
         goto __pyx_L0;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":375
+        /* "chassis_sdk/devices/board/_compiled.pyx":429
  *         if _find(p, start + 1, limit, h0, h1) >= 0 or (stop >= end and p[stop - 1] == h0):
  *             swallowed = _swallows_a_head(p, start, stop, end, table, h0, h1)
  *             if swallowed == UNDECIDED:             # <<<<<<<<<<<<<<
@@ -6537,7 +7219,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":377
+      /* "chassis_sdk/devices/board/_compiled.pyx":431
  *             if swallowed == UNDECIDED:
  *                 return NEED_DATA
  *             if swallowed == A_HEAD:             # <<<<<<<<<<<<<<
@@ -6549,22 +7231,22 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
       if (__pyx_t_1) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":378
+        /* "chassis_sdk/devices/board/_compiled.pyx":432
  *                 return NEED_DATA
  *             if swallowed == A_HEAD:
  *                 stats.misaligned_frames += 1             # <<<<<<<<<<<<<<
  *                 return INVALID
  *     if imu:
 */
-        __pyx_t_5 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_misaligned_frames); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 378, __pyx_L1_error)
+        __pyx_t_5 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_misaligned_frames); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 432, __pyx_L1_error)
         __Pyx_GOTREF(__pyx_t_5);
-        __pyx_t_6 = __Pyx_PyLong_AddObjC(__pyx_t_5, __pyx_mstate_global->__pyx_int_1, 1, 1, 0); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 378, __pyx_L1_error)
+        __pyx_t_6 = __Pyx_PyLong_AddObjC(__pyx_t_5, __pyx_mstate_global->__pyx_int_1, 1, 1, 0); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 432, __pyx_L1_error)
         __Pyx_GOTREF(__pyx_t_6);
         __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-        if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_misaligned_frames, __pyx_t_6) < (0)) __PYX_ERR(0, 378, __pyx_L1_error)
+        if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_misaligned_frames, __pyx_t_6) < (0)) __PYX_ERR(0, 432, __pyx_L1_error)
         __Pyx_DECREF(__pyx_t_6); __pyx_t_6 = 0;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":379
+        /* "chassis_sdk/devices/board/_compiled.pyx":433
  *             if swallowed == A_HEAD:
  *                 stats.misaligned_frames += 1
  *                 return INVALID             # <<<<<<<<<<<<<<
@@ -6577,7 +7259,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
         }
         goto __pyx_L0;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":377
+        /* "chassis_sdk/devices/board/_compiled.pyx":431
  *             if swallowed == UNDECIDED:
  *                 return NEED_DATA
  *             if swallowed == A_HEAD:             # <<<<<<<<<<<<<<
@@ -6586,7 +7268,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":373
+      /* "chassis_sdk/devices/board/_compiled.pyx":427
  *     if align[0]:
  *         limit = stop + 1 if stop + 1 < end else end
  *         if _find(p, start + 1, limit, h0, h1) >= 0 or (stop >= end and p[stop - 1] == h0):             # <<<<<<<<<<<<<<
@@ -6595,7 +7277,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":371
+    /* "chassis_sdk/devices/board/_compiled.pyx":425
  *     if align[0] < 0:
  *         align[0] = 1 if self.check_alignment else 0
  *     if align[0]:             # <<<<<<<<<<<<<<
@@ -6604,7 +7286,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":380
+  /* "chassis_sdk/devices/board/_compiled.pyx":434
  *                 stats.misaligned_frames += 1
  *                 return INVALID
  *     if imu:             # <<<<<<<<<<<<<<
@@ -6613,19 +7295,19 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   if (__pyx_v_imu) {
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":381
+    /* "chassis_sdk/devices/board/_compiled.pyx":435
  *                 return INVALID
  *     if imu:
  *         msg = _imu(p, start + HEADER, ts)             # <<<<<<<<<<<<<<
  *     PyList_Append(out, msg)
  *     return stop - start
 */
-    __pyx_t_6 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(__pyx_v_p, (__pyx_v_start + __pyx_e_11chassis_sdk_7devices_5board_9_compiled_HEADER), __pyx_v_ts); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 381, __pyx_L1_error)
+    __pyx_t_6 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__imu(__pyx_v_p, (__pyx_v_start + __pyx_e_11chassis_sdk_7devices_5board_9_compiled_HEADER), __pyx_v_ts); if (unlikely(!__pyx_t_6)) __PYX_ERR(0, 435, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_6);
     __Pyx_DECREF_SET(__pyx_v_msg, __pyx_t_6);
     __pyx_t_6 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":380
+    /* "chassis_sdk/devices/board/_compiled.pyx":434
  *                 stats.misaligned_frames += 1
  *                 return INVALID
  *     if imu:             # <<<<<<<<<<<<<<
@@ -6634,17 +7316,17 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":382
+  /* "chassis_sdk/devices/board/_compiled.pyx":436
  *     if imu:
  *         msg = _imu(p, start + HEADER, ts)
  *     PyList_Append(out, msg)             # <<<<<<<<<<<<<<
  *     return stop - start
  * 
 */
-  __pyx_t_9 = PyList_Append(__pyx_v_out, __pyx_v_msg); if (unlikely(__pyx_t_9 == ((int)-1))) __PYX_ERR(0, 382, __pyx_L1_error)
+  __pyx_t_9 = PyList_Append(__pyx_v_out, __pyx_v_msg); if (unlikely(__pyx_t_9 == ((int)-1))) __PYX_ERR(0, 436, __pyx_L1_error)
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":383
+  /* "chassis_sdk/devices/board/_compiled.pyx":437
  *         msg = _imu(p, start + HEADER, ts)
  *     PyList_Append(out, msg)
  *     return stop - start             # <<<<<<<<<<<<<<
@@ -6657,7 +7339,7 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":331
+  /* "chassis_sdk/devices/board/_compiled.pyx":385
  * 
  * 
  * cdef Py_ssize_t _try(object buf, const unsigned char *p, Py_ssize_t start, Py_ssize_t end,             # <<<<<<<<<<<<<<
@@ -6692,7 +7374,315 @@ static Py_ssize_t __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(PyObject
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":386
+/* "chassis_sdk/devices/board/_compiled.pyx":440
+ * 
+ * 
+ * cdef bint _stats_plain():             # <<<<<<<<<<<<<<
+ *     """Whether DecoderStats is as bind found it (its counters in the slots recorded, read
+ *     and written plainly); checked again only when its version tag changes."""
+*/
+
+static int __pyx_f_11chassis_sdk_7devices_5board_9_compiled__stats_plain(void) {
+  unsigned int __pyx_v_tag;
+  PyObject *__pyx_v_names = 0;
+  int __pyx_r;
+  __Pyx_RefNannyDeclarations
+  PyObject *__pyx_t_1 = NULL;
+  int __pyx_t_2;
+  int __pyx_t_3;
+  PyObject *__pyx_t_4 = NULL;
+  size_t __pyx_t_5;
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  __Pyx_RefNannySetupContext("_stats_plain", 0);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":444
+ *     and written plainly); checked again only when its version tag changes."""
+ *     global _stats_tag
+ *     cdef unsigned int tag = board_b_type_tag(_stats_cls)             # <<<<<<<<<<<<<<
+ *     if tag != 0 and tag == _stats_tag:
+ *         return True
+*/
+  __pyx_t_1 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls;
+  __Pyx_INCREF(__pyx_t_1);
+  __pyx_v_tag = board_b_type_tag(__pyx_t_1);
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":445
+ *     global _stats_tag
+ *     cdef unsigned int tag = board_b_type_tag(_stats_cls)
+ *     if tag != 0 and tag == _stats_tag:             # <<<<<<<<<<<<<<
+ *         return True
+ *     _stats_tag = 0
+*/
+  __pyx_t_3 = (__pyx_v_tag != 0);
+
+  if (__pyx_t_3) {
+
+  } else {
+
+    __pyx_t_2 = __pyx_t_3;
+
+    goto __pyx_L4_bool_binop_done;
+  }
+  __pyx_t_3 = (__pyx_v_tag == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_tag);
+
+
+  __pyx_t_2 = __pyx_t_3;
+
+  __pyx_L4_bool_binop_done:;
+  if (__pyx_t_2) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":446
+ *     cdef unsigned int tag = board_b_type_tag(_stats_cls)
+ *     if tag != 0 and tag == _stats_tag:
+ *         return True             # <<<<<<<<<<<<<<
+ *     _stats_tag = 0
+ *     names = _stats_cls.__dict__
+*/
+    {
+
+      __pyx_r = 1;
+    }
+    goto __pyx_L0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":445
+ *     global _stats_tag
+ *     cdef unsigned int tag = board_b_type_tag(_stats_cls)
+ *     if tag != 0 and tag == _stats_tag:             # <<<<<<<<<<<<<<
+ *         return True
+ *     _stats_tag = 0
+*/
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":447
+ *     if tag != 0 and tag == _stats_tag:
+ *         return True
+ *     _stats_tag = 0             # <<<<<<<<<<<<<<
+ *     names = _stats_cls.__dict__
+ *     if not (
+*/
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_tag = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":448
+ *         return True
+ *     _stats_tag = 0
+ *     names = _stats_cls.__dict__             # <<<<<<<<<<<<<<
+ *     if not (
+ *         board_b_plain_getattr(_stats_cls)
+*/
+  __pyx_t_1 = __Pyx_PyObject_GetAttrStr(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls, __pyx_mstate_global->__pyx_n_u_dict); if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 448, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_1);
+  __pyx_v_names = __pyx_t_1;
+  __pyx_t_1 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":450
+ *     names = _stats_cls.__dict__
+ *     if not (
+ *         board_b_plain_getattr(_stats_cls)             # <<<<<<<<<<<<<<
+ *         and board_b_plain_setattr(_stats_cls)
+ *         and names.get("bytes_received") is _received_slot
+*/
+  __pyx_t_1 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls;
+  __Pyx_INCREF(__pyx_t_1);
+  __pyx_t_3 = board_b_plain_getattr(__pyx_t_1);
+
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  if (__pyx_t_3) {
+
+  } else {
+
+    __pyx_t_2 = __pyx_t_3;
+
+    goto __pyx_L7_bool_binop_done;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":451
+ *     if not (
+ *         board_b_plain_getattr(_stats_cls)
+ *         and board_b_plain_setattr(_stats_cls)             # <<<<<<<<<<<<<<
+ *         and names.get("bytes_received") is _received_slot
+ *         and names.get("frames") is _frames_slot
+*/
+  __pyx_t_1 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls;
+  __Pyx_INCREF(__pyx_t_1);
+  __pyx_t_3 = board_b_plain_setattr(__pyx_t_1);
+
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  if (__pyx_t_3) {
+
+  } else {
+
+    __pyx_t_2 = __pyx_t_3;
+
+    goto __pyx_L7_bool_binop_done;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":452
+ *         board_b_plain_getattr(_stats_cls)
+ *         and board_b_plain_setattr(_stats_cls)
+ *         and names.get("bytes_received") is _received_slot             # <<<<<<<<<<<<<<
+ *         and names.get("frames") is _frames_slot
+ *         and names.get("bytes_dropped") is _dropped_slot
+*/
+  __pyx_t_4 = __pyx_v_names;
+  __Pyx_INCREF(__pyx_t_4);
+  __pyx_t_5 = 0;
+  {
+    PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_mstate_global->__pyx_n_u_bytes_received};
+    __pyx_t_1 = __Pyx_PyObject_FastCallMethod((PyObject*)__pyx_mstate_global->__pyx_n_u_get, __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (1*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+    __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
+    if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 452, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_1);
+  }
+  __pyx_t_3 = (__pyx_t_1 == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot);
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  if (__pyx_t_3) {
+
+  } else {
+
+    __pyx_t_2 = __pyx_t_3;
+
+    goto __pyx_L7_bool_binop_done;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":453
+ *         and board_b_plain_setattr(_stats_cls)
+ *         and names.get("bytes_received") is _received_slot
+ *         and names.get("frames") is _frames_slot             # <<<<<<<<<<<<<<
+ *         and names.get("bytes_dropped") is _dropped_slot
+ *     ):
+*/
+  __pyx_t_4 = __pyx_v_names;
+  __Pyx_INCREF(__pyx_t_4);
+  __pyx_t_5 = 0;
+  {
+    PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_mstate_global->__pyx_n_u_frames};
+    __pyx_t_1 = __Pyx_PyObject_FastCallMethod((PyObject*)__pyx_mstate_global->__pyx_n_u_get, __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (1*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+    __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
+    if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 453, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_1);
+  }
+  __pyx_t_3 = (__pyx_t_1 == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot);
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+  if (__pyx_t_3) {
+
+  } else {
+
+    __pyx_t_2 = __pyx_t_3;
+
+    goto __pyx_L7_bool_binop_done;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":454
+ *         and names.get("bytes_received") is _received_slot
+ *         and names.get("frames") is _frames_slot
+ *         and names.get("bytes_dropped") is _dropped_slot             # <<<<<<<<<<<<<<
+ *     ):
+ *         return False
+*/
+  __pyx_t_4 = __pyx_v_names;
+  __Pyx_INCREF(__pyx_t_4);
+  __pyx_t_5 = 0;
+  {
+    PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_mstate_global->__pyx_n_u_bytes_dropped};
+    __pyx_t_1 = __Pyx_PyObject_FastCallMethod((PyObject*)__pyx_mstate_global->__pyx_n_u_get, __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (1*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+    __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
+    if (unlikely(!__pyx_t_1)) __PYX_ERR(0, 454, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_1);
+  }
+  __pyx_t_3 = (__pyx_t_1 == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot);
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+
+  __pyx_t_2 = __pyx_t_3;
+
+  __pyx_L7_bool_binop_done:;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":449
+ *     _stats_tag = 0
+ *     names = _stats_cls.__dict__
+ *     if not (             # <<<<<<<<<<<<<<
+ *         board_b_plain_getattr(_stats_cls)
+ *         and board_b_plain_setattr(_stats_cls)
+*/
+  __pyx_t_3 = (!__pyx_t_2);
+
+
+  if (__pyx_t_3) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":456
+ *         and names.get("bytes_dropped") is _dropped_slot
+ *     ):
+ *         return False             # <<<<<<<<<<<<<<
+ *     _stats_tag = board_b_type_tag(_stats_cls)
+ *     return True
+*/
+    {
+
+      __pyx_r = 0;
+    }
+    goto __pyx_L0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":449
+ *     _stats_tag = 0
+ *     names = _stats_cls.__dict__
+ *     if not (             # <<<<<<<<<<<<<<
+ *         board_b_plain_getattr(_stats_cls)
+ *         and board_b_plain_setattr(_stats_cls)
+*/
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":457
+ *     ):
+ *         return False
+ *     _stats_tag = board_b_type_tag(_stats_cls)             # <<<<<<<<<<<<<<
+ *     return True
+ * 
+*/
+  __pyx_t_1 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls;
+  __Pyx_INCREF(__pyx_t_1);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_tag = board_b_type_tag(__pyx_t_1);
+  __Pyx_DECREF(__pyx_t_1); __pyx_t_1 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":458
+ *         return False
+ *     _stats_tag = board_b_type_tag(_stats_cls)
+ *     return True             # <<<<<<<<<<<<<<
+ * 
+ * 
+*/
+  {
+
+    __pyx_r = 1;
+  }
+  goto __pyx_L0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":440
+ * 
+ * 
+ * cdef bint _stats_plain():             # <<<<<<<<<<<<<<
+ *     """Whether DecoderStats is as bind found it (its counters in the slots recorded, read
+ *     and written plainly); checked again only when its version tag changes."""
+*/
+
+  /* function exit code */
+  __pyx_L1_error:;
+  __Pyx_XDECREF(__pyx_t_1);
+  __Pyx_XDECREF(__pyx_t_4);
+  __Pyx_AddTraceback("chassis_sdk.devices.board._compiled._stats_plain", __pyx_clineno, __pyx_lineno, __pyx_filename);
+  __pyx_r = -1;
+  __pyx_L0:;
+
+  __Pyx_XDECREF(__pyx_v_names);
+
+  __Pyx_RefNannyFinishContext();
+  return __pyx_r;
+}
+
+/* "chassis_sdk/devices/board/_compiled.pyx":461
  * 
  * 
  * cdef object _class_value(object cls, object name, type kind):             # <<<<<<<<<<<<<<
@@ -6708,7 +7698,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
   int __pyx_t_2;
   __Pyx_RefNannySetupContext("_class_value", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":389
+  /* "chassis_sdk/devices/board/_compiled.pyx":464
  *     """What ``instance.name`` is for an instance with nothing of its own under ``name``,
  *     if the class holds a ``kind`` (which is no descriptor) there; else None."""
  *     cdef PyObject *found = board_b_class_attr(cls, name)             # <<<<<<<<<<<<<<
@@ -6717,7 +7707,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
 */
   __pyx_v_found = board_b_class_attr(__pyx_v_cls, __pyx_v_name);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":390
+  /* "chassis_sdk/devices/board/_compiled.pyx":465
  *     if the class holds a ``kind`` (which is no descriptor) there; else None."""
  *     cdef PyObject *found = board_b_class_attr(cls, name)
  *     if found != NULL and type(<object>found) is kind:             # <<<<<<<<<<<<<<
@@ -6742,7 +7732,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":391
+    /* "chassis_sdk/devices/board/_compiled.pyx":466
  *     cdef PyObject *found = board_b_class_attr(cls, name)
  *     if found != NULL and type(<object>found) is kind:
  *         return <object>found             # <<<<<<<<<<<<<<
@@ -6760,7 +7750,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
     }
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":390
+    /* "chassis_sdk/devices/board/_compiled.pyx":465
  *     if the class holds a ``kind`` (which is no descriptor) there; else None."""
  *     cdef PyObject *found = board_b_class_attr(cls, name)
  *     if found != NULL and type(<object>found) is kind:             # <<<<<<<<<<<<<<
@@ -6769,7 +7759,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":392
+  /* "chassis_sdk/devices/board/_compiled.pyx":467
  *     if found != NULL and type(<object>found) is kind:
  *         return <object>found
  *     return None             # <<<<<<<<<<<<<<
@@ -6786,7 +7776,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":386
+  /* "chassis_sdk/devices/board/_compiled.pyx":461
  * 
  * 
  * cdef object _class_value(object cls, object name, type kind):             # <<<<<<<<<<<<<<
@@ -6802,7 +7792,7 @@ static PyObject *__pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(P
   return __pyx_r;
 }
 
-/* "chassis_sdk/devices/board/_compiled.pyx":395
+/* "chassis_sdk/devices/board/_compiled.pyx":470
  * 
  * 
  * def feed(self, data, timestamp=0.0):             # <<<<<<<<<<<<<<
@@ -6852,41 +7842,41 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
   {
     PyObject ** const __pyx_pyargnames[] = {&__pyx_mstate_global->__pyx_n_u_self,&__pyx_mstate_global->__pyx_n_u_data,&__pyx_mstate_global->__pyx_n_u_timestamp,0};
     const Py_ssize_t __pyx_kwds_len = (__pyx_kwds) ? __Pyx_NumKwargs_FASTCALL(__pyx_kwds) : 0;
-    if (unlikely(__pyx_kwds_len < 0)) __PYX_ERR(0, 395, __pyx_L3_error)
+    if (unlikely(__pyx_kwds_len < 0)) __PYX_ERR(0, 470, __pyx_L3_error)
     if (__pyx_kwds_len > 0) {
       switch (__pyx_nargs) {
         case  3:
         values[2] = __Pyx_ArgRef_FASTCALL(__pyx_args, 2);
-        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[2])) __PYX_ERR(0, 395, __pyx_L3_error)
+        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[2])) __PYX_ERR(0, 470, __pyx_L3_error)
         CYTHON_FALLTHROUGH;
         case  2:
         values[1] = __Pyx_ArgRef_FASTCALL(__pyx_args, 1);
-        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[1])) __PYX_ERR(0, 395, __pyx_L3_error)
+        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[1])) __PYX_ERR(0, 470, __pyx_L3_error)
         CYTHON_FALLTHROUGH;
         case  1:
         values[0] = __Pyx_ArgRef_FASTCALL(__pyx_args, 0);
-        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[0])) __PYX_ERR(0, 395, __pyx_L3_error)
+        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[0])) __PYX_ERR(0, 470, __pyx_L3_error)
         CYTHON_FALLTHROUGH;
         case  0: break;
         default: goto __pyx_L5_argtuple_error;
       }
       const Py_ssize_t kwd_pos_args = __pyx_nargs;
-      if (__Pyx_ParseKeywords(__pyx_kwds, __pyx_kwvalues, __pyx_pyargnames, 0, values, kwd_pos_args, __pyx_kwds_len, "feed", 0) < (0)) __PYX_ERR(0, 395, __pyx_L3_error)
+      if (__Pyx_ParseKeywords(__pyx_kwds, __pyx_kwvalues, __pyx_pyargnames, 0, values, kwd_pos_args, __pyx_kwds_len, "feed", 0) < (0)) __PYX_ERR(0, 470, __pyx_L3_error)
       if (!values[2]) values[2] = __Pyx_NewRef(((PyObject *)((PyObject*)__pyx_mstate_global->__pyx_float_0_0)));
       for (Py_ssize_t i = __pyx_nargs; i < 2; i++) {
-        if (unlikely(!values[i])) { __Pyx_RaiseArgtupleInvalid("feed", 0, 2, 3, i); __PYX_ERR(0, 395, __pyx_L3_error) }
+        if (unlikely(!values[i])) { __Pyx_RaiseArgtupleInvalid("feed", 0, 2, 3, i); __PYX_ERR(0, 470, __pyx_L3_error) }
       }
     } else {
       switch (__pyx_nargs) {
         case  3:
         values[2] = __Pyx_ArgRef_FASTCALL(__pyx_args, 2);
-        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[2])) __PYX_ERR(0, 395, __pyx_L3_error)
+        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[2])) __PYX_ERR(0, 470, __pyx_L3_error)
         CYTHON_FALLTHROUGH;
         case  2:
         values[1] = __Pyx_ArgRef_FASTCALL(__pyx_args, 1);
-        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[1])) __PYX_ERR(0, 395, __pyx_L3_error)
+        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[1])) __PYX_ERR(0, 470, __pyx_L3_error)
         values[0] = __Pyx_ArgRef_FASTCALL(__pyx_args, 0);
-        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[0])) __PYX_ERR(0, 395, __pyx_L3_error)
+        if (!CYTHON_ASSUME_SAFE_MACROS && unlikely(!values[0])) __PYX_ERR(0, 470, __pyx_L3_error)
         break;
         default: goto __pyx_L5_argtuple_error;
       }
@@ -6898,7 +7888,7 @@ PyObject *__pyx_args, PyObject *__pyx_kwds
   }
   goto __pyx_L6_skip;
   __pyx_L5_argtuple_error:;
-  __Pyx_RaiseArgtupleInvalid("feed", 0, 2, 3, __pyx_nargs); __PYX_ERR(0, 395, __pyx_L3_error)
+  __Pyx_RaiseArgtupleInvalid("feed", 0, 2, 3, __pyx_nargs); __PYX_ERR(0, 470, __pyx_L3_error)
   __pyx_L6_skip:;
   goto __pyx_L4_argument_unpacking_done;
   __pyx_L3_error:;
@@ -6932,6 +7922,8 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
   int __pyx_v_align;
   Py_buffer __pyx_v_view;
   PyObject *__pyx_v_found;
+  int __pyx_v_which;
+  unsigned int __pyx_v_tag;
   PyObject *__pyx_v_cls = 0;
   PyObject *__pyx_v_attrs = 0;
   PyObject *__pyx_v_head = 0;
@@ -6940,31 +7932,34 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
   PyObject *__pyx_v_stored = 0;
   PyObject *__pyx_v_buf = 0;
   PyObject *__pyx_v_stats = 0;
+  PyObject *__pyx_v_fast_stats = 0;
+  PyObject *__pyx_v_count = 0;
   PyObject *__pyx_v_out = 0;
   PyObject *__pyx_r = NULL;
   __Pyx_RefNannyDeclarations
   int __pyx_t_1;
-  int __pyx_t_2;
+  PyObject *__pyx_t_2 = NULL;
   PyObject *__pyx_t_3 = NULL;
   PyObject *__pyx_t_4 = NULL;
-  PyObject *__pyx_t_5 = NULL;
-  size_t __pyx_t_6;
-  Py_ssize_t __pyx_t_7;
-  int __pyx_t_8;
+  size_t __pyx_t_5;
+  int __pyx_t_6;
+  int __pyx_t_7;
+  Py_ssize_t __pyx_t_8;
   int __pyx_t_9;
-  char const *__pyx_t_10;
-  PyObject *__pyx_t_11 = NULL;
+  int __pyx_t_10;
+  char const *__pyx_t_11;
   PyObject *__pyx_t_12 = NULL;
   PyObject *__pyx_t_13 = NULL;
   PyObject *__pyx_t_14 = NULL;
   PyObject *__pyx_t_15 = NULL;
   PyObject *__pyx_t_16 = NULL;
+  PyObject *__pyx_t_17 = NULL;
   int __pyx_lineno = 0;
   const char *__pyx_filename = NULL;
   int __pyx_clineno = 0;
   __Pyx_RefNannySetupContext("feed", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":409
+  /* "chassis_sdk/devices/board/_compiled.pyx":484
  *     cdef unsigned char h0, h1
  *     cdef const unsigned char *p
  *     cdef int align = -1             # <<<<<<<<<<<<<<
@@ -6973,286 +7968,200 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   __pyx_v_align = -1;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":412
- *     cdef Py_buffer view
- *     cdef PyObject *found
+  /* "chassis_sdk/devices/board/_compiled.pyx":489
+ *     cdef int which
+ *     cdef unsigned int tag
  *     cls = type(self)             # <<<<<<<<<<<<<<
- *     if not _bound or (cls is not _decoder_cls and cls is not _command_cls):
+ *     if not _bound:
  *         return _pure_feed(self, data, timestamp)
 */
   __Pyx_INCREF(((PyObject *)Py_TYPE(__pyx_v_self)));
   __pyx_v_cls = ((PyObject *)Py_TYPE(__pyx_v_self));
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":413
- *     cdef PyObject *found
+  /* "chassis_sdk/devices/board/_compiled.pyx":490
+ *     cdef unsigned int tag
  *     cls = type(self)
- *     if not _bound or (cls is not _decoder_cls and cls is not _command_cls):             # <<<<<<<<<<<<<<
+ *     if not _bound:             # <<<<<<<<<<<<<<
  *         return _pure_feed(self, data, timestamp)
- *     # The methods the pure loop would call, as the class has them...
+ *     if cls is _decoder_cls:
 */
-  __pyx_t_2 = (!__pyx_v_11chassis_sdk_7devices_5board_9_compiled__bound);
+  __pyx_t_1 = (!__pyx_v_11chassis_sdk_7devices_5board_9_compiled__bound);
 
-  if (!__pyx_t_2) {
-
-  } else {
-
-    __pyx_t_1 = __pyx_t_2;
-
-    goto __pyx_L4_bool_binop_done;
-  }
-  __pyx_t_2 = (__pyx_v_cls != __pyx_v_11chassis_sdk_7devices_5board_9_compiled__decoder_cls);
-  if (__pyx_t_2) {
-
-  } else {
-
-    __pyx_t_1 = __pyx_t_2;
-
-    goto __pyx_L4_bool_binop_done;
-  }
-  __pyx_t_2 = (__pyx_v_cls != __pyx_v_11chassis_sdk_7devices_5board_9_compiled__command_cls);
-
-  __pyx_t_1 = __pyx_t_2;
-
-  __pyx_L4_bool_binop_done:;
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":414
+    /* "chassis_sdk/devices/board/_compiled.pyx":491
  *     cls = type(self)
- *     if not _bound or (cls is not _decoder_cls and cls is not _command_cls):
+ *     if not _bound:
  *         return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
- *     # The methods the pure loop would call, as the class has them...
- *     found = board_b_class_attr(cls, "_try_frame")
+ *     if cls is _decoder_cls:
+ *         which = 0
 */
-    __pyx_t_4 = NULL;
-    __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
-    __pyx_t_5 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
-    __pyx_t_6 = 1;
-    #if CYTHON_UNPACK_METHODS
-    if (unlikely(PyMethod_Check(__pyx_t_5))) {
-      __pyx_t_4 = PyMethod_GET_SELF(__pyx_t_5);
-      assert(__pyx_t_4);
-      PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_5);
-      __Pyx_INCREF(__pyx_t_4);
-      __Pyx_INCREF(__pyx__function);
-      __Pyx_DECREF_SET(__pyx_t_5, __pyx__function);
-      __pyx_t_6 = 0;
-    }
-    #endif
-    {
-      PyObject *__pyx_callargs[4] = {__pyx_t_4, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
-      __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_5, __pyx_callargs+__pyx_t_6, (4-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
-      __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
-      __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 414, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_3);
-    }
-    {
-      PyObject *__pyx_temp;
-      {
-        __pyx_temp = __pyx_r;
-        __pyx_r = __pyx_t_3;
-      }
-      __Pyx_XDECREF(__pyx_temp);
-    }
-    __pyx_t_3 = 0;
-    goto __pyx_L0;
-
-    /* "chassis_sdk/devices/board/_compiled.pyx":413
- *     cdef PyObject *found
- *     cls = type(self)
- *     if not _bound or (cls is not _decoder_cls and cls is not _command_cls):             # <<<<<<<<<<<<<<
- *         return _pure_feed(self, data, timestamp)
- *     # The methods the pure loop would call, as the class has them...
-*/
-  }
-
-  /* "chassis_sdk/devices/board/_compiled.pyx":416
- *         return _pure_feed(self, data, timestamp)
- *     # The methods the pure loop would call, as the class has them...
- *     found = board_b_class_attr(cls, "_try_frame")             # <<<<<<<<<<<<<<
- *     if found == NULL or <object>found is not _try_frame:
- *         return _pure_feed(self, data, timestamp)
-*/
-  __pyx_v_found = board_b_class_attr(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_try_frame_2);
-
-  /* "chassis_sdk/devices/board/_compiled.pyx":417
- *     # The methods the pure loop would call, as the class has them...
- *     found = board_b_class_attr(cls, "_try_frame")
- *     if found == NULL or <object>found is not _try_frame:             # <<<<<<<<<<<<<<
- *         return _pure_feed(self, data, timestamp)
- *     found = board_b_class_attr(cls, "_swallows_a_head")
-*/
-  __pyx_t_2 = (__pyx_v_found == NULL);
-
-  if (!__pyx_t_2) {
-
-  } else {
-
-    __pyx_t_1 = __pyx_t_2;
-
-    goto __pyx_L8_bool_binop_done;
-  }
-  __pyx_t_2 = (((PyObject *)__pyx_v_found) != __pyx_v_11chassis_sdk_7devices_5board_9_compiled__try_frame);
-
-  __pyx_t_1 = __pyx_t_2;
-
-  __pyx_L8_bool_binop_done:;
-  if (__pyx_t_1) {
-
-
-    /* "chassis_sdk/devices/board/_compiled.pyx":418
- *     found = board_b_class_attr(cls, "_try_frame")
- *     if found == NULL or <object>found is not _try_frame:
- *         return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
- *     found = board_b_class_attr(cls, "_swallows_a_head")
- *     if found == NULL or <object>found is not _swallows:
-*/
-    __pyx_t_5 = NULL;
+    __pyx_t_3 = NULL;
     __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
     __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
-    __pyx_t_6 = 1;
+    __pyx_t_5 = 1;
     #if CYTHON_UNPACK_METHODS
     if (unlikely(PyMethod_Check(__pyx_t_4))) {
-      __pyx_t_5 = PyMethod_GET_SELF(__pyx_t_4);
-      assert(__pyx_t_5);
+      __pyx_t_3 = PyMethod_GET_SELF(__pyx_t_4);
+      assert(__pyx_t_3);
       PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_4);
-      __Pyx_INCREF(__pyx_t_5);
+      __Pyx_INCREF(__pyx_t_3);
       __Pyx_INCREF(__pyx__function);
       __Pyx_DECREF_SET(__pyx_t_4, __pyx__function);
-      __pyx_t_6 = 0;
+      __pyx_t_5 = 0;
     }
     #endif
     {
-      PyObject *__pyx_callargs[4] = {__pyx_t_5, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
-      __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_4, __pyx_callargs+__pyx_t_6, (4-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
-      __Pyx_XDECREF(__pyx_t_5); __pyx_t_5 = 0;
+      PyObject *__pyx_callargs[4] = {__pyx_t_3, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
+      __pyx_t_2 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_4, __pyx_callargs+__pyx_t_5, (4-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+      __Pyx_XDECREF(__pyx_t_3); __pyx_t_3 = 0;
       __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
-      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 418, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_3);
+      if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 491, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_2);
     }
     {
       PyObject *__pyx_temp;
       {
         __pyx_temp = __pyx_r;
-        __pyx_r = __pyx_t_3;
+        __pyx_r = __pyx_t_2;
       }
       __Pyx_XDECREF(__pyx_temp);
     }
-    __pyx_t_3 = 0;
+    __pyx_t_2 = 0;
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":417
- *     # The methods the pure loop would call, as the class has them...
- *     found = board_b_class_attr(cls, "_try_frame")
- *     if found == NULL or <object>found is not _try_frame:             # <<<<<<<<<<<<<<
+    /* "chassis_sdk/devices/board/_compiled.pyx":490
+ *     cdef unsigned int tag
+ *     cls = type(self)
+ *     if not _bound:             # <<<<<<<<<<<<<<
  *         return _pure_feed(self, data, timestamp)
- *     found = board_b_class_attr(cls, "_swallows_a_head")
+ *     if cls is _decoder_cls:
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":419
- *     if found == NULL or <object>found is not _try_frame:
+  /* "chassis_sdk/devices/board/_compiled.pyx":492
+ *     if not _bound:
  *         return _pure_feed(self, data, timestamp)
- *     found = board_b_class_attr(cls, "_swallows_a_head")             # <<<<<<<<<<<<<<
- *     if found == NULL or <object>found is not _swallows:
- *         return _pure_feed(self, data, timestamp)
+ *     if cls is _decoder_cls:             # <<<<<<<<<<<<<<
+ *         which = 0
+ *     elif cls is _command_cls:
 */
-  __pyx_v_found = board_b_class_attr(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_swallows_a_head_2);
-
-  /* "chassis_sdk/devices/board/_compiled.pyx":420
- *         return _pure_feed(self, data, timestamp)
- *     found = board_b_class_attr(cls, "_swallows_a_head")
- *     if found == NULL or <object>found is not _swallows:             # <<<<<<<<<<<<<<
- *         return _pure_feed(self, data, timestamp)
- *     # ...and the instance (almost always with nothing of its own: its attributes are
-*/
-  __pyx_t_2 = (__pyx_v_found == NULL);
-
-  if (!__pyx_t_2) {
-
-  } else {
-
-    __pyx_t_1 = __pyx_t_2;
-
-    goto __pyx_L11_bool_binop_done;
-  }
-  __pyx_t_2 = (((PyObject *)__pyx_v_found) != __pyx_v_11chassis_sdk_7devices_5board_9_compiled__swallows);
-
-  __pyx_t_1 = __pyx_t_2;
-
-  __pyx_L11_bool_binop_done:;
+  __pyx_t_1 = (__pyx_v_cls == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__decoder_cls);
   if (__pyx_t_1) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":421
- *     found = board_b_class_attr(cls, "_swallows_a_head")
- *     if found == NULL or <object>found is not _swallows:
- *         return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
- *     # ...and the instance (almost always with nothing of its own: its attributes are
- *     # then the class's, read without the instance).
+    /* "chassis_sdk/devices/board/_compiled.pyx":493
+ *         return _pure_feed(self, data, timestamp)
+ *     if cls is _decoder_cls:
+ *         which = 0             # <<<<<<<<<<<<<<
+ *     elif cls is _command_cls:
+ *         which = 1
 */
+    __pyx_v_which = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":492
+ *     if not _bound:
+ *         return _pure_feed(self, data, timestamp)
+ *     if cls is _decoder_cls:             # <<<<<<<<<<<<<<
+ *         which = 0
+ *     elif cls is _command_cls:
+*/
+    goto __pyx_L4;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":494
+ *     if cls is _decoder_cls:
+ *         which = 0
+ *     elif cls is _command_cls:             # <<<<<<<<<<<<<<
+ *         which = 1
+ *     else:
+*/
+  __pyx_t_1 = (__pyx_v_cls == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__command_cls);
+  if (__pyx_t_1) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":495
+ *         which = 0
+ *     elif cls is _command_cls:
+ *         which = 1             # <<<<<<<<<<<<<<
+ *     else:
+ *         return _pure_feed(self, data, timestamp)
+*/
+    __pyx_v_which = 1;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":494
+ *     if cls is _decoder_cls:
+ *         which = 0
+ *     elif cls is _command_cls:             # <<<<<<<<<<<<<<
+ *         which = 1
+ *     else:
+*/
+    goto __pyx_L4;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":497
+ *         which = 1
+ *     else:
+ *         return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
+ *     # The instance (almost always with nothing of its own: its attributes are then the
+ *     # class's, read without the instance).
+*/
+  /*else*/ {
     __pyx_t_4 = NULL;
     __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
-    __pyx_t_5 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
-    __pyx_t_6 = 1;
+    __pyx_t_3 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
+    __pyx_t_5 = 1;
     #if CYTHON_UNPACK_METHODS
-    if (unlikely(PyMethod_Check(__pyx_t_5))) {
-      __pyx_t_4 = PyMethod_GET_SELF(__pyx_t_5);
+    if (unlikely(PyMethod_Check(__pyx_t_3))) {
+      __pyx_t_4 = PyMethod_GET_SELF(__pyx_t_3);
       assert(__pyx_t_4);
-      PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_5);
+      PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_3);
       __Pyx_INCREF(__pyx_t_4);
       __Pyx_INCREF(__pyx__function);
-      __Pyx_DECREF_SET(__pyx_t_5, __pyx__function);
-      __pyx_t_6 = 0;
+      __Pyx_DECREF_SET(__pyx_t_3, __pyx__function);
+      __pyx_t_5 = 0;
     }
     #endif
     {
       PyObject *__pyx_callargs[4] = {__pyx_t_4, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
-      __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_5, __pyx_callargs+__pyx_t_6, (4-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+      __pyx_t_2 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_3, __pyx_callargs+__pyx_t_5, (4-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
       __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
-      __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 421, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_3);
+      __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+      if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 497, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_2);
     }
     {
       PyObject *__pyx_temp;
       {
         __pyx_temp = __pyx_r;
-        __pyx_r = __pyx_t_3;
+        __pyx_r = __pyx_t_2;
       }
       __Pyx_XDECREF(__pyx_temp);
     }
-    __pyx_t_3 = 0;
+    __pyx_t_2 = 0;
     goto __pyx_L0;
-
-    /* "chassis_sdk/devices/board/_compiled.pyx":420
- *         return _pure_feed(self, data, timestamp)
- *     found = board_b_class_attr(cls, "_swallows_a_head")
- *     if found == NULL or <object>found is not _swallows:             # <<<<<<<<<<<<<<
- *         return _pure_feed(self, data, timestamp)
- *     # ...and the instance (almost always with nothing of its own: its attributes are
-*/
   }
+  __pyx_L4:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":424
- *     # ...and the instance (almost always with nothing of its own: its attributes are
- *     # then the class's, read without the instance).
+  /* "chassis_sdk/devices/board/_compiled.pyx":500
+ *     # The instance (almost always with nothing of its own: its attributes are then the
+ *     # class's, read without the instance).
  *     attrs = PyObject_GenericGetDict(self, NULL)             # <<<<<<<<<<<<<<
  *     head = table = alignment = None
- *     if not attrs:
+ *     tag = board_b_type_tag(cls)
 */
-  __pyx_t_3 = PyObject_GenericGetDict(__pyx_v_self, NULL); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 424, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_3);
-  __pyx_v_attrs = __pyx_t_3;
-  __pyx_t_3 = 0;
+  __pyx_t_2 = PyObject_GenericGetDict(__pyx_v_self, NULL); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 500, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_2);
+  __pyx_v_attrs = __pyx_t_2;
+  __pyx_t_2 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":425
- *     # then the class's, read without the instance).
+  /* "chassis_sdk/devices/board/_compiled.pyx":501
+ *     # class's, read without the instance).
  *     attrs = PyObject_GenericGetDict(self, NULL)
  *     head = table = alignment = None             # <<<<<<<<<<<<<<
- *     if not attrs:
- *         head = _class_value(cls, "_head", bytes)
+ *     tag = board_b_type_tag(cls)
+ *     if not attrs and tag != 0 and tag == _class_tag[which]:
 */
   __Pyx_INCREF(Py_None);
   __pyx_v_head = Py_None;
@@ -7261,197 +8170,611 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
   __Pyx_INCREF(Py_None);
   __pyx_v_alignment = Py_None;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":426
+  /* "chassis_sdk/devices/board/_compiled.pyx":502
  *     attrs = PyObject_GenericGetDict(self, NULL)
  *     head = table = alignment = None
- *     if not attrs:             # <<<<<<<<<<<<<<
- *         head = _class_value(cls, "_head", bytes)
- *         table = _class_value(cls, "_table", dict)
+ *     tag = board_b_type_tag(cls)             # <<<<<<<<<<<<<<
+ *     if not attrs and tag != 0 and tag == _class_tag[which]:
+ *         # The class is as it was read last time: the same methods and values.
 */
-  __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_v_attrs); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 426, __pyx_L1_error)
-  __pyx_t_2 = (!__pyx_t_1);
+  __pyx_v_tag = board_b_type_tag(__pyx_v_cls);
 
-
-  if (__pyx_t_2) {
-
-
-    /* "chassis_sdk/devices/board/_compiled.pyx":427
+  /* "chassis_sdk/devices/board/_compiled.pyx":503
  *     head = table = alignment = None
- *     if not attrs:
- *         head = _class_value(cls, "_head", bytes)             # <<<<<<<<<<<<<<
- *         table = _class_value(cls, "_table", dict)
- *         alignment = _class_value(cls, "check_alignment", bool)
+ *     tag = board_b_type_tag(cls)
+ *     if not attrs and tag != 0 and tag == _class_tag[which]:             # <<<<<<<<<<<<<<
+ *         # The class is as it was read last time: the same methods and values.
+ *         head = _class_head[which]
 */
-    __pyx_t_3 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_head, (&PyBytes_Type)); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 427, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_3);
-    __Pyx_DECREF_SET(__pyx_v_head, __pyx_t_3);
-    __pyx_t_3 = 0;
+  __pyx_t_6 = __Pyx_PyObject_IsTrue(__pyx_v_attrs); if (unlikely((__pyx_t_6 < 0))) __PYX_ERR(0, 503, __pyx_L1_error)
+  __pyx_t_7 = (!__pyx_t_6);
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":428
- *     if not attrs:
- *         head = _class_value(cls, "_head", bytes)
- *         table = _class_value(cls, "_table", dict)             # <<<<<<<<<<<<<<
- *         alignment = _class_value(cls, "check_alignment", bool)
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
-*/
-    __pyx_t_3 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_table, (&PyDict_Type)); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 428, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_3);
-    __Pyx_DECREF_SET(__pyx_v_table, __pyx_t_3);
-    __pyx_t_3 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":429
- *         head = _class_value(cls, "_head", bytes)
- *         table = _class_value(cls, "_table", dict)
- *         alignment = _class_value(cls, "check_alignment", bool)             # <<<<<<<<<<<<<<
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
- *         return _pure_feed(self, data, timestamp)
-*/
-    __pyx_t_3 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_check_alignment, (&PyBool_Type)); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 429, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_3);
-    __Pyx_DECREF_SET(__pyx_v_alignment, __pyx_t_3);
-    __pyx_t_3 = 0;
-
-    /* "chassis_sdk/devices/board/_compiled.pyx":426
- *     attrs = PyObject_GenericGetDict(self, NULL)
- *     head = table = alignment = None
- *     if not attrs:             # <<<<<<<<<<<<<<
- *         head = _class_value(cls, "_head", bytes)
- *         table = _class_value(cls, "_table", dict)
-*/
-    goto __pyx_L13;
-  }
-
-  /* "chassis_sdk/devices/board/_compiled.pyx":430
- *         table = _class_value(cls, "_table", dict)
- *         alignment = _class_value(cls, "check_alignment", bool)
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:             # <<<<<<<<<<<<<<
- *         return _pure_feed(self, data, timestamp)
- *     if head is None:
-*/
-  __pyx_t_1 = (__Pyx_PySequence_ContainsTF(__pyx_mstate_global->__pyx_n_u_try_frame_2, __pyx_v_attrs, Py_EQ)); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 430, __pyx_L1_error)
-  if (!__pyx_t_1) {
+  if (__pyx_t_7) {
 
   } else {
 
-    __pyx_t_2 = __pyx_t_1;
+    __pyx_t_1 = __pyx_t_7;
 
-    goto __pyx_L14_bool_binop_done;
+    goto __pyx_L6_bool_binop_done;
   }
-  __pyx_t_1 = (__Pyx_PySequence_ContainsTF(__pyx_mstate_global->__pyx_n_u_swallows_a_head_2, __pyx_v_attrs, Py_EQ)); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 430, __pyx_L1_error)
+  __pyx_t_7 = (__pyx_v_tag != 0);
 
-  __pyx_t_2 = __pyx_t_1;
+  if (__pyx_t_7) {
 
-  __pyx_L14_bool_binop_done:;
-  if (__pyx_t_2) {
+  } else {
+
+    __pyx_t_1 = __pyx_t_7;
+
+    goto __pyx_L6_bool_binop_done;
+  }
+  __pyx_t_7 = (__pyx_v_tag == (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_tag[__pyx_v_which]));
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":431
- *         alignment = _class_value(cls, "check_alignment", bool)
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
- *         return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
+  __pyx_t_1 = __pyx_t_7;
+
+  __pyx_L6_bool_binop_done:;
+  if (__pyx_t_1) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":505
+ *     if not attrs and tag != 0 and tag == _class_tag[which]:
+ *         # The class is as it was read last time: the same methods and values.
+ *         head = _class_head[which]             # <<<<<<<<<<<<<<
+ *         table = _class_table[which]
+ *         align = _class_align[which]
+*/
+    if (unlikely(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head == Py_None)) {
+      PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
+      __PYX_ERR(0, 505, __pyx_L1_error)
+    }
+    __pyx_t_2 = __Pyx_PyList_GET_ITEM(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head, __pyx_v_which);
+    __Pyx_INCREF(__pyx_t_2);
+    __Pyx_DECREF_SET(__pyx_v_head, __pyx_t_2);
+    __pyx_t_2 = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":506
+ *         # The class is as it was read last time: the same methods and values.
+ *         head = _class_head[which]
+ *         table = _class_table[which]             # <<<<<<<<<<<<<<
+ *         align = _class_align[which]
+ *     else:
+*/
+    if (unlikely(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table == Py_None)) {
+      PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
+      __PYX_ERR(0, 506, __pyx_L1_error)
+    }
+    __pyx_t_2 = __Pyx_PyList_GET_ITEM(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table, __pyx_v_which);
+    __Pyx_INCREF(__pyx_t_2);
+    __Pyx_DECREF_SET(__pyx_v_table, __pyx_t_2);
+    __pyx_t_2 = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":507
+ *         head = _class_head[which]
+ *         table = _class_table[which]
+ *         align = _class_align[which]             # <<<<<<<<<<<<<<
+ *     else:
+ *         _class_tag[which] = 0
+*/
+    __pyx_v_align = (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_align[__pyx_v_which]);
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":503
+ *     head = table = alignment = None
+ *     tag = board_b_type_tag(cls)
+ *     if not attrs and tag != 0 and tag == _class_tag[which]:             # <<<<<<<<<<<<<<
+ *         # The class is as it was read last time: the same methods and values.
+ *         head = _class_head[which]
+*/
+    goto __pyx_L5;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":509
+ *         align = _class_align[which]
+ *     else:
+ *         _class_tag[which] = 0             # <<<<<<<<<<<<<<
+ *         # The methods the pure loop would call, as the class has them...
+ *         found = board_b_class_attr(cls, "_try_frame")
+*/
+  /*else*/ {
+    (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_tag[__pyx_v_which]) = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":511
+ *         _class_tag[which] = 0
+ *         # The methods the pure loop would call, as the class has them...
+ *         found = board_b_class_attr(cls, "_try_frame")             # <<<<<<<<<<<<<<
+ *         if found == NULL or <object>found is not _try_frame:
+ *             return _pure_feed(self, data, timestamp)
+*/
+    __pyx_v_found = board_b_class_attr(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_try_frame_2);
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":512
+ *         # The methods the pure loop would call, as the class has them...
+ *         found = board_b_class_attr(cls, "_try_frame")
+ *         if found == NULL or <object>found is not _try_frame:             # <<<<<<<<<<<<<<
+ *             return _pure_feed(self, data, timestamp)
+ *         found = board_b_class_attr(cls, "_swallows_a_head")
+*/
+    __pyx_t_7 = (__pyx_v_found == NULL);
+
+    if (!__pyx_t_7) {
+
+    } else {
+
+      __pyx_t_1 = __pyx_t_7;
+
+      goto __pyx_L10_bool_binop_done;
+    }
+    __pyx_t_7 = (((PyObject *)__pyx_v_found) != __pyx_v_11chassis_sdk_7devices_5board_9_compiled__try_frame);
+
+    __pyx_t_1 = __pyx_t_7;
+
+    __pyx_L10_bool_binop_done:;
+    if (__pyx_t_1) {
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":513
+ *         found = board_b_class_attr(cls, "_try_frame")
+ *         if found == NULL or <object>found is not _try_frame:
+ *             return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
+ *         found = board_b_class_attr(cls, "_swallows_a_head")
+ *         if found == NULL or <object>found is not _swallows:
+*/
+      __pyx_t_3 = NULL;
+      __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
+      __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
+      __pyx_t_5 = 1;
+      #if CYTHON_UNPACK_METHODS
+      if (unlikely(PyMethod_Check(__pyx_t_4))) {
+        __pyx_t_3 = PyMethod_GET_SELF(__pyx_t_4);
+        assert(__pyx_t_3);
+        PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_4);
+        __Pyx_INCREF(__pyx_t_3);
+        __Pyx_INCREF(__pyx__function);
+        __Pyx_DECREF_SET(__pyx_t_4, __pyx__function);
+        __pyx_t_5 = 0;
+      }
+      #endif
+      {
+        PyObject *__pyx_callargs[4] = {__pyx_t_3, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
+        __pyx_t_2 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_4, __pyx_callargs+__pyx_t_5, (4-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+        __Pyx_XDECREF(__pyx_t_3); __pyx_t_3 = 0;
+        __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+        if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 513, __pyx_L1_error)
+        __Pyx_GOTREF(__pyx_t_2);
+      }
+      {
+        PyObject *__pyx_temp;
+        {
+          __pyx_temp = __pyx_r;
+          __pyx_r = __pyx_t_2;
+        }
+        __Pyx_XDECREF(__pyx_temp);
+      }
+      __pyx_t_2 = 0;
+      goto __pyx_L0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":512
+ *         # The methods the pure loop would call, as the class has them...
+ *         found = board_b_class_attr(cls, "_try_frame")
+ *         if found == NULL or <object>found is not _try_frame:             # <<<<<<<<<<<<<<
+ *             return _pure_feed(self, data, timestamp)
+ *         found = board_b_class_attr(cls, "_swallows_a_head")
+*/
+    }
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":514
+ *         if found == NULL or <object>found is not _try_frame:
+ *             return _pure_feed(self, data, timestamp)
+ *         found = board_b_class_attr(cls, "_swallows_a_head")             # <<<<<<<<<<<<<<
+ *         if found == NULL or <object>found is not _swallows:
+ *             return _pure_feed(self, data, timestamp)
+*/
+    __pyx_v_found = board_b_class_attr(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_swallows_a_head_2);
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":515
+ *             return _pure_feed(self, data, timestamp)
+ *         found = board_b_class_attr(cls, "_swallows_a_head")
+ *         if found == NULL or <object>found is not _swallows:             # <<<<<<<<<<<<<<
+ *             return _pure_feed(self, data, timestamp)
+ *         if not attrs:
+*/
+    __pyx_t_7 = (__pyx_v_found == NULL);
+
+    if (!__pyx_t_7) {
+
+    } else {
+
+      __pyx_t_1 = __pyx_t_7;
+
+      goto __pyx_L13_bool_binop_done;
+    }
+    __pyx_t_7 = (((PyObject *)__pyx_v_found) != __pyx_v_11chassis_sdk_7devices_5board_9_compiled__swallows);
+
+    __pyx_t_1 = __pyx_t_7;
+
+    __pyx_L13_bool_binop_done:;
+    if (__pyx_t_1) {
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":516
+ *         found = board_b_class_attr(cls, "_swallows_a_head")
+ *         if found == NULL or <object>found is not _swallows:
+ *             return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
+ *         if not attrs:
+ *             head = _class_value(cls, "_head", bytes)
+*/
+      __pyx_t_4 = NULL;
+      __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
+      __pyx_t_3 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
+      __pyx_t_5 = 1;
+      #if CYTHON_UNPACK_METHODS
+      if (unlikely(PyMethod_Check(__pyx_t_3))) {
+        __pyx_t_4 = PyMethod_GET_SELF(__pyx_t_3);
+        assert(__pyx_t_4);
+        PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_3);
+        __Pyx_INCREF(__pyx_t_4);
+        __Pyx_INCREF(__pyx__function);
+        __Pyx_DECREF_SET(__pyx_t_3, __pyx__function);
+        __pyx_t_5 = 0;
+      }
+      #endif
+      {
+        PyObject *__pyx_callargs[4] = {__pyx_t_4, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
+        __pyx_t_2 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_3, __pyx_callargs+__pyx_t_5, (4-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+        __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
+        __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+        if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 516, __pyx_L1_error)
+        __Pyx_GOTREF(__pyx_t_2);
+      }
+      {
+        PyObject *__pyx_temp;
+        {
+          __pyx_temp = __pyx_r;
+          __pyx_r = __pyx_t_2;
+        }
+        __Pyx_XDECREF(__pyx_temp);
+      }
+      __pyx_t_2 = 0;
+      goto __pyx_L0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":515
+ *             return _pure_feed(self, data, timestamp)
+ *         found = board_b_class_attr(cls, "_swallows_a_head")
+ *         if found == NULL or <object>found is not _swallows:             # <<<<<<<<<<<<<<
+ *             return _pure_feed(self, data, timestamp)
+ *         if not attrs:
+*/
+    }
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":517
+ *         if found == NULL or <object>found is not _swallows:
+ *             return _pure_feed(self, data, timestamp)
+ *         if not attrs:             # <<<<<<<<<<<<<<
+ *             head = _class_value(cls, "_head", bytes)
+ *             table = _class_value(cls, "_table", dict)
+*/
+    __pyx_t_1 = __Pyx_PyObject_IsTrue(__pyx_v_attrs); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 517, __pyx_L1_error)
+    __pyx_t_7 = (!__pyx_t_1);
+
+
+    if (__pyx_t_7) {
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":518
+ *             return _pure_feed(self, data, timestamp)
+ *         if not attrs:
+ *             head = _class_value(cls, "_head", bytes)             # <<<<<<<<<<<<<<
+ *             table = _class_value(cls, "_table", dict)
+ *             alignment = _class_value(cls, "check_alignment", bool)
+*/
+      __pyx_t_2 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_head, (&PyBytes_Type)); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 518, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_2);
+      __Pyx_DECREF_SET(__pyx_v_head, __pyx_t_2);
+      __pyx_t_2 = 0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":519
+ *         if not attrs:
+ *             head = _class_value(cls, "_head", bytes)
+ *             table = _class_value(cls, "_table", dict)             # <<<<<<<<<<<<<<
+ *             alignment = _class_value(cls, "check_alignment", bool)
+ *             if (
+*/
+      __pyx_t_2 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_table, (&PyDict_Type)); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 519, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_2);
+      __Pyx_DECREF_SET(__pyx_v_table, __pyx_t_2);
+      __pyx_t_2 = 0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":520
+ *             head = _class_value(cls, "_head", bytes)
+ *             table = _class_value(cls, "_table", dict)
+ *             alignment = _class_value(cls, "check_alignment", bool)             # <<<<<<<<<<<<<<
+ *             if (
+ *                 head is not None
+*/
+      __pyx_t_2 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__class_value(__pyx_v_cls, __pyx_mstate_global->__pyx_n_u_check_alignment, (&PyBool_Type)); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 520, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_2);
+      __Pyx_DECREF_SET(__pyx_v_alignment, __pyx_t_2);
+      __pyx_t_2 = 0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":522
+ *             alignment = _class_value(cls, "check_alignment", bool)
+ *             if (
+ *                 head is not None             # <<<<<<<<<<<<<<
+ *                 and len(<bytes>head) == 2
+ *                 and table is not None
+*/
+      __pyx_t_1 = (__pyx_v_head != Py_None);
+      if (__pyx_t_1) {
+
+      } else {
+
+        __pyx_t_7 = __pyx_t_1;
+
+        goto __pyx_L17_bool_binop_done;
+      }
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":523
+ *             if (
+ *                 head is not None
+ *                 and len(<bytes>head) == 2             # <<<<<<<<<<<<<<
+ *                 and table is not None
+ *                 and alignment is not None
+*/
+      if (unlikely(__pyx_v_head == Py_None)) {
+        PyErr_SetString(PyExc_TypeError, "object of type \047NoneType\047 has no len()");
+        __PYX_ERR(0, 523, __pyx_L1_error)
+      }
+      __pyx_t_8 = __Pyx_PyBytes_GET_SIZE(((PyObject*)__pyx_v_head)); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 523, __pyx_L1_error)
+      __pyx_t_1 = (__pyx_t_8 == 2);
+
+
+      if (__pyx_t_1) {
+
+      } else {
+
+        __pyx_t_7 = __pyx_t_1;
+
+        goto __pyx_L17_bool_binop_done;
+      }
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":524
+ *                 head is not None
+ *                 and len(<bytes>head) == 2
+ *                 and table is not None             # <<<<<<<<<<<<<<
+ *                 and alignment is not None
+ *             ):
+*/
+      __pyx_t_1 = (__pyx_v_table != Py_None);
+      if (__pyx_t_1) {
+
+      } else {
+
+        __pyx_t_7 = __pyx_t_1;
+
+        goto __pyx_L17_bool_binop_done;
+      }
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":525
+ *                 and len(<bytes>head) == 2
+ *                 and table is not None
+ *                 and alignment is not None             # <<<<<<<<<<<<<<
+ *             ):
+ *                 _class_head[which] = head
+*/
+      __pyx_t_1 = (__pyx_v_alignment != Py_None);
+
+      __pyx_t_7 = __pyx_t_1;
+
+      __pyx_L17_bool_binop_done:;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":521
+ *             table = _class_value(cls, "_table", dict)
+ *             alignment = _class_value(cls, "check_alignment", bool)
+ *             if (             # <<<<<<<<<<<<<<
+ *                 head is not None
+ *                 and len(<bytes>head) == 2
+*/
+      if (__pyx_t_7) {
+
+
+        /* "chassis_sdk/devices/board/_compiled.pyx":527
+ *                 and alignment is not None
+ *             ):
+ *                 _class_head[which] = head             # <<<<<<<<<<<<<<
+ *                 _class_table[which] = table
+ *                 _class_align[which] = alignment is True
+*/
+        if (unlikely(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head == Py_None)) {
+          PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
+          __PYX_ERR(0, 527, __pyx_L1_error)
+        }
+        if (unlikely((__Pyx_SetItemInt(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head, __pyx_v_which, __pyx_v_head, int, 1, __Pyx_PyLong_From_int, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference) < 0))) __PYX_ERR(0, 527, __pyx_L1_error)
+
+        /* "chassis_sdk/devices/board/_compiled.pyx":528
+ *             ):
+ *                 _class_head[which] = head
+ *                 _class_table[which] = table             # <<<<<<<<<<<<<<
+ *                 _class_align[which] = alignment is True
+ *                 _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)
+*/
+        if (unlikely(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table == Py_None)) {
+          PyErr_SetString(PyExc_TypeError, "\047NoneType\047 object is not subscriptable");
+          __PYX_ERR(0, 528, __pyx_L1_error)
+        }
+        if (unlikely((__Pyx_SetItemInt(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table, __pyx_v_which, __pyx_v_table, int, 1, __Pyx_PyLong_From_int, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference) < 0))) __PYX_ERR(0, 528, __pyx_L1_error)
+
+        /* "chassis_sdk/devices/board/_compiled.pyx":529
+ *                 _class_head[which] = head
+ *                 _class_table[which] = table
+ *                 _class_align[which] = alignment is True             # <<<<<<<<<<<<<<
+ *                 _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
+*/
+        __pyx_t_7 = (__pyx_v_alignment == Py_True);
+        (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_align[__pyx_v_which]) = __pyx_t_7;
+
+
+        /* "chassis_sdk/devices/board/_compiled.pyx":530
+ *                 _class_table[which] = table
+ *                 _class_align[which] = alignment is True
+ *                 _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)             # <<<<<<<<<<<<<<
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
+ *             return _pure_feed(self, data, timestamp)
+*/
+        (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_tag[__pyx_v_which]) = board_b_type_tag(__pyx_v_cls);
+
+        /* "chassis_sdk/devices/board/_compiled.pyx":521
+ *             table = _class_value(cls, "_table", dict)
+ *             alignment = _class_value(cls, "check_alignment", bool)
+ *             if (             # <<<<<<<<<<<<<<
+ *                 head is not None
+ *                 and len(<bytes>head) == 2
+*/
+      }
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":517
+ *         if found == NULL or <object>found is not _swallows:
+ *             return _pure_feed(self, data, timestamp)
+ *         if not attrs:             # <<<<<<<<<<<<<<
+ *             head = _class_value(cls, "_head", bytes)
+ *             table = _class_value(cls, "_table", dict)
+*/
+      goto __pyx_L15;
+    }
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":531
+ *                 _class_align[which] = alignment is True
+ *                 _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:             # <<<<<<<<<<<<<<
+ *             return _pure_feed(self, data, timestamp)
+ *     if head is None:
+*/
+    __pyx_t_1 = (__Pyx_PySequence_ContainsTF(__pyx_mstate_global->__pyx_n_u_try_frame_2, __pyx_v_attrs, Py_EQ)); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 531, __pyx_L1_error)
+    if (!__pyx_t_1) {
+
+    } else {
+
+      __pyx_t_7 = __pyx_t_1;
+
+      goto __pyx_L21_bool_binop_done;
+    }
+    __pyx_t_1 = (__Pyx_PySequence_ContainsTF(__pyx_mstate_global->__pyx_n_u_swallows_a_head_2, __pyx_v_attrs, Py_EQ)); if (unlikely((__pyx_t_1 < 0))) __PYX_ERR(0, 531, __pyx_L1_error)
+
+    __pyx_t_7 = __pyx_t_1;
+
+    __pyx_L21_bool_binop_done:;
+    if (__pyx_t_7) {
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":532
+ *                 _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
+ *             return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
  *     if head is None:
  *         head = self._head
 */
-    __pyx_t_5 = NULL;
-    __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
-    __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
-    __pyx_t_6 = 1;
-    #if CYTHON_UNPACK_METHODS
-    if (unlikely(PyMethod_Check(__pyx_t_4))) {
-      __pyx_t_5 = PyMethod_GET_SELF(__pyx_t_4);
-      assert(__pyx_t_5);
-      PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_4);
-      __Pyx_INCREF(__pyx_t_5);
-      __Pyx_INCREF(__pyx__function);
-      __Pyx_DECREF_SET(__pyx_t_4, __pyx__function);
-      __pyx_t_6 = 0;
-    }
-    #endif
-    {
-      PyObject *__pyx_callargs[4] = {__pyx_t_5, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
-      __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_4, __pyx_callargs+__pyx_t_6, (4-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
-      __Pyx_XDECREF(__pyx_t_5); __pyx_t_5 = 0;
-      __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
-      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 431, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_3);
-    }
-    {
-      PyObject *__pyx_temp;
-      {
-        __pyx_temp = __pyx_r;
-        __pyx_r = __pyx_t_3;
+      __pyx_t_3 = NULL;
+      __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
+      __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
+      __pyx_t_5 = 1;
+      #if CYTHON_UNPACK_METHODS
+      if (unlikely(PyMethod_Check(__pyx_t_4))) {
+        __pyx_t_3 = PyMethod_GET_SELF(__pyx_t_4);
+        assert(__pyx_t_3);
+        PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_4);
+        __Pyx_INCREF(__pyx_t_3);
+        __Pyx_INCREF(__pyx__function);
+        __Pyx_DECREF_SET(__pyx_t_4, __pyx__function);
+        __pyx_t_5 = 0;
       }
-      __Pyx_XDECREF(__pyx_temp);
-    }
-    __pyx_t_3 = 0;
-    goto __pyx_L0;
+      #endif
+      {
+        PyObject *__pyx_callargs[4] = {__pyx_t_3, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
+        __pyx_t_2 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_4, __pyx_callargs+__pyx_t_5, (4-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+        __Pyx_XDECREF(__pyx_t_3); __pyx_t_3 = 0;
+        __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+        if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 532, __pyx_L1_error)
+        __Pyx_GOTREF(__pyx_t_2);
+      }
+      {
+        PyObject *__pyx_temp;
+        {
+          __pyx_temp = __pyx_r;
+          __pyx_r = __pyx_t_2;
+        }
+        __Pyx_XDECREF(__pyx_temp);
+      }
+      __pyx_t_2 = 0;
+      goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":430
- *         table = _class_value(cls, "_table", dict)
- *         alignment = _class_value(cls, "check_alignment", bool)
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:             # <<<<<<<<<<<<<<
- *         return _pure_feed(self, data, timestamp)
+      /* "chassis_sdk/devices/board/_compiled.pyx":531
+ *                 _class_align[which] = alignment is True
+ *                 _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:             # <<<<<<<<<<<<<<
+ *             return _pure_feed(self, data, timestamp)
  *     if head is None:
 */
+    }
+    __pyx_L15:;
   }
-  __pyx_L13:;
+  __pyx_L5:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":432
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
- *         return _pure_feed(self, data, timestamp)
+  /* "chassis_sdk/devices/board/_compiled.pyx":533
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
+ *             return _pure_feed(self, data, timestamp)
  *     if head is None:             # <<<<<<<<<<<<<<
  *         head = self._head
  *     if table is None:
 */
-  __pyx_t_2 = (__pyx_v_head == Py_None);
-  if (__pyx_t_2) {
+  __pyx_t_7 = (__pyx_v_head == Py_None);
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":433
- *         return _pure_feed(self, data, timestamp)
+    /* "chassis_sdk/devices/board/_compiled.pyx":534
+ *             return _pure_feed(self, data, timestamp)
  *     if head is None:
  *         head = self._head             # <<<<<<<<<<<<<<
  *     if table is None:
  *         table = self._table
 */
-    __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_head); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 433, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_3);
-    __Pyx_DECREF_SET(__pyx_v_head, __pyx_t_3);
-    __pyx_t_3 = 0;
+    __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_head); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 534, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+    __Pyx_DECREF_SET(__pyx_v_head, __pyx_t_2);
+    __pyx_t_2 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":432
- *     elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
- *         return _pure_feed(self, data, timestamp)
+    /* "chassis_sdk/devices/board/_compiled.pyx":533
+ *         elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
+ *             return _pure_feed(self, data, timestamp)
  *     if head is None:             # <<<<<<<<<<<<<<
  *         head = self._head
  *     if table is None:
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":434
+  /* "chassis_sdk/devices/board/_compiled.pyx":535
  *     if head is None:
  *         head = self._head
  *     if table is None:             # <<<<<<<<<<<<<<
  *         table = self._table
  *     if alignment is not None:
 */
-  __pyx_t_2 = (__pyx_v_table == Py_None);
-  if (__pyx_t_2) {
+  __pyx_t_7 = (__pyx_v_table == Py_None);
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":435
+    /* "chassis_sdk/devices/board/_compiled.pyx":536
  *         head = self._head
  *     if table is None:
  *         table = self._table             # <<<<<<<<<<<<<<
  *     if alignment is not None:
  *         align = alignment is True
 */
-    __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_table); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 435, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_3);
-    __Pyx_DECREF_SET(__pyx_v_table, __pyx_t_3);
-    __pyx_t_3 = 0;
+    __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_table); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 536, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+    __Pyx_DECREF_SET(__pyx_v_table, __pyx_t_2);
+    __pyx_t_2 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":434
+    /* "chassis_sdk/devices/board/_compiled.pyx":535
  *     if head is None:
  *         head = self._head
  *     if table is None:             # <<<<<<<<<<<<<<
@@ -7460,28 +8783,28 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":436
+  /* "chassis_sdk/devices/board/_compiled.pyx":537
  *     if table is None:
  *         table = self._table
  *     if alignment is not None:             # <<<<<<<<<<<<<<
  *         align = alignment is True
  *     stored = self._buf
 */
-  __pyx_t_2 = (__pyx_v_alignment != Py_None);
-  if (__pyx_t_2) {
+  __pyx_t_7 = (__pyx_v_alignment != Py_None);
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":437
+    /* "chassis_sdk/devices/board/_compiled.pyx":538
  *         table = self._table
  *     if alignment is not None:
  *         align = alignment is True             # <<<<<<<<<<<<<<
  *     stored = self._buf
  *     if (
 */
-    __pyx_t_2 = (__pyx_v_alignment == Py_True);
-    __pyx_v_align = __pyx_t_2;
+    __pyx_t_7 = (__pyx_v_alignment == Py_True);
+    __pyx_v_align = __pyx_t_7;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":436
+    /* "chassis_sdk/devices/board/_compiled.pyx":537
  *     if table is None:
  *         table = self._table
  *     if alignment is not None:             # <<<<<<<<<<<<<<
@@ -7490,19 +8813,19 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":438
+  /* "chassis_sdk/devices/board/_compiled.pyx":539
  *     if alignment is not None:
  *         align = alignment is True
  *     stored = self._buf             # <<<<<<<<<<<<<<
  *     if (
  *         type(head) is not bytes
 */
-  __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_buf); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 438, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_3);
-  __pyx_v_stored = __pyx_t_3;
-  __pyx_t_3 = 0;
+  __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_buf); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 539, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_2);
+  __pyx_v_stored = __pyx_t_2;
+  __pyx_t_2 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":440
+  /* "chassis_sdk/devices/board/_compiled.pyx":541
  *     stored = self._buf
  *     if (
  *         type(head) is not bytes             # <<<<<<<<<<<<<<
@@ -7514,12 +8837,12 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 
   } else {
 
-    __pyx_t_2 = __pyx_t_1;
+    __pyx_t_7 = __pyx_t_1;
 
-    goto __pyx_L20_bool_binop_done;
+    goto __pyx_L27_bool_binop_done;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":441
+  /* "chassis_sdk/devices/board/_compiled.pyx":542
  *     if (
  *         type(head) is not bytes
  *         or len(<bytes>head) != 2             # <<<<<<<<<<<<<<
@@ -7528,22 +8851,22 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   if (unlikely(__pyx_v_head == Py_None)) {
     PyErr_SetString(PyExc_TypeError, "object of type \047NoneType\047 has no len()");
-    __PYX_ERR(0, 441, __pyx_L1_error)
+    __PYX_ERR(0, 542, __pyx_L1_error)
   }
-  __pyx_t_7 = __Pyx_PyBytes_GET_SIZE(((PyObject*)__pyx_v_head)); if (unlikely(__pyx_t_7 == ((Py_ssize_t)-1))) __PYX_ERR(0, 441, __pyx_L1_error)
-  __pyx_t_1 = (__pyx_t_7 != 2);
+  __pyx_t_8 = __Pyx_PyBytes_GET_SIZE(((PyObject*)__pyx_v_head)); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 542, __pyx_L1_error)
+  __pyx_t_1 = (__pyx_t_8 != 2);
 
 
   if (!__pyx_t_1) {
 
   } else {
 
-    __pyx_t_2 = __pyx_t_1;
+    __pyx_t_7 = __pyx_t_1;
 
-    goto __pyx_L20_bool_binop_done;
+    goto __pyx_L27_bool_binop_done;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":442
+  /* "chassis_sdk/devices/board/_compiled.pyx":543
  *         type(head) is not bytes
  *         or len(<bytes>head) != 2
  *         or type(table) is not dict             # <<<<<<<<<<<<<<
@@ -7555,12 +8878,12 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 
   } else {
 
-    __pyx_t_2 = __pyx_t_1;
+    __pyx_t_7 = __pyx_t_1;
 
-    goto __pyx_L20_bool_binop_done;
+    goto __pyx_L27_bool_binop_done;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":443
+  /* "chassis_sdk/devices/board/_compiled.pyx":544
  *         or len(<bytes>head) != 2
  *         or type(table) is not dict
  *         or type(stored) is not bytearray             # <<<<<<<<<<<<<<
@@ -7569,21 +8892,21 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   __pyx_t_1 = (((PyObject *)Py_TYPE(__pyx_v_stored)) != ((PyObject *)(&PyByteArray_Type)));
 
-  __pyx_t_2 = __pyx_t_1;
+  __pyx_t_7 = __pyx_t_1;
 
-  __pyx_L20_bool_binop_done:;
+  __pyx_L27_bool_binop_done:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":439
+  /* "chassis_sdk/devices/board/_compiled.pyx":540
  *         align = alignment is True
  *     stored = self._buf
  *     if (             # <<<<<<<<<<<<<<
  *         type(head) is not bytes
  *         or len(<bytes>head) != 2
 */
-  if (__pyx_t_2) {
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":445
+    /* "chassis_sdk/devices/board/_compiled.pyx":546
  *         or type(stored) is not bytearray
  *     ):
  *         return _pure_feed(self, data, timestamp)             # <<<<<<<<<<<<<<
@@ -7592,39 +8915,39 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
     __pyx_t_4 = NULL;
     __Pyx_INCREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed);
-    __pyx_t_5 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
-    __pyx_t_6 = 1;
+    __pyx_t_3 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed; 
+    __pyx_t_5 = 1;
     #if CYTHON_UNPACK_METHODS
-    if (unlikely(PyMethod_Check(__pyx_t_5))) {
-      __pyx_t_4 = PyMethod_GET_SELF(__pyx_t_5);
+    if (unlikely(PyMethod_Check(__pyx_t_3))) {
+      __pyx_t_4 = PyMethod_GET_SELF(__pyx_t_3);
       assert(__pyx_t_4);
-      PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_5);
+      PyObject* __pyx__function = PyMethod_GET_FUNCTION(__pyx_t_3);
       __Pyx_INCREF(__pyx_t_4);
       __Pyx_INCREF(__pyx__function);
-      __Pyx_DECREF_SET(__pyx_t_5, __pyx__function);
-      __pyx_t_6 = 0;
+      __Pyx_DECREF_SET(__pyx_t_3, __pyx__function);
+      __pyx_t_5 = 0;
     }
     #endif
     {
       PyObject *__pyx_callargs[4] = {__pyx_t_4, __pyx_v_self, __pyx_v_data, __pyx_v_timestamp};
-      __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_5, __pyx_callargs+__pyx_t_6, (4-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+      __pyx_t_2 = __Pyx_PyObject_FastCall((PyObject*)__pyx_t_3, __pyx_callargs+__pyx_t_5, (4-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
       __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
-      __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-      if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 445, __pyx_L1_error)
-      __Pyx_GOTREF(__pyx_t_3);
+      __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+      if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 546, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_2);
     }
     {
       PyObject *__pyx_temp;
       {
         __pyx_temp = __pyx_r;
-        __pyx_r = __pyx_t_3;
+        __pyx_r = __pyx_t_2;
       }
       __Pyx_XDECREF(__pyx_temp);
     }
-    __pyx_t_3 = 0;
+    __pyx_t_2 = 0;
     goto __pyx_L0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":439
+    /* "chassis_sdk/devices/board/_compiled.pyx":540
  *         align = alignment is True
  *     stored = self._buf
  *     if (             # <<<<<<<<<<<<<<
@@ -7633,50 +8956,50 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":446
+  /* "chassis_sdk/devices/board/_compiled.pyx":547
  *     ):
  *         return _pure_feed(self, data, timestamp)
  *     h0 = (<bytes>head)[0]             # <<<<<<<<<<<<<<
  *     h1 = (<bytes>head)[1]
  *     # From here on, FrameDecoder.feed line for line.
 */
-  __pyx_t_8 = __Pyx_GetItemInt_Bytes(__pyx_v_head, 0, long, 1, __Pyx_PyLong_From_long, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference); if (unlikely(__pyx_t_8 == -1)) __PYX_ERR(0, 446, __pyx_L1_error)
-  __pyx_v_h0 = __pyx_t_8;
+  __pyx_t_9 = __Pyx_GetItemInt_Bytes(__pyx_v_head, 0, long, 1, __Pyx_PyLong_From_long, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference); if (unlikely(__pyx_t_9 == -1)) __PYX_ERR(0, 547, __pyx_L1_error)
+  __pyx_v_h0 = __pyx_t_9;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":447
+  /* "chassis_sdk/devices/board/_compiled.pyx":548
  *         return _pure_feed(self, data, timestamp)
  *     h0 = (<bytes>head)[0]
  *     h1 = (<bytes>head)[1]             # <<<<<<<<<<<<<<
  *     # From here on, FrameDecoder.feed line for line.
  *     if stored:
 */
-  __pyx_t_8 = __Pyx_GetItemInt_Bytes(__pyx_v_head, 1, long, 1, __Pyx_PyLong_From_long, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference); if (unlikely(__pyx_t_8 == -1)) __PYX_ERR(0, 447, __pyx_L1_error)
-  __pyx_v_h1 = __pyx_t_8;
+  __pyx_t_9 = __Pyx_GetItemInt_Bytes(__pyx_v_head, 1, long, 1, __Pyx_PyLong_From_long, 0, 0, 1, __Pyx_ReferenceSharing_SharedReference); if (unlikely(__pyx_t_9 == -1)) __PYX_ERR(0, 548, __pyx_L1_error)
+  __pyx_v_h1 = __pyx_t_9;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":449
+  /* "chassis_sdk/devices/board/_compiled.pyx":550
  *     h1 = (<bytes>head)[1]
  *     # From here on, FrameDecoder.feed line for line.
  *     if stored:             # <<<<<<<<<<<<<<
  *         stored += data
  *         buf = stored
 */
-  __pyx_t_2 = __Pyx_PyObject_IsTrue(__pyx_v_stored); if (unlikely((__pyx_t_2 < 0))) __PYX_ERR(0, 449, __pyx_L1_error)
-  if (__pyx_t_2) {
+  __pyx_t_7 = __Pyx_PyObject_IsTrue(__pyx_v_stored); if (unlikely((__pyx_t_7 < 0))) __PYX_ERR(0, 550, __pyx_L1_error)
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":450
+    /* "chassis_sdk/devices/board/_compiled.pyx":551
  *     # From here on, FrameDecoder.feed line for line.
  *     if stored:
  *         stored += data             # <<<<<<<<<<<<<<
  *         buf = stored
  *     else:
 */
-    __pyx_t_3 = __Pyx_PyNumber_InPlaceAdd_object_object(__pyx_v_stored, __pyx_v_data); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 450, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_3);
-    __Pyx_DECREF_SET(__pyx_v_stored, __pyx_t_3);
-    __pyx_t_3 = 0;
+    __pyx_t_2 = __Pyx_PyNumber_InPlaceAdd_object_object(__pyx_v_stored, __pyx_v_data); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 551, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+    __Pyx_DECREF_SET(__pyx_v_stored, __pyx_t_2);
+    __pyx_t_2 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":451
+    /* "chassis_sdk/devices/board/_compiled.pyx":552
  *     if stored:
  *         stored += data
  *         buf = stored             # <<<<<<<<<<<<<<
@@ -7686,17 +9009,17 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
     __Pyx_INCREF(__pyx_v_stored);
     __pyx_v_buf = __pyx_v_stored;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":449
+    /* "chassis_sdk/devices/board/_compiled.pyx":550
  *     h1 = (<bytes>head)[1]
  *     # From here on, FrameDecoder.feed line for line.
  *     if stored:             # <<<<<<<<<<<<<<
  *         stored += data
  *         buf = stored
 */
-    goto __pyx_L24;
+    goto __pyx_L31;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":453
+  /* "chassis_sdk/devices/board/_compiled.pyx":554
  *         buf = stored
  *     else:
  *         buf = data if type(data) is bytes else bytes(data)             # <<<<<<<<<<<<<<
@@ -7704,85 +9027,182 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
  *     n = len(buf)
 */
   /*else*/ {
-    __pyx_t_2 = (((PyObject *)Py_TYPE(__pyx_v_data)) == ((PyObject *)(&PyBytes_Type)));
-    if (__pyx_t_2) {
+    __pyx_t_7 = (((PyObject *)Py_TYPE(__pyx_v_data)) == ((PyObject *)(&PyBytes_Type)));
+    if (__pyx_t_7) {
       __Pyx_INCREF(__pyx_v_data);
-      __pyx_t_3 = __pyx_v_data;
+      __pyx_t_2 = __pyx_v_data;
     } else {
       __pyx_t_4 = NULL;
-      __pyx_t_6 = 1;
+      __pyx_t_5 = 1;
       {
         PyObject *__pyx_callargs[2] = {__pyx_t_4, __pyx_v_data};
-        __pyx_t_5 = __Pyx_PyObject_FastCall((PyObject*)(&PyBytes_Type), __pyx_callargs+__pyx_t_6, (2-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+        __pyx_t_3 = __Pyx_PyObject_FastCall((PyObject*)(&PyBytes_Type), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
         __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
-        if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 453, __pyx_L1_error)
-        __Pyx_GOTREF(__pyx_t_5);
+        if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 554, __pyx_L1_error)
+        __Pyx_GOTREF(__pyx_t_3);
       }
-      __pyx_t_3 = __pyx_t_5;
-      __pyx_t_5 = 0;
+      __pyx_t_2 = __pyx_t_3;
+      __pyx_t_3 = 0;
     }
 
-    __pyx_v_buf = __pyx_t_3;
-    __pyx_t_3 = 0;
+    __pyx_v_buf = __pyx_t_2;
+    __pyx_t_2 = 0;
   }
-  __pyx_L24:;
+  __pyx_L31:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":454
+  /* "chassis_sdk/devices/board/_compiled.pyx":555
  *     else:
  *         buf = data if type(data) is bytes else bytes(data)
  *     stats = self.stats             # <<<<<<<<<<<<<<
  *     n = len(buf)
- *     stats.bytes_received += len(data)
+ *     fast_stats = type(stats) is _stats_cls and _stats_plain()
 */
-  __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_stats); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 454, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_3);
-  __pyx_v_stats = __pyx_t_3;
-  __pyx_t_3 = 0;
+  __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_self, __pyx_mstate_global->__pyx_n_u_stats); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 555, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_2);
+  __pyx_v_stats = __pyx_t_2;
+  __pyx_t_2 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":455
+  /* "chassis_sdk/devices/board/_compiled.pyx":556
  *         buf = data if type(data) is bytes else bytes(data)
  *     stats = self.stats
  *     n = len(buf)             # <<<<<<<<<<<<<<
- *     stats.bytes_received += len(data)
- *     out = []
+ *     fast_stats = type(stats) is _stats_cls and _stats_plain()
+ *     if fast_stats:  # stats.bytes_received += len(data)
 */
-  __pyx_t_7 = PyObject_Length(__pyx_v_buf); if (unlikely(__pyx_t_7 == ((Py_ssize_t)-1))) __PYX_ERR(0, 455, __pyx_L1_error)
-  __pyx_v_n = __pyx_t_7;
+  __pyx_t_8 = PyObject_Length(__pyx_v_buf); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 556, __pyx_L1_error)
+  __pyx_v_n = __pyx_t_8;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":456
+  /* "chassis_sdk/devices/board/_compiled.pyx":557
  *     stats = self.stats
  *     n = len(buf)
- *     stats.bytes_received += len(data)             # <<<<<<<<<<<<<<
+ *     fast_stats = type(stats) is _stats_cls and _stats_plain()             # <<<<<<<<<<<<<<
+ *     if fast_stats:  # stats.bytes_received += len(data)
+ *         count = board_b_descr_get(_received_slot, stats)
+*/
+  __pyx_t_7 = (((PyObject *)Py_TYPE(__pyx_v_stats)) == __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls);
+  if (__pyx_t_7) {
+
+  } else {
+    __pyx_t_3 = __Pyx_PyBool_FromLong(__pyx_t_7); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 557, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    __pyx_t_2 = __pyx_t_3;
+    __pyx_t_3 = 0;
+
+    goto __pyx_L32_bool_binop_done;
+  }
+  __pyx_t_7 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__stats_plain(); if (unlikely(__pyx_t_7 == ((int)-1) && PyErr_Occurred())) __PYX_ERR(0, 557, __pyx_L1_error)
+  __pyx_t_3 = __Pyx_PyBool_FromLong(__pyx_t_7); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 557, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_3);
+  __pyx_t_2 = __pyx_t_3;
+  __pyx_t_3 = 0;
+
+  __pyx_L32_bool_binop_done:;
+  __pyx_v_fast_stats = __pyx_t_2;
+  __pyx_t_2 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":558
+ *     n = len(buf)
+ *     fast_stats = type(stats) is _stats_cls and _stats_plain()
+ *     if fast_stats:  # stats.bytes_received += len(data)             # <<<<<<<<<<<<<<
+ *         count = board_b_descr_get(_received_slot, stats)
+ *         count += len(data)
+*/
+  __pyx_t_7 = __Pyx_PyObject_IsTrue(__pyx_v_fast_stats); if (unlikely((__pyx_t_7 < 0))) __PYX_ERR(0, 558, __pyx_L1_error)
+  if (__pyx_t_7) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":559
+ *     fast_stats = type(stats) is _stats_cls and _stats_plain()
+ *     if fast_stats:  # stats.bytes_received += len(data)
+ *         count = board_b_descr_get(_received_slot, stats)             # <<<<<<<<<<<<<<
+ *         count += len(data)
+ *         board_b_descr_set(_received_slot, stats, count)
+*/
+    __pyx_t_2 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot;
+    __Pyx_INCREF(__pyx_t_2);
+    __pyx_t_3 = board_b_descr_get(__pyx_t_2, __pyx_v_stats); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 559, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
+    __pyx_v_count = __pyx_t_3;
+    __pyx_t_3 = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":560
+ *     if fast_stats:  # stats.bytes_received += len(data)
+ *         count = board_b_descr_get(_received_slot, stats)
+ *         count += len(data)             # <<<<<<<<<<<<<<
+ *         board_b_descr_set(_received_slot, stats, count)
+ *     else:
+*/
+    __pyx_t_8 = PyObject_Length(__pyx_v_data); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 560, __pyx_L1_error)
+    __pyx_t_3 = PyLong_FromSsize_t(__pyx_t_8); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 560, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+
+    __pyx_t_2 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_v_count, __pyx_t_3); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 560, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+    __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+    __Pyx_DECREF_SET(__pyx_v_count, __pyx_t_2);
+    __pyx_t_2 = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":561
+ *         count = board_b_descr_get(_received_slot, stats)
+ *         count += len(data)
+ *         board_b_descr_set(_received_slot, stats, count)             # <<<<<<<<<<<<<<
+ *     else:
+ *         stats.bytes_received += len(data)
+*/
+    __pyx_t_2 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot;
+    __Pyx_INCREF(__pyx_t_2);
+    __pyx_t_9 = board_b_descr_set(__pyx_t_2, __pyx_v_stats, __pyx_v_count); if (unlikely(__pyx_t_9 == ((int)-1))) __PYX_ERR(0, 561, __pyx_L1_error)
+    __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":558
+ *     n = len(buf)
+ *     fast_stats = type(stats) is _stats_cls and _stats_plain()
+ *     if fast_stats:  # stats.bytes_received += len(data)             # <<<<<<<<<<<<<<
+ *         count = board_b_descr_get(_received_slot, stats)
+ *         count += len(data)
+*/
+    goto __pyx_L34;
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":563
+ *         board_b_descr_set(_received_slot, stats, count)
+ *     else:
+ *         stats.bytes_received += len(data)             # <<<<<<<<<<<<<<
  *     out = []
  *     pos = 0
 */
-  __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_received); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 456, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_3);
-  __pyx_t_7 = PyObject_Length(__pyx_v_data); if (unlikely(__pyx_t_7 == ((Py_ssize_t)-1))) __PYX_ERR(0, 456, __pyx_L1_error)
-  __pyx_t_5 = PyLong_FromSsize_t(__pyx_t_7); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 456, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_5);
+  /*else*/ {
+    __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_received); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 563, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+    __pyx_t_8 = PyObject_Length(__pyx_v_data); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 563, __pyx_L1_error)
+    __pyx_t_3 = PyLong_FromSsize_t(__pyx_t_8); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 563, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
 
-  __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_t_3, __pyx_t_5); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 456, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_4);
-  __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
-  __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-  if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_received, __pyx_t_4) < (0)) __PYX_ERR(0, 456, __pyx_L1_error)
-  __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+    __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_t_2, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 563, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_4);
+    __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
+    __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+    if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_received, __pyx_t_4) < (0)) __PYX_ERR(0, 563, __pyx_L1_error)
+    __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+  }
+  __pyx_L34:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":457
- *     n = len(buf)
- *     stats.bytes_received += len(data)
+  /* "chassis_sdk/devices/board/_compiled.pyx":564
+ *     else:
+ *         stats.bytes_received += len(data)
  *     out = []             # <<<<<<<<<<<<<<
  *     pos = 0
  *     dropped = 0
 */
-  __pyx_t_4 = PyList_New(0); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 457, __pyx_L1_error)
+  __pyx_t_4 = PyList_New(0); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 564, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_4);
   __pyx_v_out = __pyx_t_4;
   __pyx_t_4 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":458
- *     stats.bytes_received += len(data)
+  /* "chassis_sdk/devices/board/_compiled.pyx":565
+ *         stats.bytes_received += len(data)
  *     out = []
  *     pos = 0             # <<<<<<<<<<<<<<
  *     dropped = 0
@@ -7790,7 +9210,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   __pyx_v_pos = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":459
+  /* "chassis_sdk/devices/board/_compiled.pyx":566
  *     out = []
  *     pos = 0
  *     dropped = 0             # <<<<<<<<<<<<<<
@@ -7799,17 +9219,17 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   __pyx_v_dropped = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":461
+  /* "chassis_sdk/devices/board/_compiled.pyx":568
  *     dropped = 0
  *     # The export keeps a bytearray's size (and so p) fixed while Python code runs.
  *     PyObject_GetBuffer(buf, &view, PyBUF_SIMPLE)             # <<<<<<<<<<<<<<
  *     try:
  *         if view.len != n:
 */
-  __pyx_t_8 = PyObject_GetBuffer(__pyx_v_buf, (&__pyx_v_view), PyBUF_SIMPLE); if (unlikely(__pyx_t_8 == ((int)-1))) __PYX_ERR(0, 461, __pyx_L1_error)
+  __pyx_t_9 = PyObject_GetBuffer(__pyx_v_buf, (&__pyx_v_view), PyBUF_SIMPLE); if (unlikely(__pyx_t_9 == ((int)-1))) __PYX_ERR(0, 568, __pyx_L1_error)
 
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":462
+  /* "chassis_sdk/devices/board/_compiled.pyx":569
  *     # The export keeps a bytearray's size (and so p) fixed while Python code runs.
  *     PyObject_GetBuffer(buf, &view, PyBUF_SIMPLE)
  *     try:             # <<<<<<<<<<<<<<
@@ -7818,39 +9238,39 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
   /*try:*/ {
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":463
+    /* "chassis_sdk/devices/board/_compiled.pyx":570
  *     PyObject_GetBuffer(buf, &view, PyBUF_SIMPLE)
  *     try:
  *         if view.len != n:             # <<<<<<<<<<<<<<
  *             raise BufferError("the buffer changed size")  # cannot happen: bytes or bytearray
  *         p = <const unsigned char *>view.buf
 */
-    __pyx_t_2 = (__pyx_v_view.len != __pyx_v_n);
+    __pyx_t_7 = (__pyx_v_view.len != __pyx_v_n);
 
-    if (unlikely(__pyx_t_2)) {
+    if (unlikely(__pyx_t_7)) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":464
+      /* "chassis_sdk/devices/board/_compiled.pyx":571
  *     try:
  *         if view.len != n:
  *             raise BufferError("the buffer changed size")  # cannot happen: bytes or bytearray             # <<<<<<<<<<<<<<
  *         p = <const unsigned char *>view.buf
  *         while pos < n:
 */
-      __pyx_t_5 = NULL;
-      __pyx_t_6 = 1;
+      __pyx_t_3 = NULL;
+      __pyx_t_5 = 1;
       {
-        PyObject *__pyx_callargs[2] = {__pyx_t_5, __pyx_mstate_global->__pyx_kp_u_the_buffer_changed_size};
-        __pyx_t_4 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_BufferError)), __pyx_callargs+__pyx_t_6, (2-__pyx_t_6) | (__pyx_t_6*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
-        __Pyx_XDECREF(__pyx_t_5); __pyx_t_5 = 0;
-        if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 464, __pyx_L26_error)
+        PyObject *__pyx_callargs[2] = {__pyx_t_3, __pyx_mstate_global->__pyx_kp_u_the_buffer_changed_size};
+        __pyx_t_4 = __Pyx_PyObject_FastCall((PyObject*)(((PyTypeObject*)PyExc_BufferError)), __pyx_callargs+__pyx_t_5, (2-__pyx_t_5) | (__pyx_t_5*__Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET));
+        __Pyx_XDECREF(__pyx_t_3); __pyx_t_3 = 0;
+        if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 571, __pyx_L36_error)
         __Pyx_GOTREF(__pyx_t_4);
       }
       __Pyx_Raise(__pyx_t_4, 0, 0, 0);
       __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
-      __PYX_ERR(0, 464, __pyx_L26_error)
+      __PYX_ERR(0, 571, __pyx_L36_error)
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":463
+      /* "chassis_sdk/devices/board/_compiled.pyx":570
  *     PyObject_GetBuffer(buf, &view, PyBUF_SIMPLE)
  *     try:
  *         if view.len != n:             # <<<<<<<<<<<<<<
@@ -7859,7 +9279,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":465
+    /* "chassis_sdk/devices/board/_compiled.pyx":572
  *         if view.len != n:
  *             raise BufferError("the buffer changed size")  # cannot happen: bytes or bytearray
  *         p = <const unsigned char *>view.buf             # <<<<<<<<<<<<<<
@@ -7868,7 +9288,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
     __pyx_v_p = ((unsigned char const *)__pyx_v_view.buf);
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":466
+    /* "chassis_sdk/devices/board/_compiled.pyx":573
  *             raise BufferError("the buffer changed size")  # cannot happen: bytes or bytearray
  *         p = <const unsigned char *>view.buf
  *         while pos < n:             # <<<<<<<<<<<<<<
@@ -7876,12 +9296,12 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
  *             if start < 0:
 */
     while (1) {
-      __pyx_t_2 = (__pyx_v_pos < __pyx_v_n);
+      __pyx_t_7 = (__pyx_v_pos < __pyx_v_n);
 
 
-      if (!__pyx_t_2) break;
+      if (!__pyx_t_7) break;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":467
+      /* "chassis_sdk/devices/board/_compiled.pyx":574
  *         p = <const unsigned char *>view.buf
  *         while pos < n:
  *             start = _find(p, pos, n, h0, h1)             # <<<<<<<<<<<<<<
@@ -7890,38 +9310,38 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
       __pyx_v_start = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__find(__pyx_v_p, __pyx_v_pos, __pyx_v_n, __pyx_v_h0, __pyx_v_h1);
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":468
+      /* "chassis_sdk/devices/board/_compiled.pyx":575
  *         while pos < n:
  *             start = _find(p, pos, n, h0, h1)
  *             if start < 0:             # <<<<<<<<<<<<<<
  *                 # Keep a trailing first head byte: its partner may be in the next chunk.
  *                 keep = n - 1 if p[n - 1] == h0 else n
 */
-      __pyx_t_2 = (__pyx_v_start < 0);
+      __pyx_t_7 = (__pyx_v_start < 0);
 
-      if (__pyx_t_2) {
+      if (__pyx_t_7) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":470
+        /* "chassis_sdk/devices/board/_compiled.pyx":577
  *             if start < 0:
  *                 # Keep a trailing first head byte: its partner may be in the next chunk.
  *                 keep = n - 1 if p[n - 1] == h0 else n             # <<<<<<<<<<<<<<
  *                 dropped += keep - pos
  *                 pos = keep
 */
-        __pyx_t_2 = ((__pyx_v_p[(__pyx_v_n - 1)]) == __pyx_v_h0);
+        __pyx_t_7 = ((__pyx_v_p[(__pyx_v_n - 1)]) == __pyx_v_h0);
 
-        if (__pyx_t_2) {
+        if (__pyx_t_7) {
 
-          __pyx_t_7 = (__pyx_v_n - 1);
+          __pyx_t_8 = (__pyx_v_n - 1);
         } else {
 
-          __pyx_t_7 = __pyx_v_n;
+          __pyx_t_8 = __pyx_v_n;
         }
 
-        __pyx_v_keep = __pyx_t_7;
+        __pyx_v_keep = __pyx_t_8;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":471
+        /* "chassis_sdk/devices/board/_compiled.pyx":578
  *                 # Keep a trailing first head byte: its partner may be in the next chunk.
  *                 keep = n - 1 if p[n - 1] == h0 else n
  *                 dropped += keep - pos             # <<<<<<<<<<<<<<
@@ -7930,7 +9350,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
         __pyx_v_dropped = (__pyx_v_dropped + (__pyx_v_keep - __pyx_v_pos));
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":472
+        /* "chassis_sdk/devices/board/_compiled.pyx":579
  *                 keep = n - 1 if p[n - 1] == h0 else n
  *                 dropped += keep - pos
  *                 pos = keep             # <<<<<<<<<<<<<<
@@ -7939,16 +9359,16 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
         __pyx_v_pos = __pyx_v_keep;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":473
+        /* "chassis_sdk/devices/board/_compiled.pyx":580
  *                 dropped += keep - pos
  *                 pos = keep
  *                 break             # <<<<<<<<<<<<<<
  *             dropped += start - pos
  *             consumed = _try(buf, p, start, n, out, timestamp, table, h0, h1, stats, &align,
 */
-        goto __pyx_L30_break;
+        goto __pyx_L40_break;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":468
+        /* "chassis_sdk/devices/board/_compiled.pyx":575
  *         while pos < n:
  *             start = _find(p, pos, n, h0, h1)
  *             if start < 0:             # <<<<<<<<<<<<<<
@@ -7957,7 +9377,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":474
+      /* "chassis_sdk/devices/board/_compiled.pyx":581
  *                 pos = keep
  *                 break
  *             dropped += start - pos             # <<<<<<<<<<<<<<
@@ -7966,7 +9386,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
       __pyx_v_dropped = (__pyx_v_dropped + (__pyx_v_start - __pyx_v_pos));
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":475
+      /* "chassis_sdk/devices/board/_compiled.pyx":582
  *                 break
  *             dropped += start - pos
  *             consumed = _try(buf, p, start, n, out, timestamp, table, h0, h1, stats, &align,             # <<<<<<<<<<<<<<
@@ -7975,36 +9395,36 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
       __pyx_t_4 = __pyx_v_out;
       __Pyx_INCREF(__pyx_t_4);
-      if (!(likely(PyList_CheckExact(__pyx_t_4)) || __Pyx_RaiseUnexpectedTypeError("list", __pyx_t_4))) __PYX_ERR(0, 475, __pyx_L26_error)
-      __pyx_t_5 = __pyx_v_table;
-      __Pyx_INCREF(__pyx_t_5);
-      if (!(likely(PyDict_CheckExact(__pyx_t_5))||((__pyx_t_5) == Py_None) || __Pyx_RaiseUnexpectedTypeError("dict", __pyx_t_5))) __PYX_ERR(0, 475, __pyx_L26_error)
+      if (!(likely(PyList_CheckExact(__pyx_t_4)) || __Pyx_RaiseUnexpectedTypeError("list", __pyx_t_4))) __PYX_ERR(0, 582, __pyx_L36_error)
+      __pyx_t_3 = __pyx_v_table;
+      __Pyx_INCREF(__pyx_t_3);
+      if (!(likely(PyDict_CheckExact(__pyx_t_3))||((__pyx_t_3) == Py_None) || __Pyx_RaiseUnexpectedTypeError("dict", __pyx_t_3))) __PYX_ERR(0, 582, __pyx_L36_error)
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":476
+      /* "chassis_sdk/devices/board/_compiled.pyx":583
  *             dropped += start - pos
  *             consumed = _try(buf, p, start, n, out, timestamp, table, h0, h1, stats, &align,
  *                             self)             # <<<<<<<<<<<<<<
  *             if consumed > 0:
  *                 pos = start + consumed
 */
-      __pyx_t_7 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(__pyx_v_buf, __pyx_v_p, __pyx_v_start, __pyx_v_n, ((PyObject*)__pyx_t_4), __pyx_v_timestamp, ((PyObject*)__pyx_t_5), __pyx_v_h0, __pyx_v_h1, __pyx_v_stats, (&__pyx_v_align), __pyx_v_self); if (unlikely(__pyx_t_7 == ((Py_ssize_t)-2L))) __PYX_ERR(0, 475, __pyx_L26_error)
+      __pyx_t_8 = __pyx_f_11chassis_sdk_7devices_5board_9_compiled__try(__pyx_v_buf, __pyx_v_p, __pyx_v_start, __pyx_v_n, ((PyObject*)__pyx_t_4), __pyx_v_timestamp, ((PyObject*)__pyx_t_3), __pyx_v_h0, __pyx_v_h1, __pyx_v_stats, (&__pyx_v_align), __pyx_v_self); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-2L))) __PYX_ERR(0, 582, __pyx_L36_error)
       __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
-      __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-      __pyx_v_consumed = __pyx_t_7;
+      __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+      __pyx_v_consumed = __pyx_t_8;
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":477
+      /* "chassis_sdk/devices/board/_compiled.pyx":584
  *             consumed = _try(buf, p, start, n, out, timestamp, table, h0, h1, stats, &align,
  *                             self)
  *             if consumed > 0:             # <<<<<<<<<<<<<<
  *                 pos = start + consumed
  *             elif consumed == NEED_DATA:
 */
-      __pyx_t_2 = (__pyx_v_consumed > 0);
+      __pyx_t_7 = (__pyx_v_consumed > 0);
 
-      if (__pyx_t_2) {
+      if (__pyx_t_7) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":478
+        /* "chassis_sdk/devices/board/_compiled.pyx":585
  *                             self)
  *             if consumed > 0:
  *                 pos = start + consumed             # <<<<<<<<<<<<<<
@@ -8013,29 +9433,29 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
         __pyx_v_pos = (__pyx_v_start + __pyx_v_consumed);
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":477
+        /* "chassis_sdk/devices/board/_compiled.pyx":584
  *             consumed = _try(buf, p, start, n, out, timestamp, table, h0, h1, stats, &align,
  *                             self)
  *             if consumed > 0:             # <<<<<<<<<<<<<<
  *                 pos = start + consumed
  *             elif consumed == NEED_DATA:
 */
-        goto __pyx_L32;
+        goto __pyx_L42;
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":479
+      /* "chassis_sdk/devices/board/_compiled.pyx":586
  *             if consumed > 0:
  *                 pos = start + consumed
  *             elif consumed == NEED_DATA:             # <<<<<<<<<<<<<<
  *                 pos = start
  *                 break
 */
-      __pyx_t_2 = (__pyx_v_consumed == __pyx_e_11chassis_sdk_7devices_5board_9_compiled_NEED_DATA);
+      __pyx_t_7 = (__pyx_v_consumed == __pyx_e_11chassis_sdk_7devices_5board_9_compiled_NEED_DATA);
 
-      if (__pyx_t_2) {
+      if (__pyx_t_7) {
 
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":480
+        /* "chassis_sdk/devices/board/_compiled.pyx":587
  *                 pos = start + consumed
  *             elif consumed == NEED_DATA:
  *                 pos = start             # <<<<<<<<<<<<<<
@@ -8044,16 +9464,16 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
         __pyx_v_pos = __pyx_v_start;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":481
+        /* "chassis_sdk/devices/board/_compiled.pyx":588
  *             elif consumed == NEED_DATA:
  *                 pos = start
  *                 break             # <<<<<<<<<<<<<<
  *             else:
  *                 dropped += 1
 */
-        goto __pyx_L30_break;
+        goto __pyx_L40_break;
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":479
+        /* "chassis_sdk/devices/board/_compiled.pyx":586
  *             if consumed > 0:
  *                 pos = start + consumed
  *             elif consumed == NEED_DATA:             # <<<<<<<<<<<<<<
@@ -8062,7 +9482,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
       }
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":483
+      /* "chassis_sdk/devices/board/_compiled.pyx":590
  *                 break
  *             else:
  *                 dropped += 1             # <<<<<<<<<<<<<<
@@ -8072,7 +9492,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
       /*else*/ {
         __pyx_v_dropped = (__pyx_v_dropped + 1);
 
-        /* "chassis_sdk/devices/board/_compiled.pyx":484
+        /* "chassis_sdk/devices/board/_compiled.pyx":591
  *             else:
  *                 dropped += 1
  *                 pos = start + 1             # <<<<<<<<<<<<<<
@@ -8081,12 +9501,12 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
         __pyx_v_pos = (__pyx_v_start + 1);
       }
-      __pyx_L32:;
+      __pyx_L42:;
     }
-    __pyx_L30_break:;
+    __pyx_L40_break:;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":486
+  /* "chassis_sdk/devices/board/_compiled.pyx":593
  *                 pos = start + 1
  *     finally:
  *         PyBuffer_Release(&view)             # <<<<<<<<<<<<<<
@@ -8096,76 +9516,76 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
   /*finally:*/ {
     /*normal exit:*/{
       PyBuffer_Release((&__pyx_v_view));
-      goto __pyx_L27;
+      goto __pyx_L37;
     }
-    __pyx_L26_error:;
+    __pyx_L36_error:;
     /*exception exit:*/{
       __Pyx_PyThreadState_declare
       __Pyx_PyThreadState_assign
-      __pyx_t_11 = 0; __pyx_t_12 = 0; __pyx_t_13 = 0; __pyx_t_14 = 0; __pyx_t_15 = 0; __pyx_t_16 = 0;
+      __pyx_t_12 = 0; __pyx_t_13 = 0; __pyx_t_14 = 0; __pyx_t_15 = 0; __pyx_t_16 = 0; __pyx_t_17 = 0;
+      __Pyx_XDECREF(__pyx_t_2); __pyx_t_2 = 0;
       __Pyx_XDECREF(__pyx_t_3); __pyx_t_3 = 0;
       __Pyx_XDECREF(__pyx_t_4); __pyx_t_4 = 0;
-      __Pyx_XDECREF(__pyx_t_5); __pyx_t_5 = 0;
-       __Pyx_ExceptionSwap(&__pyx_t_14, &__pyx_t_15, &__pyx_t_16);
-      if ( unlikely(__Pyx_GetException(&__pyx_t_11, &__pyx_t_12, &__pyx_t_13) < 0)) __Pyx_ErrFetch(&__pyx_t_11, &__pyx_t_12, &__pyx_t_13);
-      __Pyx_XGOTREF(__pyx_t_11);
+       __Pyx_ExceptionSwap(&__pyx_t_15, &__pyx_t_16, &__pyx_t_17);
+      if ( unlikely(__Pyx_GetException(&__pyx_t_12, &__pyx_t_13, &__pyx_t_14) < 0)) __Pyx_ErrFetch(&__pyx_t_12, &__pyx_t_13, &__pyx_t_14);
       __Pyx_XGOTREF(__pyx_t_12);
       __Pyx_XGOTREF(__pyx_t_13);
       __Pyx_XGOTREF(__pyx_t_14);
       __Pyx_XGOTREF(__pyx_t_15);
       __Pyx_XGOTREF(__pyx_t_16);
-      __pyx_t_8 = __pyx_lineno; __pyx_t_9 = __pyx_clineno; __pyx_t_10 = __pyx_filename;
+      __Pyx_XGOTREF(__pyx_t_17);
+      __pyx_t_9 = __pyx_lineno; __pyx_t_10 = __pyx_clineno; __pyx_t_11 = __pyx_filename;
       {
         PyBuffer_Release((&__pyx_v_view));
       }
-      __Pyx_XGIVEREF(__pyx_t_14);
       __Pyx_XGIVEREF(__pyx_t_15);
       __Pyx_XGIVEREF(__pyx_t_16);
-      __Pyx_ExceptionReset(__pyx_t_14, __pyx_t_15, __pyx_t_16);
-      __Pyx_XGIVEREF(__pyx_t_11);
+      __Pyx_XGIVEREF(__pyx_t_17);
+      __Pyx_ExceptionReset(__pyx_t_15, __pyx_t_16, __pyx_t_17);
       __Pyx_XGIVEREF(__pyx_t_12);
       __Pyx_XGIVEREF(__pyx_t_13);
-      __Pyx_ErrRestore(__pyx_t_11, __pyx_t_12, __pyx_t_13);
-      __pyx_t_11 = 0; __pyx_t_12 = 0; __pyx_t_13 = 0; __pyx_t_14 = 0; __pyx_t_15 = 0; __pyx_t_16 = 0;
-      __pyx_lineno = __pyx_t_8; __pyx_clineno = __pyx_t_9; __pyx_filename = __pyx_t_10;
+      __Pyx_XGIVEREF(__pyx_t_14);
+      __Pyx_ErrRestore(__pyx_t_12, __pyx_t_13, __pyx_t_14);
+      __pyx_t_12 = 0; __pyx_t_13 = 0; __pyx_t_14 = 0; __pyx_t_15 = 0; __pyx_t_16 = 0; __pyx_t_17 = 0;
+      __pyx_lineno = __pyx_t_9; __pyx_clineno = __pyx_t_10; __pyx_filename = __pyx_t_11;
       goto __pyx_L1_error;
     }
-    __pyx_L27:;
+    __pyx_L37:;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":487
+  /* "chassis_sdk/devices/board/_compiled.pyx":594
  *     finally:
  *         PyBuffer_Release(&view)
  *     if buf is stored:             # <<<<<<<<<<<<<<
  *         if pos:
  *             del stored[:pos]
 */
-  __pyx_t_2 = (__pyx_v_buf == __pyx_v_stored);
-  if (__pyx_t_2) {
+  __pyx_t_7 = (__pyx_v_buf == __pyx_v_stored);
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":488
+    /* "chassis_sdk/devices/board/_compiled.pyx":595
  *         PyBuffer_Release(&view)
  *     if buf is stored:
  *         if pos:             # <<<<<<<<<<<<<<
  *             del stored[:pos]
  *     elif pos < n:
 */
-    __pyx_t_2 = (__pyx_v_pos != 0);
+    __pyx_t_7 = (__pyx_v_pos != 0);
 
-    if (__pyx_t_2) {
+    if (__pyx_t_7) {
 
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":489
+      /* "chassis_sdk/devices/board/_compiled.pyx":596
  *     if buf is stored:
  *         if pos:
  *             del stored[:pos]             # <<<<<<<<<<<<<<
  *     elif pos < n:
  *         stored += buf[pos:]
 */
-      if (__Pyx_PyObject_DelSlice(__pyx_v_stored, 0, __pyx_v_pos, NULL, NULL, NULL, 0, 1, 0) < (0)) __PYX_ERR(0, 489, __pyx_L1_error)
+      if (__Pyx_PyObject_DelSlice(__pyx_v_stored, 0, __pyx_v_pos, NULL, NULL, NULL, 0, 1, 0) < (0)) __PYX_ERR(0, 596, __pyx_L1_error)
 
-      /* "chassis_sdk/devices/board/_compiled.pyx":488
+      /* "chassis_sdk/devices/board/_compiled.pyx":595
  *         PyBuffer_Release(&view)
  *     if buf is stored:
  *         if pos:             # <<<<<<<<<<<<<<
@@ -8174,112 +9594,259 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 */
     }
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":487
+    /* "chassis_sdk/devices/board/_compiled.pyx":594
  *     finally:
  *         PyBuffer_Release(&view)
  *     if buf is stored:             # <<<<<<<<<<<<<<
  *         if pos:
  *             del stored[:pos]
 */
-    goto __pyx_L35;
+    goto __pyx_L45;
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":490
+  /* "chassis_sdk/devices/board/_compiled.pyx":597
  *         if pos:
  *             del stored[:pos]
  *     elif pos < n:             # <<<<<<<<<<<<<<
  *         stored += buf[pos:]
- *     if dropped:
+ *     if fast_stats:
 */
-  __pyx_t_2 = (__pyx_v_pos < __pyx_v_n);
+  __pyx_t_7 = (__pyx_v_pos < __pyx_v_n);
 
-  if (__pyx_t_2) {
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":491
+    /* "chassis_sdk/devices/board/_compiled.pyx":598
  *             del stored[:pos]
  *     elif pos < n:
  *         stored += buf[pos:]             # <<<<<<<<<<<<<<
- *     if dropped:
- *         stats.bytes_dropped += dropped
+ *     if fast_stats:
+ *         if dropped:  # stats.bytes_dropped += dropped
 */
-    __pyx_t_5 = __Pyx_PyObject_GetSlice(__pyx_v_buf, __pyx_v_pos, 0, NULL, NULL, NULL, 1, 0, 0); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 491, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_5);
-    __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_object(__pyx_v_stored, __pyx_t_5); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 491, __pyx_L1_error)
+    __pyx_t_3 = __Pyx_PyObject_GetSlice(__pyx_v_buf, __pyx_v_pos, 0, NULL, NULL, NULL, 1, 0, 0); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 598, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_object(__pyx_v_stored, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 598, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_4);
-    __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
+    __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
     __Pyx_DECREF_SET(__pyx_v_stored, __pyx_t_4);
     __pyx_t_4 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":490
+    /* "chassis_sdk/devices/board/_compiled.pyx":597
  *         if pos:
  *             del stored[:pos]
  *     elif pos < n:             # <<<<<<<<<<<<<<
  *         stored += buf[pos:]
- *     if dropped:
+ *     if fast_stats:
 */
   }
-  __pyx_L35:;
+  __pyx_L45:;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":492
+  /* "chassis_sdk/devices/board/_compiled.pyx":599
  *     elif pos < n:
  *         stored += buf[pos:]
+ *     if fast_stats:             # <<<<<<<<<<<<<<
+ *         if dropped:  # stats.bytes_dropped += dropped
+ *             count = board_b_descr_get(_dropped_slot, stats)
+*/
+  __pyx_t_7 = __Pyx_PyObject_IsTrue(__pyx_v_fast_stats); if (unlikely((__pyx_t_7 < 0))) __PYX_ERR(0, 599, __pyx_L1_error)
+  if (__pyx_t_7) {
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":600
+ *         stored += buf[pos:]
+ *     if fast_stats:
+ *         if dropped:  # stats.bytes_dropped += dropped             # <<<<<<<<<<<<<<
+ *             count = board_b_descr_get(_dropped_slot, stats)
+ *             count += dropped
+*/
+    __pyx_t_7 = (__pyx_v_dropped != 0);
+
+    if (__pyx_t_7) {
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":601
+ *     if fast_stats:
+ *         if dropped:  # stats.bytes_dropped += dropped
+ *             count = board_b_descr_get(_dropped_slot, stats)             # <<<<<<<<<<<<<<
+ *             count += dropped
+ *             board_b_descr_set(_dropped_slot, stats, count)
+*/
+      __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot;
+      __Pyx_INCREF(__pyx_t_4);
+      __pyx_t_3 = board_b_descr_get(__pyx_t_4, __pyx_v_stats); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 601, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_3);
+      __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+      __Pyx_XDECREF_SET(__pyx_v_count, __pyx_t_3);
+      __pyx_t_3 = 0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":602
+ *         if dropped:  # stats.bytes_dropped += dropped
+ *             count = board_b_descr_get(_dropped_slot, stats)
+ *             count += dropped             # <<<<<<<<<<<<<<
+ *             board_b_descr_set(_dropped_slot, stats, count)
+ *         count = board_b_descr_get(_frames_slot, stats)  # stats.frames += len(out)
+*/
+      __pyx_t_3 = PyLong_FromSsize_t(__pyx_v_dropped); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 602, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_3);
+      __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_v_count, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 602, __pyx_L1_error)
+      __Pyx_GOTREF(__pyx_t_4);
+      __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+      __Pyx_DECREF_SET(__pyx_v_count, __pyx_t_4);
+      __pyx_t_4 = 0;
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":603
+ *             count = board_b_descr_get(_dropped_slot, stats)
+ *             count += dropped
+ *             board_b_descr_set(_dropped_slot, stats, count)             # <<<<<<<<<<<<<<
+ *         count = board_b_descr_get(_frames_slot, stats)  # stats.frames += len(out)
+ *         count += len(out)
+*/
+      __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot;
+      __Pyx_INCREF(__pyx_t_4);
+      __pyx_t_10 = board_b_descr_set(__pyx_t_4, __pyx_v_stats, __pyx_v_count); if (unlikely(__pyx_t_10 == ((int)-1))) __PYX_ERR(0, 603, __pyx_L1_error)
+      __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+
+
+      /* "chassis_sdk/devices/board/_compiled.pyx":600
+ *         stored += buf[pos:]
+ *     if fast_stats:
+ *         if dropped:  # stats.bytes_dropped += dropped             # <<<<<<<<<<<<<<
+ *             count = board_b_descr_get(_dropped_slot, stats)
+ *             count += dropped
+*/
+    }
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":604
+ *             count += dropped
+ *             board_b_descr_set(_dropped_slot, stats, count)
+ *         count = board_b_descr_get(_frames_slot, stats)  # stats.frames += len(out)             # <<<<<<<<<<<<<<
+ *         count += len(out)
+ *         board_b_descr_set(_frames_slot, stats, count)
+*/
+    __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot;
+    __Pyx_INCREF(__pyx_t_4);
+    __pyx_t_3 = board_b_descr_get(__pyx_t_4, __pyx_v_stats); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 604, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+    __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+    __Pyx_XDECREF_SET(__pyx_v_count, __pyx_t_3);
+    __pyx_t_3 = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":605
+ *             board_b_descr_set(_dropped_slot, stats, count)
+ *         count = board_b_descr_get(_frames_slot, stats)  # stats.frames += len(out)
+ *         count += len(out)             # <<<<<<<<<<<<<<
+ *         board_b_descr_set(_frames_slot, stats, count)
+ *         return out
+*/
+    __pyx_t_8 = PyObject_Length(__pyx_v_out); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 605, __pyx_L1_error)
+    __pyx_t_3 = PyLong_FromSsize_t(__pyx_t_8); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 605, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_3);
+
+    __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_v_count, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 605, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_4);
+    __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+    __Pyx_DECREF_SET(__pyx_v_count, __pyx_t_4);
+    __pyx_t_4 = 0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":606
+ *         count = board_b_descr_get(_frames_slot, stats)  # stats.frames += len(out)
+ *         count += len(out)
+ *         board_b_descr_set(_frames_slot, stats, count)             # <<<<<<<<<<<<<<
+ *         return out
+ *     if dropped:
+*/
+    __pyx_t_4 = __pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot;
+    __Pyx_INCREF(__pyx_t_4);
+    __pyx_t_10 = board_b_descr_set(__pyx_t_4, __pyx_v_stats, __pyx_v_count); if (unlikely(__pyx_t_10 == ((int)-1))) __PYX_ERR(0, 606, __pyx_L1_error)
+    __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
+
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":607
+ *         count += len(out)
+ *         board_b_descr_set(_frames_slot, stats, count)
+ *         return out             # <<<<<<<<<<<<<<
+ *     if dropped:
+ *         stats.bytes_dropped += dropped
+*/
+    {
+      PyObject *__pyx_temp;
+      {
+        __pyx_temp = __pyx_r;
+        __Pyx_INCREF(__pyx_v_out);
+        __pyx_r = __pyx_v_out;
+      }
+      __Pyx_XDECREF(__pyx_temp);
+    }
+    goto __pyx_L0;
+
+    /* "chassis_sdk/devices/board/_compiled.pyx":599
+ *     elif pos < n:
+ *         stored += buf[pos:]
+ *     if fast_stats:             # <<<<<<<<<<<<<<
+ *         if dropped:  # stats.bytes_dropped += dropped
+ *             count = board_b_descr_get(_dropped_slot, stats)
+*/
+  }
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":608
+ *         board_b_descr_set(_frames_slot, stats, count)
+ *         return out
  *     if dropped:             # <<<<<<<<<<<<<<
  *         stats.bytes_dropped += dropped
  *     stats.frames += len(out)
 */
-  __pyx_t_2 = (__pyx_v_dropped != 0);
+  __pyx_t_7 = (__pyx_v_dropped != 0);
 
-  if (__pyx_t_2) {
+  if (__pyx_t_7) {
 
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":493
- *         stored += buf[pos:]
+    /* "chassis_sdk/devices/board/_compiled.pyx":609
+ *         return out
  *     if dropped:
  *         stats.bytes_dropped += dropped             # <<<<<<<<<<<<<<
  *     stats.frames += len(out)
  *     return out
 */
-    __pyx_t_4 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_dropped); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 493, __pyx_L1_error)
+    __pyx_t_4 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_dropped); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 609, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_4);
-    __pyx_t_5 = PyLong_FromSsize_t(__pyx_v_dropped); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 493, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_t_5);
-    __pyx_t_3 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_t_4, __pyx_t_5); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 493, __pyx_L1_error)
+    __pyx_t_3 = PyLong_FromSsize_t(__pyx_v_dropped); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 609, __pyx_L1_error)
     __Pyx_GOTREF(__pyx_t_3);
+    __pyx_t_2 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_t_4, __pyx_t_3); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 609, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
     __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
-    __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-    if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_dropped, __pyx_t_3) < (0)) __PYX_ERR(0, 493, __pyx_L1_error)
     __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
+    if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_bytes_dropped, __pyx_t_2) < (0)) __PYX_ERR(0, 609, __pyx_L1_error)
+    __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
 
-    /* "chassis_sdk/devices/board/_compiled.pyx":492
- *     elif pos < n:
- *         stored += buf[pos:]
+    /* "chassis_sdk/devices/board/_compiled.pyx":608
+ *         board_b_descr_set(_frames_slot, stats, count)
+ *         return out
  *     if dropped:             # <<<<<<<<<<<<<<
  *         stats.bytes_dropped += dropped
  *     stats.frames += len(out)
 */
   }
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":494
+  /* "chassis_sdk/devices/board/_compiled.pyx":610
  *     if dropped:
  *         stats.bytes_dropped += dropped
  *     stats.frames += len(out)             # <<<<<<<<<<<<<<
  *     return out
 */
-  __pyx_t_3 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_frames); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 494, __pyx_L1_error)
+  __pyx_t_2 = __Pyx_PyObject_GetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_frames); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 610, __pyx_L1_error)
+  __Pyx_GOTREF(__pyx_t_2);
+  __pyx_t_8 = PyObject_Length(__pyx_v_out); if (unlikely(__pyx_t_8 == ((Py_ssize_t)-1))) __PYX_ERR(0, 610, __pyx_L1_error)
+  __pyx_t_3 = PyLong_FromSsize_t(__pyx_t_8); if (unlikely(!__pyx_t_3)) __PYX_ERR(0, 610, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_3);
-  __pyx_t_7 = PyObject_Length(__pyx_v_out); if (unlikely(__pyx_t_7 == ((Py_ssize_t)-1))) __PYX_ERR(0, 494, __pyx_L1_error)
-  __pyx_t_5 = PyLong_FromSsize_t(__pyx_t_7); if (unlikely(!__pyx_t_5)) __PYX_ERR(0, 494, __pyx_L1_error)
-  __Pyx_GOTREF(__pyx_t_5);
 
-  __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_t_3, __pyx_t_5); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 494, __pyx_L1_error)
+  __pyx_t_4 = __Pyx_PyNumber_InPlaceAdd_object_int(__pyx_t_2, __pyx_t_3); if (unlikely(!__pyx_t_4)) __PYX_ERR(0, 610, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_4);
+  __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
   __Pyx_DECREF(__pyx_t_3); __pyx_t_3 = 0;
-  __Pyx_DECREF(__pyx_t_5); __pyx_t_5 = 0;
-  if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_frames, __pyx_t_4) < (0)) __PYX_ERR(0, 494, __pyx_L1_error)
+  if (__Pyx_PyObject_SetAttrStr(__pyx_v_stats, __pyx_mstate_global->__pyx_n_u_frames, __pyx_t_4) < (0)) __PYX_ERR(0, 610, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_4); __pyx_t_4 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":495
+  /* "chassis_sdk/devices/board/_compiled.pyx":611
  *         stats.bytes_dropped += dropped
  *     stats.frames += len(out)
  *     return out             # <<<<<<<<<<<<<<
@@ -8295,7 +9862,7 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
   }
   goto __pyx_L0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":395
+  /* "chassis_sdk/devices/board/_compiled.pyx":470
  * 
  * 
  * def feed(self, data, timestamp=0.0):             # <<<<<<<<<<<<<<
@@ -8305,12 +9872,14 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
 
   /* function exit code */
   __pyx_L1_error:;
+  __Pyx_XDECREF(__pyx_t_2);
   __Pyx_XDECREF(__pyx_t_3);
   __Pyx_XDECREF(__pyx_t_4);
-  __Pyx_XDECREF(__pyx_t_5);
   __Pyx_AddTraceback("chassis_sdk.devices.board._compiled.feed", __pyx_clineno, __pyx_lineno, __pyx_filename);
   __pyx_r = NULL;
   __pyx_L0:;
+
+
 
 
 
@@ -8331,6 +9900,8 @@ static PyObject *__pyx_pf_11chassis_sdk_7devices_5board_9_compiled_2feed(CYTHON_
   __Pyx_XDECREF(__pyx_v_stored);
   __Pyx_XDECREF(__pyx_v_buf);
   __Pyx_XDECREF(__pyx_v_stats);
+  __Pyx_XDECREF(__pyx_v_fast_stats);
+  __Pyx_XDECREF(__pyx_v_count);
   __Pyx_XDECREF(__pyx_v_out);
   __Pyx_XGIVEREF(__pyx_r);
   __Pyx_RefNannyFinishContext();
@@ -8413,6 +9984,7 @@ static void __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scop
   #endif
   PyObject_GC_UnTrack(o);
   Py_CLEAR(p->__pyx_v_imu_cls);
+  Py_CLEAR(p->__pyx_v_stats_cls);
   Py_CLEAR(p->__pyx_v_types);
   #if CYTHON_USE_FREELISTS
   if (likely((int)(__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind < 8) & __PYX_CHECK_FINAL_TYPE_FOR_FREELISTS(Py_TYPE(o), __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind))))
@@ -8446,6 +10018,9 @@ static int __pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scop
   if (p->__pyx_v_imu_cls) {
     e = (*v)(p->__pyx_v_imu_cls, a); if (e) return e;
   }
+  if (p->__pyx_v_stats_cls) {
+    e = (*v)(p->__pyx_v_stats_cls, a); if (e) return e;
+  }
   if (p->__pyx_v_types) {
     e = (*v)(p->__pyx_v_types, a); if (e) return e;
   }
@@ -8457,6 +10032,9 @@ static int __pyx_tp_clear_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_s
   struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *p = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind *)o;
   tmp = ((PyObject*)p->__pyx_v_imu_cls);
   p->__pyx_v_imu_cls = Py_None; Py_INCREF(Py_None);
+  Py_XDECREF(tmp);
+  tmp = ((PyObject*)p->__pyx_v_stats_cls);
+  p->__pyx_v_stats_cls = Py_None; Py_INCREF(Py_None);
   Py_XDECREF(tmp);
   tmp = ((PyObject*)p->__pyx_v_types);
   p->__pyx_v_types = Py_None; Py_INCREF(Py_None);
@@ -8996,6 +10574,440 @@ static PyTypeObject __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_sc
 };
 #endif
 
+static PyObject *__pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyObject *o, 
+#if CYTHON_VECTORCALL_TPNEW
+    CYTHON_UNUSED PyObject *const *args, CYTHON_UNUSED Py_ssize_t nargs, CYTHON_UNUSED PyObject *kwnames
+#else
+    CYTHON_UNUSED PyObject *a, CYTHON_UNUSED PyObject *k
+#endif
+) {
+  return o;
+}
+
+static PyObject *__pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyTypeObject *t, 
+#if CYTHON_VECTORCALL_TPNEW
+    PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames
+#else
+    PyObject *a, PyObject *k
+#endif
+) {
+  PyObject *o;
+  #if CYTHON_USE_FREELISTS
+  if (likely((int)(__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr > 0) & __PYX_CHECK_FINAL_TYPE_FOR_FREELISTS(t, __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr))))
+  {
+    o = (PyObject*)__pyx_mstate_global->__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr[--__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr];
+    #if CYTHON_USE_TYPE_SPECS
+    Py_DECREF(Py_TYPE(o));
+    #endif
+    memset(o, 0, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr));
+    #if CYTHON_COMPILING_IN_LIMITED_API
+    (void) PyObject_Init(o, t);
+    #else
+    (void) PyObject_INIT(o, t);
+    #endif
+    PyObject_GC_Track(o);
+  } else
+  #endif
+  {
+    o = __Pyx_AllocateExtensionType(t, 1);
+  }
+  if (unlikely(!o)) return 0;
+  return __pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(o, 
+#if CYTHON_VECTORCALL_TPNEW
+    args, nargs, kwnames
+#else
+    a, k
+#endif
+);
+}
+
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyTypeObject *t, PyObject *a, PyObject *k) {
+  return __Pyx_CallTpnewAsVectorcall(__pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, t, a, k);
+}
+#endif
+
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyObject *t, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+  if (unlikely((PyTypeObject*)t != __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr || __Pyx_PyType_HasFeature((PyTypeObject*)t, Py_TPFLAGS_IS_ABSTRACT))) {
+    return __Pyx_CallNewInitFromVectorcall((PyTypeObject*)t, args, nargsf, kwnames);
+  }
+  Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+  PyObject *o = __pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr((PyTypeObject*)t, args, nargs, kwnames);
+  return o;
+}
+#endif
+
+static void __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyObject *o) {
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *p = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *)o;
+  #if CYTHON_USE_TP_FINALIZE
+  if (unlikely(__Pyx_PyObject_GetSlot(o, tp_finalize, destructor)) && !__Pyx_PyObject_GC_IsFinalized(o)) {
+    if (__Pyx_PyObject_GetSlot(o, tp_dealloc, destructor) == __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr) {
+      if (PyObject_CallFinalizerFromDealloc(o)) return;
+    }
+  }
+  #endif
+  PyObject_GC_UnTrack(o);
+  Py_CLEAR(p->__pyx_outer_scope);
+  Py_CLEAR(p->__pyx_genexpr_arg_0);
+  Py_CLEAR(p->__pyx_v_name);
+  Py_CLEAR(p->__pyx_t_0);
+  #if CYTHON_USE_FREELISTS
+  if (likely((int)(__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr < 8) & __PYX_CHECK_FINAL_TYPE_FOR_FREELISTS(Py_TYPE(o), __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr))))
+  {
+    __pyx_mstate_global->__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr[__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr++] = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *)o);
+  } else
+  #endif
+  {
+    PyTypeObject *tp = Py_TYPE(o);
+    #if CYTHON_USE_TYPE_SLOTS
+    (*tp->tp_free)(o);
+    #else
+    {
+      freefunc tp_free = (freefunc)PyType_GetSlot(tp, Py_tp_free);
+      if (tp_free) tp_free(o);
+    }
+    #endif
+    #if CYTHON_USE_TYPE_SPECS
+    Py_DECREF(tp);
+    #endif
+  }
+}
+
+static int __pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(PyObject *o, visitproc v, void *a) {
+  int e;
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *p = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr *)o;
+  {
+    e = __Pyx_call_type_traverse(o, 1, v, a);
+    if (e) return e;
+  }
+  if (p->__pyx_outer_scope) {
+    e = (*v)(((PyObject *)p->__pyx_outer_scope), a); if (e) return e;
+  }
+  if (p->__pyx_genexpr_arg_0) {
+    e = (*v)(p->__pyx_genexpr_arg_0, a); if (e) return e;
+  }
+  if (p->__pyx_v_name) {
+    e = (*v)(p->__pyx_v_name, a); if (e) return e;
+  }
+  if (p->__pyx_t_0) {
+    e = (*v)(p->__pyx_t_0, a); if (e) return e;
+  }
+  return 0;
+}
+#if CYTHON_USE_TYPE_SPECS
+static PyType_Slot __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr_slots[] = {
+  {Py_tp_dealloc, (void *)__pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr},
+  {Py_tp_traverse, (void *)__pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr},
+  {Py_tp_new, (void *)__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr},
+  #if (!CYTHON_COMPILING_IN_PYPY || PYPY_VERSION_NUM >= 0x07030800) && (!CYTHON_COMPILING_IN_LIMITED_API || __PYX_LIMITED_VERSION_HEX >= 0x030E0000)
+  #if CYTHON_VECTORCALL_TPNEW
+  {Py_tp_vectorcall, (void *)__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr},
+  #endif
+  #endif
+  {0, 0},
+};
+static PyType_Spec __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr_spec = {
+  "chassis_sdk.devices.board._compiled.__pyx_scope_struct_3_genexpr",
+  sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr),
+  0,
+  Py_TPFLAGS_DEFAULT|Py_TPFLAGS_HAVE_VERSION_TAG|Py_TPFLAGS_HAVE_GC,
+  __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr_slots,
+};
+#else
+
+static PyTypeObject __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr = {
+  PyVarObject_HEAD_INIT(0, 0)
+  "chassis_sdk.devices.board._compiled.""__pyx_scope_struct_3_genexpr", /*tp_name*/
+  sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr), /*tp_basicsize*/
+  0, /*tp_itemsize*/
+  __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, /*tp_dealloc*/
+  0, /*tp_vectorcall_offset*/
+  0, /*tp_getattr*/
+  0, /*tp_setattr*/
+  0, /*tp_as_async*/
+  0, /*tp_repr*/
+  0, /*tp_as_number*/
+  0, /*tp_as_sequence*/
+  0, /*tp_as_mapping*/
+  0, /*tp_hash*/
+  0, /*tp_call*/
+  0, /*tp_str*/
+  0, /*tp_getattro*/
+  0, /*tp_setattro*/
+  0, /*tp_as_buffer*/
+  Py_TPFLAGS_DEFAULT|Py_TPFLAGS_HAVE_VERSION_TAG|Py_TPFLAGS_HAVE_GC, /*tp_flags*/
+  0, /*tp_doc*/
+  __pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, /*tp_traverse*/
+  0, /*tp_clear*/
+  0, /*tp_richcompare*/
+  0, /*tp_weaklistoffset*/
+  0, /*tp_iter*/
+  0, /*tp_iternext*/
+  0, /*tp_methods*/
+  0, /*tp_members*/
+  0, /*tp_getset*/
+  0, /*tp_base*/
+  0, /*tp_dict*/
+  0, /*tp_descr_get*/
+  0, /*tp_descr_set*/
+  #if !CYTHON_USE_TYPE_SPECS
+  0, /*tp_dictoffset*/
+  #endif
+  0, /*tp_init*/
+  0, /*tp_alloc*/
+  __pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, /*tp_new*/
+  0, /*tp_free*/
+  0, /*tp_is_gc*/
+  0, /*tp_bases*/
+  0, /*tp_mro*/
+  0, /*tp_cache*/
+  0, /*tp_subclasses*/
+  0, /*tp_weaklist*/
+  0, /*tp_del*/
+  0, /*tp_version_tag*/
+  #if CYTHON_USE_TP_FINALIZE
+  0, /*tp_finalize*/
+  #else
+  NULL, /*tp_finalize*/
+  #endif
+  #if (!CYTHON_COMPILING_IN_PYPY || PYPY_VERSION_NUM >= 0x07030800) && (!CYTHON_COMPILING_IN_LIMITED_API || __PYX_LIMITED_VERSION_HEX >= 0x030E0000)
+  #if CYTHON_VECTORCALL_TPNEW
+  __pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr, /*tp_vectorcall*/
+  #else
+  NULL, /*tp_vectorcall*/
+  #endif
+  #endif
+  #if __PYX_NEED_TP_PRINT_SLOT == 1
+  0, /*tp_print*/
+  #endif
+  #if PY_VERSION_HEX >= 0x030C0000
+  0, /*tp_watched*/
+  #endif
+  #if PY_VERSION_HEX >= 0x030d00A4
+  0, /*tp_versions_used*/
+  #endif
+  #if CYTHON_COMPILING_IN_PYPY && PY_VERSION_HEX < 0x030a0000
+  0, /*tp_pypy_flags*/
+  #endif
+};
+#endif
+
+static PyObject *__pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyObject *o, 
+#if CYTHON_VECTORCALL_TPNEW
+    CYTHON_UNUSED PyObject *const *args, CYTHON_UNUSED Py_ssize_t nargs, CYTHON_UNUSED PyObject *kwnames
+#else
+    CYTHON_UNUSED PyObject *a, CYTHON_UNUSED PyObject *k
+#endif
+) {
+  return o;
+}
+
+static PyObject *__pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyTypeObject *t, 
+#if CYTHON_VECTORCALL_TPNEW
+    PyObject *const *args, Py_ssize_t nargs, PyObject *kwnames
+#else
+    PyObject *a, PyObject *k
+#endif
+) {
+  PyObject *o;
+  #if CYTHON_USE_FREELISTS
+  if (likely((int)(__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr > 0) & __PYX_CHECK_FINAL_TYPE_FOR_FREELISTS(t, __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr))))
+  {
+    o = (PyObject*)__pyx_mstate_global->__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr[--__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr];
+    #if CYTHON_USE_TYPE_SPECS
+    Py_DECREF(Py_TYPE(o));
+    #endif
+    memset(o, 0, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr));
+    #if CYTHON_COMPILING_IN_LIMITED_API
+    (void) PyObject_Init(o, t);
+    #else
+    (void) PyObject_INIT(o, t);
+    #endif
+    PyObject_GC_Track(o);
+  } else
+  #endif
+  {
+    o = __Pyx_AllocateExtensionType(t, 1);
+  }
+  if (unlikely(!o)) return 0;
+  return __pyx_tp_new__initialisation_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(o, 
+#if CYTHON_VECTORCALL_TPNEW
+    args, nargs, kwnames
+#else
+    a, k
+#endif
+);
+}
+
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyTypeObject *t, PyObject *a, PyObject *k) {
+  return __Pyx_CallTpnewAsVectorcall(__pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, t, a, k);
+}
+#endif
+
+#if CYTHON_VECTORCALL_TPNEW
+static PyObject *__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyObject *t, PyObject *const *args, size_t nargsf, PyObject *kwnames) {
+  if (unlikely((PyTypeObject*)t != __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr || __Pyx_PyType_HasFeature((PyTypeObject*)t, Py_TPFLAGS_IS_ABSTRACT))) {
+    return __Pyx_CallNewInitFromVectorcall((PyTypeObject*)t, args, nargsf, kwnames);
+  }
+  Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+  PyObject *o = __pyx_tp_new_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr((PyTypeObject*)t, args, nargs, kwnames);
+  return o;
+}
+#endif
+
+static void __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyObject *o) {
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *p = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *)o;
+  #if CYTHON_USE_TP_FINALIZE
+  if (unlikely(__Pyx_PyObject_GetSlot(o, tp_finalize, destructor)) && !__Pyx_PyObject_GC_IsFinalized(o)) {
+    if (__Pyx_PyObject_GetSlot(o, tp_dealloc, destructor) == __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr) {
+      if (PyObject_CallFinalizerFromDealloc(o)) return;
+    }
+  }
+  #endif
+  PyObject_GC_UnTrack(o);
+  Py_CLEAR(p->__pyx_outer_scope);
+  Py_CLEAR(p->__pyx_genexpr_arg_0);
+  Py_CLEAR(p->__pyx_v_s);
+  #if CYTHON_USE_FREELISTS
+  if (likely((int)(__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr < 8) & __PYX_CHECK_FINAL_TYPE_FOR_FREELISTS(Py_TYPE(o), __pyx_mstate_global->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr))))
+  {
+    __pyx_mstate_global->__pyx_freelist_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr[__pyx_mstate_global->__pyx_freecount_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr++] = ((struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *)o);
+  } else
+  #endif
+  {
+    PyTypeObject *tp = Py_TYPE(o);
+    #if CYTHON_USE_TYPE_SLOTS
+    (*tp->tp_free)(o);
+    #else
+    {
+      freefunc tp_free = (freefunc)PyType_GetSlot(tp, Py_tp_free);
+      if (tp_free) tp_free(o);
+    }
+    #endif
+    #if CYTHON_USE_TYPE_SPECS
+    Py_DECREF(tp);
+    #endif
+  }
+}
+
+static int __pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(PyObject *o, visitproc v, void *a) {
+  int e;
+  struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *p = (struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr *)o;
+  {
+    e = __Pyx_call_type_traverse(o, 1, v, a);
+    if (e) return e;
+  }
+  if (p->__pyx_outer_scope) {
+    e = (*v)(((PyObject *)p->__pyx_outer_scope), a); if (e) return e;
+  }
+  if (p->__pyx_genexpr_arg_0) {
+    e = (*v)(p->__pyx_genexpr_arg_0, a); if (e) return e;
+  }
+  if (p->__pyx_v_s) {
+    e = (*v)(p->__pyx_v_s, a); if (e) return e;
+  }
+  return 0;
+}
+#if CYTHON_USE_TYPE_SPECS
+static PyType_Slot __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr_slots[] = {
+  {Py_tp_dealloc, (void *)__pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr},
+  {Py_tp_traverse, (void *)__pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr},
+  {Py_tp_new, (void *)__pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr},
+  #if (!CYTHON_COMPILING_IN_PYPY || PYPY_VERSION_NUM >= 0x07030800) && (!CYTHON_COMPILING_IN_LIMITED_API || __PYX_LIMITED_VERSION_HEX >= 0x030E0000)
+  #if CYTHON_VECTORCALL_TPNEW
+  {Py_tp_vectorcall, (void *)__pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr},
+  #endif
+  #endif
+  {0, 0},
+};
+static PyType_Spec __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr_spec = {
+  "chassis_sdk.devices.board._compiled.__pyx_scope_struct_4_genexpr",
+  sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr),
+  0,
+  Py_TPFLAGS_DEFAULT|Py_TPFLAGS_HAVE_VERSION_TAG|Py_TPFLAGS_HAVE_GC,
+  __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr_slots,
+};
+#else
+
+static PyTypeObject __pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr = {
+  PyVarObject_HEAD_INIT(0, 0)
+  "chassis_sdk.devices.board._compiled.""__pyx_scope_struct_4_genexpr", /*tp_name*/
+  sizeof(struct __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr), /*tp_basicsize*/
+  0, /*tp_itemsize*/
+  __pyx_tp_dealloc_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, /*tp_dealloc*/
+  0, /*tp_vectorcall_offset*/
+  0, /*tp_getattr*/
+  0, /*tp_setattr*/
+  0, /*tp_as_async*/
+  0, /*tp_repr*/
+  0, /*tp_as_number*/
+  0, /*tp_as_sequence*/
+  0, /*tp_as_mapping*/
+  0, /*tp_hash*/
+  0, /*tp_call*/
+  0, /*tp_str*/
+  0, /*tp_getattro*/
+  0, /*tp_setattro*/
+  0, /*tp_as_buffer*/
+  Py_TPFLAGS_DEFAULT|Py_TPFLAGS_HAVE_VERSION_TAG|Py_TPFLAGS_HAVE_GC, /*tp_flags*/
+  0, /*tp_doc*/
+  __pyx_tp_traverse_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, /*tp_traverse*/
+  0, /*tp_clear*/
+  0, /*tp_richcompare*/
+  0, /*tp_weaklistoffset*/
+  0, /*tp_iter*/
+  0, /*tp_iternext*/
+  0, /*tp_methods*/
+  0, /*tp_members*/
+  0, /*tp_getset*/
+  0, /*tp_base*/
+  0, /*tp_dict*/
+  0, /*tp_descr_get*/
+  0, /*tp_descr_set*/
+  #if !CYTHON_USE_TYPE_SPECS
+  0, /*tp_dictoffset*/
+  #endif
+  0, /*tp_init*/
+  0, /*tp_alloc*/
+  __pyx_tp_new_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, /*tp_new*/
+  0, /*tp_free*/
+  0, /*tp_is_gc*/
+  0, /*tp_bases*/
+  0, /*tp_mro*/
+  0, /*tp_cache*/
+  0, /*tp_subclasses*/
+  0, /*tp_weaklist*/
+  0, /*tp_del*/
+  0, /*tp_version_tag*/
+  #if CYTHON_USE_TP_FINALIZE
+  0, /*tp_finalize*/
+  #else
+  NULL, /*tp_finalize*/
+  #endif
+  #if (!CYTHON_COMPILING_IN_PYPY || PYPY_VERSION_NUM >= 0x07030800) && (!CYTHON_COMPILING_IN_LIMITED_API || __PYX_LIMITED_VERSION_HEX >= 0x030E0000)
+  #if CYTHON_VECTORCALL_TPNEW
+  __pyx_tp_vectorcall_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr, /*tp_vectorcall*/
+  #else
+  NULL, /*tp_vectorcall*/
+  #endif
+  #endif
+  #if __PYX_NEED_TP_PRINT_SLOT == 1
+  0, /*tp_print*/
+  #endif
+  #if PY_VERSION_HEX >= 0x030C0000
+  0, /*tp_watched*/
+  #endif
+  #if PY_VERSION_HEX >= 0x030d00A4
+  0, /*tp_versions_used*/
+  #endif
+  #if CYTHON_COMPILING_IN_PYPY && PY_VERSION_HEX < 0x030a0000
+  0, /*tp_pypy_flags*/
+  #endif
+};
+#endif
+
 static PyMethodDef __pyx_methods[] = {
   {0, 0, 0, 0}
 };
@@ -9011,6 +11023,8 @@ static CYTHON_SMALL_CODE int __Pyx_modinit_Function_export_code(__pyx_mstatetype
 static CYTHON_SMALL_CODE int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind(__pyx_mstatetype *__pyx_mstate); /*proto*/
 static CYTHON_SMALL_CODE int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr(__pyx_mstatetype *__pyx_mstate); /*proto*/
 static CYTHON_SMALL_CODE int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr(__pyx_mstatetype *__pyx_mstate); /*proto*/
+static CYTHON_SMALL_CODE int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(__pyx_mstatetype *__pyx_mstate); /*proto*/
+static CYTHON_SMALL_CODE int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(__pyx_mstatetype *__pyx_mstate); /*proto*/
 static CYTHON_SMALL_CODE int __Pyx_modinit_Type_import_code(__pyx_mstatetype *__pyx_mstate); /*proto*/
 static CYTHON_SMALL_CODE int __Pyx_modinit_Variable_import_code(__pyx_mstatetype *__pyx_mstate); /*proto*/
 static CYTHON_SMALL_CODE int __Pyx_modinit_Function_import_code(__pyx_mstatetype *__pyx_mstate); /*proto*/
@@ -9032,7 +11046,13 @@ static int __Pyx_modinit_Global_init_code(__pyx_mstatetype *__pyx_mstate) {
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__vector_cls = Py_None; Py_INCREF(Py_None);
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__counts_cls = Py_None; Py_INCREF(Py_None);
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots = ((PyObject*)Py_None); Py_INCREF(Py_None);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls = Py_None; Py_INCREF(Py_None);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot = Py_None; Py_INCREF(Py_None);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot = Py_None; Py_INCREF(Py_None);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot = Py_None; Py_INCREF(Py_None);
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__no_args = ((PyObject*)Py_None); Py_INCREF(Py_None);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head = ((PyObject*)Py_None); Py_INCREF(Py_None);
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table = ((PyObject*)Py_None); Py_INCREF(Py_None);
   __Pyx_RefNannyFinishContext();
   return 0;
 }
@@ -9064,14 +11084,14 @@ static int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compi
   __Pyx_RefNannySetupContext("__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind", 0);
   /*--- Exttype __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind ---*/
   #if CYTHON_USE_TYPE_SPECS
-  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind)) __PYX_ERR(0, 184, __pyx_L1_error)
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind)) __PYX_ERR(0, 228, __pyx_L1_error)
   #else
   __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind = &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind;
   #endif
   #if !CYTHON_COMPILING_IN_LIMITED_API
   #endif
   #if !CYTHON_USE_TYPE_SPECS
-  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind) < (0)) __PYX_ERR(0, 184, __pyx_L1_error)
+  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind) < (0)) __PYX_ERR(0, 228, __pyx_L1_error)
   #endif
   #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
   PyUnstable_Object_EnableDeferredRefcount((PyObject*)__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind);
@@ -9097,14 +11117,14 @@ static int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compi
   __Pyx_RefNannySetupContext("__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr", 0);
   /*--- Exttype __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr ---*/
   #if CYTHON_USE_TYPE_SPECS
-  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr)) __PYX_ERR(0, 215, __pyx_L1_error)
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr)) __PYX_ERR(0, 262, __pyx_L1_error)
   #else
   __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr = &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr;
   #endif
   #if !CYTHON_COMPILING_IN_LIMITED_API
   #endif
   #if !CYTHON_USE_TYPE_SPECS
-  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr) < (0)) __PYX_ERR(0, 215, __pyx_L1_error)
+  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr) < (0)) __PYX_ERR(0, 262, __pyx_L1_error)
   #endif
   #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
   PyUnstable_Object_EnableDeferredRefcount((PyObject*)__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr);
@@ -9130,14 +11150,14 @@ static int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compi
   __Pyx_RefNannySetupContext("__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr", 0);
   /*--- Exttype __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr ---*/
   #if CYTHON_USE_TYPE_SPECS
-  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr)) __PYX_ERR(0, 216, __pyx_L1_error)
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr)) __PYX_ERR(0, 263, __pyx_L1_error)
   #else
   __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr = &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr;
   #endif
   #if !CYTHON_COMPILING_IN_LIMITED_API
   #endif
   #if !CYTHON_USE_TYPE_SPECS
-  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr) < (0)) __PYX_ERR(0, 216, __pyx_L1_error)
+  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr) < (0)) __PYX_ERR(0, 263, __pyx_L1_error)
   #endif
   #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
   PyUnstable_Object_EnableDeferredRefcount((PyObject*)__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr);
@@ -9145,6 +11165,72 @@ static int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compi
   #if !CYTHON_COMPILING_IN_LIMITED_API
   if ((CYTHON_USE_TYPE_SLOTS && CYTHON_USE_PYTYPE_LOOKUP) && likely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr->tp_dictoffset && __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr->tp_getattro == PyObject_GenericGetAttr)) {
     __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr->tp_getattro = PyObject_GenericGetAttr;
+  }
+  #endif
+  __Pyx_RefNannyFinishContext();
+  return 0;
+  __pyx_L1_error:;
+  __Pyx_RefNannyFinishContext();
+  return -1;
+}
+
+static int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(__pyx_mstatetype *__pyx_mstate) {
+  __Pyx_RefNannyDeclarations
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  CYTHON_UNUSED_VAR(__pyx_mstate);
+  __Pyx_RefNannySetupContext("__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr", 0);
+  /*--- Exttype __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr ---*/
+  #if CYTHON_USE_TYPE_SPECS
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr)) __PYX_ERR(0, 266, __pyx_L1_error)
+  #else
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr = &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr;
+  #endif
+  #if !CYTHON_COMPILING_IN_LIMITED_API
+  #endif
+  #if !CYTHON_USE_TYPE_SPECS
+  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr) < (0)) __PYX_ERR(0, 266, __pyx_L1_error)
+  #endif
+  #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
+  PyUnstable_Object_EnableDeferredRefcount((PyObject*)__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr);
+  #endif
+  #if !CYTHON_COMPILING_IN_LIMITED_API
+  if ((CYTHON_USE_TYPE_SLOTS && CYTHON_USE_PYTYPE_LOOKUP) && likely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr->tp_dictoffset && __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr->tp_getattro == PyObject_GenericGetAttr)) {
+    __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr->tp_getattro = PyObject_GenericGetAttr;
+  }
+  #endif
+  __Pyx_RefNannyFinishContext();
+  return 0;
+  __pyx_L1_error:;
+  __Pyx_RefNannyFinishContext();
+  return -1;
+}
+
+static int __Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(__pyx_mstatetype *__pyx_mstate) {
+  __Pyx_RefNannyDeclarations
+  int __pyx_lineno = 0;
+  const char *__pyx_filename = NULL;
+  int __pyx_clineno = 0;
+  CYTHON_UNUSED_VAR(__pyx_mstate);
+  __Pyx_RefNannySetupContext("__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr", 0);
+  /*--- Exttype __pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr ---*/
+  #if CYTHON_USE_TYPE_SPECS
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr = (PyTypeObject *) __Pyx_PyType_FromModuleAndSpec(__pyx_m, &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr_spec, NULL); if (unlikely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr)) __PYX_ERR(0, 268, __pyx_L1_error)
+  #else
+  __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr = &__pyx_type_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr;
+  #endif
+  #if !CYTHON_COMPILING_IN_LIMITED_API
+  #endif
+  #if !CYTHON_USE_TYPE_SPECS
+  if (__Pyx_PyType_Ready(__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr) < (0)) __PYX_ERR(0, 268, __pyx_L1_error)
+  #endif
+  #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
+  PyUnstable_Object_EnableDeferredRefcount((PyObject*)__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr);
+  #endif
+  #if !CYTHON_COMPILING_IN_LIMITED_API
+  if ((CYTHON_USE_TYPE_SLOTS && CYTHON_USE_PYTYPE_LOOKUP) && likely(!__pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr->tp_dictoffset && __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr->tp_getattro == PyObject_GenericGetAttr)) {
+    __pyx_mstate->__pyx_ptype_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr->tp_getattro = PyObject_GenericGetAttr;
   }
   #endif
   __Pyx_RefNannyFinishContext();
@@ -9478,13 +11564,15 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   if (unlikely((__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct__bind(__pyx_mstate) < 0))) __PYX_ERR(0, 1, __pyx_L1_error)
   if (unlikely((__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_1_genexpr(__pyx_mstate) < 0))) __PYX_ERR(0, 1, __pyx_L1_error)
   if (unlikely((__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_2_genexpr(__pyx_mstate) < 0))) __PYX_ERR(0, 1, __pyx_L1_error)
+  if (unlikely((__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_3_genexpr(__pyx_mstate) < 0))) __PYX_ERR(0, 1, __pyx_L1_error)
+  if (unlikely((__Pyx_modinit_Exttype___pyx_obj_11chassis_sdk_7devices_5board_9_compiled___pyx_scope_struct_4_genexpr(__pyx_mstate) < 0))) __PYX_ERR(0, 1, __pyx_L1_error)
   if (unlikely((__Pyx_modinit_Type_import_code(__pyx_mstate) < 0))) __PYX_ERR(0, 1, __pyx_L1_error)
   (void)__Pyx_modinit_Variable_import_code(__pyx_mstate);
   (void)__Pyx_modinit_Function_import_code(__pyx_mstate);
   if (__Pyx_InitAfterSharedUtility() < (0)) __PYX_ERR(0, 1, __pyx_L1_error)
   /*--- Execution code ---*/
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":168
+  /* "chassis_sdk/devices/board/_compiled.pyx":198
  * 
  * # The pure code's objects, set by bind().
  * cdef object _decoder_cls = None  # BoardDecoder             # <<<<<<<<<<<<<<
@@ -9496,7 +11584,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__decoder_cls, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":169
+  /* "chassis_sdk/devices/board/_compiled.pyx":199
  * # The pure code's objects, set by bind().
  * cdef object _decoder_cls = None  # BoardDecoder
  * cdef object _command_cls = None  # BoardCommandDecoder             # <<<<<<<<<<<<<<
@@ -9508,7 +11596,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__command_cls, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":170
+  /* "chassis_sdk/devices/board/_compiled.pyx":200
  * cdef object _decoder_cls = None  # BoardDecoder
  * cdef object _command_cls = None  # BoardCommandDecoder
  * cdef object _pure_feed = None  # FrameDecoder.feed             # <<<<<<<<<<<<<<
@@ -9520,7 +11608,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__pure_feed, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":171
+  /* "chassis_sdk/devices/board/_compiled.pyx":201
  * cdef object _command_cls = None  # BoardCommandDecoder
  * cdef object _pure_feed = None  # FrameDecoder.feed
  * cdef object _try_frame = None  # _ProtocolBDecoder._try_frame             # <<<<<<<<<<<<<<
@@ -9532,7 +11620,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__try_frame, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":172
+  /* "chassis_sdk/devices/board/_compiled.pyx":202
  * cdef object _pure_feed = None  # FrameDecoder.feed
  * cdef object _try_frame = None  # _ProtocolBDecoder._try_frame
  * cdef object _swallows = None  # _ProtocolBDecoder._swallows_a_head             # <<<<<<<<<<<<<<
@@ -9544,7 +11632,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__swallows, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":173
+  /* "chassis_sdk/devices/board/_compiled.pyx":203
  * cdef object _try_frame = None  # _ProtocolBDecoder._try_frame
  * cdef object _swallows = None  # _ProtocolBDecoder._swallows_a_head
  * cdef object _parse_imu = None             # <<<<<<<<<<<<<<
@@ -9556,7 +11644,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__parse_imu, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":174
+  /* "chassis_sdk/devices/board/_compiled.pyx":204
  * cdef object _swallows = None  # _ProtocolBDecoder._swallows_a_head
  * cdef object _parse_imu = None
  * cdef object _imu_cls = None  # ImuSample             # <<<<<<<<<<<<<<
@@ -9568,7 +11656,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__imu_cls, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":175
+  /* "chassis_sdk/devices/board/_compiled.pyx":205
  * cdef object _parse_imu = None
  * cdef object _imu_cls = None  # ImuSample
  * cdef object _vector_cls = None  # Vector3             # <<<<<<<<<<<<<<
@@ -9580,7 +11668,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__vector_cls, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":176
+  /* "chassis_sdk/devices/board/_compiled.pyx":206
  * cdef object _imu_cls = None  # ImuSample
  * cdef object _vector_cls = None  # Vector3
  * cdef object _counts_cls = None  # ImuCounts             # <<<<<<<<<<<<<<
@@ -9592,7 +11680,7 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__counts_cls, Py_None);
   __Pyx_GIVEREF(Py_None);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":177
+  /* "chassis_sdk/devices/board/_compiled.pyx":207
  * cdef object _vector_cls = None  # Vector3
  * cdef object _counts_cls = None  # ImuCounts
  * cdef double _accel = 1.0  # ACCEL_SCALE             # <<<<<<<<<<<<<<
@@ -9601,30 +11689,87 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
 */
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__accel = 1.0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":178
+  /* "chassis_sdk/devices/board/_compiled.pyx":208
  * cdef object _counts_cls = None  # ImuCounts
  * cdef double _accel = 1.0  # ACCEL_SCALE
  * cdef double _gyro = 1.0  # GYRO_SCALE             # <<<<<<<<<<<<<<
  * cdef tuple _slots = ()  # ImuSample's slot descriptors, in field order
- * cdef tuple _no_args = ()
+ * cdef object _stats_cls = None  # DecoderStats, and its counters' slot descriptors
 */
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__gyro = 1.0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":179
+  /* "chassis_sdk/devices/board/_compiled.pyx":209
  * cdef double _accel = 1.0  # ACCEL_SCALE
  * cdef double _gyro = 1.0  # GYRO_SCALE
  * cdef tuple _slots = ()  # ImuSample's slot descriptors, in field order             # <<<<<<<<<<<<<<
- * cdef tuple _no_args = ()
- * cdef bint _bound = False
+ * cdef object _stats_cls = None  # DecoderStats, and its counters' slot descriptors
+ * cdef object _received_slot = None
 */
   __Pyx_INCREF(__pyx_mstate_global->__pyx_empty_tuple);
   __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__slots, __pyx_mstate_global->__pyx_empty_tuple);
   __Pyx_GIVEREF(__pyx_mstate_global->__pyx_empty_tuple);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":180
+  /* "chassis_sdk/devices/board/_compiled.pyx":210
  * cdef double _gyro = 1.0  # GYRO_SCALE
  * cdef tuple _slots = ()  # ImuSample's slot descriptors, in field order
+ * cdef object _stats_cls = None  # DecoderStats, and its counters' slot descriptors             # <<<<<<<<<<<<<<
+ * cdef object _received_slot = None
+ * cdef object _frames_slot = None
+*/
+  __Pyx_INCREF(Py_None);
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_cls, Py_None);
+  __Pyx_GIVEREF(Py_None);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":211
+ * cdef tuple _slots = ()  # ImuSample's slot descriptors, in field order
+ * cdef object _stats_cls = None  # DecoderStats, and its counters' slot descriptors
+ * cdef object _received_slot = None             # <<<<<<<<<<<<<<
+ * cdef object _frames_slot = None
+ * cdef object _dropped_slot = None
+*/
+  __Pyx_INCREF(Py_None);
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__received_slot, Py_None);
+  __Pyx_GIVEREF(Py_None);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":212
+ * cdef object _stats_cls = None  # DecoderStats, and its counters' slot descriptors
+ * cdef object _received_slot = None
+ * cdef object _frames_slot = None             # <<<<<<<<<<<<<<
+ * cdef object _dropped_slot = None
+ * cdef unsigned int _stats_tag = 0
+*/
+  __Pyx_INCREF(Py_None);
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__frames_slot, Py_None);
+  __Pyx_GIVEREF(Py_None);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":213
+ * cdef object _received_slot = None
+ * cdef object _frames_slot = None
+ * cdef object _dropped_slot = None             # <<<<<<<<<<<<<<
+ * cdef unsigned int _stats_tag = 0
+ * cdef tuple _no_args = ()
+*/
+  __Pyx_INCREF(Py_None);
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__dropped_slot, Py_None);
+  __Pyx_GIVEREF(Py_None);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":214
+ * cdef object _frames_slot = None
+ * cdef object _dropped_slot = None
+ * cdef unsigned int _stats_tag = 0             # <<<<<<<<<<<<<<
+ * cdef tuple _no_args = ()
+ * cdef bint _bound = False
+*/
+  __pyx_v_11chassis_sdk_7devices_5board_9_compiled__stats_tag = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":215
+ * cdef object _dropped_slot = None
+ * cdef unsigned int _stats_tag = 0
  * cdef tuple _no_args = ()             # <<<<<<<<<<<<<<
  * cdef bint _bound = False
  * 
@@ -9634,44 +11779,88 @@ __Pyx_RefNannySetupContext("PyInit__compiled", 0);
   __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__no_args, __pyx_mstate_global->__pyx_empty_tuple);
   __Pyx_GIVEREF(__pyx_mstate_global->__pyx_empty_tuple);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":181
- * cdef tuple _slots = ()  # ImuSample's slot descriptors, in field order
+  /* "chassis_sdk/devices/board/_compiled.pyx":216
+ * cdef unsigned int _stats_tag = 0
  * cdef tuple _no_args = ()
  * cdef bint _bound = False             # <<<<<<<<<<<<<<
  * 
- * 
+ * # What feed read from each decoder class (0: BoardDecoder, 1: BoardCommandDecoder) for an
 */
   __pyx_v_11chassis_sdk_7devices_5board_9_compiled__bound = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":184
+  /* "chassis_sdk/devices/board/_compiled.pyx":222
+ * # while the tag is the same, the class is as it was read, and feed skips the lookups.
+ * cdef unsigned int _class_tag[2]
+ * cdef list _class_head = [None, None]             # <<<<<<<<<<<<<<
+ * cdef list _class_table = [None, None]
+ * cdef int _class_align[2]
+*/
+  {
+    PyObject* __pyx_temp[2] = {Py_None, Py_None};
+    __pyx_t_2 = __Pyx_PyList_FromArray(__pyx_temp, 2); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 222, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+  }
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_head, ((PyObject*)__pyx_t_2));
+  __Pyx_GIVEREF(__pyx_t_2);
+  __pyx_t_2 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":223
+ * cdef unsigned int _class_tag[2]
+ * cdef list _class_head = [None, None]
+ * cdef list _class_table = [None, None]             # <<<<<<<<<<<<<<
+ * cdef int _class_align[2]
+ * _class_tag[0] = _class_tag[1] = 0
+*/
+  {
+    PyObject* __pyx_temp[2] = {Py_None, Py_None};
+    __pyx_t_2 = __Pyx_PyList_FromArray(__pyx_temp, 2); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 223, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_t_2);
+  }
+  __Pyx_XGOTREF(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table);
+  __Pyx_DECREF_SET(__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_table, ((PyObject*)__pyx_t_2));
+  __Pyx_GIVEREF(__pyx_t_2);
+  __pyx_t_2 = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":225
+ * cdef list _class_table = [None, None]
+ * cdef int _class_align[2]
+ * _class_tag[0] = _class_tag[1] = 0             # <<<<<<<<<<<<<<
+ * 
+ * 
+*/
+  (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_tag[0]) = 0;
+  (__pyx_v_11chassis_sdk_7devices_5board_9_compiled__class_tag[1]) = 0;
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":228
  * 
  * 
  * def bind(             # <<<<<<<<<<<<<<
  *     *,
  *     decoder_cls,
 */
-  __pyx_t_2 = __Pyx_CyFunction_New(&__pyx_mdef_11chassis_sdk_7devices_5board_9_compiled_1bind, 0, __pyx_mstate_global->__pyx_n_u_bind, NULL, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi, __pyx_mstate_global->__pyx_d, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[2])); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 184, __pyx_L1_error)
+  __pyx_t_2 = __Pyx_CyFunction_New(&__pyx_mdef_11chassis_sdk_7devices_5board_9_compiled_1bind, 0, __pyx_mstate_global->__pyx_n_u_bind, NULL, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi, __pyx_mstate_global->__pyx_d, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[4])); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 228, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_2);
   #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
   PyUnstable_Object_EnableDeferredRefcount(__pyx_t_2);
   #endif
-  if (PyDict_SetItem(__pyx_mstate_global->__pyx_d, __pyx_mstate_global->__pyx_n_u_bind, __pyx_t_2) < (0)) __PYX_ERR(0, 184, __pyx_L1_error)
+  if (PyDict_SetItem(__pyx_mstate_global->__pyx_d, __pyx_mstate_global->__pyx_n_u_bind, __pyx_t_2) < (0)) __PYX_ERR(0, 228, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":395
+  /* "chassis_sdk/devices/board/_compiled.pyx":470
  * 
  * 
  * def feed(self, data, timestamp=0.0):             # <<<<<<<<<<<<<<
  *     """Consume ``data`` and return every message completed by it, in wire order.
  * 
 */
-  __pyx_t_2 = __Pyx_CyFunction_New(&__pyx_mdef_11chassis_sdk_7devices_5board_9_compiled_3feed, 0, __pyx_mstate_global->__pyx_n_u_feed, NULL, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi, __pyx_mstate_global->__pyx_d, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[3])); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 395, __pyx_L1_error)
+  __pyx_t_2 = __Pyx_CyFunction_New(&__pyx_mdef_11chassis_sdk_7devices_5board_9_compiled_3feed, 0, __pyx_mstate_global->__pyx_n_u_feed, NULL, __pyx_mstate_global->__pyx_n_u_chassis_sdk_devices_board__compi, __pyx_mstate_global->__pyx_d, ((PyObject *)__pyx_mstate_global->__pyx_codeobj_tab[5])); if (unlikely(!__pyx_t_2)) __PYX_ERR(0, 470, __pyx_L1_error)
   __Pyx_GOTREF(__pyx_t_2);
   #if CYTHON_COMPILING_IN_CPYTHON && PY_VERSION_HEX >= 0x030E0000
   PyUnstable_Object_EnableDeferredRefcount(__pyx_t_2);
   #endif
-  __Pyx_CyFunction_SetDefaultsTuple(__pyx_t_2, __pyx_mstate_global->__pyx_tuple[0]);
-  if (PyDict_SetItem(__pyx_mstate_global->__pyx_d, __pyx_mstate_global->__pyx_n_u_feed, __pyx_t_2) < (0)) __PYX_ERR(0, 395, __pyx_L1_error)
+  __Pyx_CyFunction_SetDefaultsTuple(__pyx_t_2, __pyx_mstate_global->__pyx_tuple[1]);
+  if (PyDict_SetItem(__pyx_mstate_global->__pyx_d, __pyx_mstate_global->__pyx_n_u_feed, __pyx_t_2) < (0)) __PYX_ERR(0, 470, __pyx_L1_error)
   __Pyx_DECREF(__pyx_t_2); __pyx_t_2 = 0;
 
   /* "chassis_sdk/devices/board/_compiled.pyx":1
@@ -9740,7 +11929,21 @@ static int __Pyx_InitCachedConstants(__pyx_mstatetype *__pyx_mstate) {
   CYTHON_UNUSED_VAR(__pyx_mstate);
   __Pyx_RefNannySetupContext("__Pyx_InitCachedConstants", 0);
 
-  /* "chassis_sdk/devices/board/_compiled.pyx":395
+  /* "chassis_sdk/devices/board/_compiled.pyx":266
+ *         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+ *     stats_slots = tuple(
+ *         stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")             # <<<<<<<<<<<<<<
+ *     )
+ *     if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+*/
+  {
+    PyObject* __pyx_temp[3] = {__pyx_mstate_global->__pyx_n_u_bytes_received, __pyx_mstate_global->__pyx_n_u_frames, __pyx_mstate_global->__pyx_n_u_bytes_dropped};
+    __pyx_mstate_global->__pyx_tuple[0] = __Pyx_PyTuple_FromArray(__pyx_temp, 3); if (unlikely(!__pyx_mstate_global->__pyx_tuple[0])) __PYX_ERR(0, 266, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_mstate_global->__pyx_tuple[0]);
+  }
+  __Pyx_GIVEREF(__pyx_mstate_global->__pyx_tuple[0]);
+
+  /* "chassis_sdk/devices/board/_compiled.pyx":470
  * 
  * 
  * def feed(self, data, timestamp=0.0):             # <<<<<<<<<<<<<<
@@ -9749,14 +11952,14 @@ static int __Pyx_InitCachedConstants(__pyx_mstatetype *__pyx_mstate) {
 */
   {
     PyObject* __pyx_temp[1] = {((PyObject*)__pyx_mstate_global->__pyx_float_0_0)};
-    __pyx_mstate_global->__pyx_tuple[0] = __Pyx_PyTuple_FromArray(__pyx_temp, 1); if (unlikely(!__pyx_mstate_global->__pyx_tuple[0])) __PYX_ERR(0, 395, __pyx_L1_error)
-    __Pyx_GOTREF(__pyx_mstate_global->__pyx_tuple[0]);
+    __pyx_mstate_global->__pyx_tuple[1] = __Pyx_PyTuple_FromArray(__pyx_temp, 1); if (unlikely(!__pyx_mstate_global->__pyx_tuple[1])) __PYX_ERR(0, 470, __pyx_L1_error)
+    __Pyx_GOTREF(__pyx_mstate_global->__pyx_tuple[1]);
   }
-  __Pyx_GIVEREF(__pyx_mstate_global->__pyx_tuple[0]);
+  __Pyx_GIVEREF(__pyx_mstate_global->__pyx_tuple[1]);
   #if CYTHON_IMMORTAL_CONSTANTS
   {
     PyObject **table = __pyx_mstate->__pyx_tuple;
-    for (Py_ssize_t i=0; i<1; ++i) {
+    for (Py_ssize_t i=0; i<2; ++i) {
       #if PY_VERSION_HEX >= 0x030F0000
       PyUnstable_SetImmortal(table[i]);
       #elif CYTHON_COMPILING_IN_CPYTHON_FREETHREADING
@@ -9790,41 +11993,41 @@ static int __Pyx_InitConstants(__pyx_mstatetype *__pyx_mstate) {
   int __pyx_clineno = 0;
   CYTHON_UNUSED_VAR(__pyx_mstate);
   {
-    const struct { const unsigned int length: 6; } str_length_index[] = {{39},{43},{1},{39},{7},{6},{2},{9},{29},{23},{20},{20},{12},{8},{14},{8},{8},{10},{8},{12},{8},{4},{5},{13},{16},{6},{10},{11},{5},{9},{18},{5},{4},{21},{3},{13},{14},{35},{15},{15},{18},{5},{3},{11},{8},{10},{4},{11},{11},{7},{1},{4},{6},{5},{6},{7},{3},{10},{2},{2},{4},{7},{5},{4},{16},{17},{1},{4},{5},{4},{3},{1},{9},{3},{3},{9},{1},{4},{4},{10},{5},{5},{5},{6},{15},{5},{5},{9},{9},{5},{5},{6},{10},{4}};
-    const struct { const unsigned int length: 10; } bytes_length_index[] = {{227},{2},{2},{764}};
+    const struct { const unsigned int length: 6; } str_length_index[] = {{39},{43},{1},{39},{7},{6},{2},{9},{22},{29},{23},{20},{20},{12},{8},{14},{8},{8},{10},{8},{12},{8},{4},{5},{13},{16},{6},{10},{11},{5},{9},{18},{5},{4},{21},{3},{13},{14},{35},{15},{15},{18},{5},{3},{11},{8},{5},{10},{4},{11},{11},{7},{1},{10},{4},{6},{5},{6},{7},{3},{10},{2},{2},{4},{7},{5},{4},{16},{17},{1},{4},{5},{4},{3},{1},{9},{3},{3},{9},{1},{4},{4},{10},{5},{5},{5},{9},{11},{6},{15},{5},{3},{5},{9},{9},{5},{5},{6},{10},{4},{5}};
+    const struct { const unsigned int length: 11; } bytes_length_index[] = {{277},{2},{2},{2},{2},{1081}};
     #ifndef CYTHON_COMPRESS_STRINGS
       #define CYTHON_COMPRESS_STRINGS 90
     #endif
-    #if (CYTHON_COMPRESS_STRINGS) == 1 /* compression: zlib (1208 bytes) */
-static const char cstring[] = "x\332\225S\273n\033G\024\025\035R\244$*&-\331J\374H\226\226 #\016@\207\221\025\047\210\341@\266\354$H\034\204\262\344\024)\026\303\335Yr\241}qf\226\024\215\024*\247\234r\312)\267d\251\322\245K\226[\362\023\374\t\2713\244\t+]\000\362\316\353>\316=\367\254\345S+\212\231\205,\032\304\214a\327r\021CN\200(\265b\317\332\267<\037\007.\265\026n,M\002l\321\2643\363\031\372\254\027\247\372\301\266]\337a\266\375\223\323\203\007\237\332\324=}\340\342\201\357`\372\240\023#\342>\260\2358L\374\000\273\315dt\346\372\024u\002\214#m\273\216Og;\227\365\260\365\353\313\023\213:(\300\324\nS\312\254\016\266\274 F\214\352\307N\352y\230XP&\352\002^\352\277\301/q\330\301\344\020S\207\370\t\213\311\361(\301\266\375\347\350\014\376\207\032\325\037\370\214\035a\317\266Q\004m \006\257\037\360\316\326\330\363(6\047/\215\034\275\206\310\217\314\032\273i`\374#\024\232\265\237\242\340\303\236a\252\243\000\223\335\303\310\265\241o\047&\300\210\037a\233\016Q\020\304Cj\243\331#\323\r\332\214\214l\217@<r\034\034\330\246O\024\370\335\310\230\020G\014\321Q\344\370qs\221\211\"\306\010\355\370\221\253\377\315\307A\014A\364I\263\213#|\226\020\250\336\031\001\022\333%q\222`wv \330\301\376\000\273\037\315\2439\237G\323\314\243\271\230\207\323\303\316\251\275\250o\2164\rmLHL\250\023\350f\200\rF\220\203;\3109u\202\230b\047\240\020\037\242\310\265\3156\202\010H\025\247\021\243\372F\013i!&L]\354\304.&\346e\006\023\306\010\306\350\313\203(\327\220B\347=u1\353\216H<\243\247\367M\257\245\031\364\303T\307\373\014\207\364\024\343$D\201\027\023\250:#\224\206\240)\335\304\342\"\322s\212\314\016\024\000d&\t\"\024\232\t\323\0040\3044I\t\2665\016\200\030\200\004\"\027d\340b\017\245\001\323_\004\245\014\021\320\035\322\273\230\200\337\345\231\232\221\262\036\211\207\314\207*\014\205\311b\276\014TH\007(H\2611t\200Ag\206\200\201\217\207\347\205\367\337.\225\226\363b)_\253\302oZ\254\362\003\336\346\2368\224%\371wV\316\372\343B\016\227\317\047\365]\205\362b\371\234\362\006\177$\266\305\221\240\223\233\367\263F^\371\224\373\242/""\257\310\206l\345\305\n/\363\276\250\312\203\274\262\306\367\305*\334\356\253\262b\331\336\244\371\344\302y[\317\253\327\304W\262%\237J$\373:!\343-\376Rn\251e\345d\233Y;\013.\356\201\327<+\024\337\020\255\271\251\213\372\334\324Da\276\273\312!\3115\321\230\233u\336\326p\017\346;0\ne\215\311\322u\321~\177{\251\264%\320\373\345\245\322\032\337\341\210\317\253?\022;\302\225\367\324\235\314\035\357\214\273\027\355\274r\225\277\221u\271\013\220\02002\251~\001XSu\240\375\007\374\225(\211W\262\002\217\335\354\262o\376?|5\214\365Iu[\265\324\013 \261\270\306\277\027\217\027\204h\327\177\200\244\347\352s\315pM\023*O\324\375\014h\335\024\277\253\202\272>\331\375\341\242\236\257\334\020\216\274!\351\344\356\376\370\325E\341?p\312\347)\177\006}\302-\323\004\316 \025t\302\2420\020\337\210-i\316\253r[\032\302\2165\253\245\274\242\205\360Z<\222\r=\310=\240k(<\371\014\020\302\361!\214\270,\206\022}8TdY\366\247\227\213\257\362{\342\272@\242\377\321v\n%!\203\036\025\014\030M\301\364\200\374\206\374Nm\250\337\262t|06\363;\324\363\255\360O@\032\000se\262r[\227V\005\235\25217:\276x\003\262\246\300\315k\3252\2505\234T<\203\242 \263\257e[C\254j\232\037\252\276.\351\212\273\320xuS<\007\240\333@\351\266:\316@\223W\371\000\024\335\237\326\266\004\221\327@\262\005UWw\325S\320\344F\366\313\370 \257\335\202\313+\252\221\327\240d^\203\220-1\220G\300\007l\230\031\325\206\3729\333\313\360\370\307\213\356\333\343w\233\357\376\232\034\237LN^\347\267\357\350\374#\375\205\350hOK?\257\3374\204\317\263M!}k\3618\255|&\013\200\2571S\003\220\257\033k\345\325\232X\026\035\230\327\312:?\342\206\307m\321\026f\320pZ\237\254\177\251\025\264\302oi\006\364\267\003Q\377\0025\034\336\277";
-    PyObject *data = __Pyx_DecompressString(cstring, 1208, 1);
+    #if (CYTHON_COMPRESS_STRINGS) == 1 /* compression: zlib (1468 bytes) */
+static const char cstring[] = "x\332\225T\315s\323F\024\217\301\216M\342\024\2338\r\rP\344\004\310\224\316\030\334|P(\245\343\222Ph\013S\207$\014\323\203f-\255l\021Y\262\265+;\246=p\324q\217{\334\243\216>\346\310\221\243\216:\372O\310\237\320\267k\307\223\034;c\257\336jw\337{\277\217\225f\023\315\365\250\2064\342x\224bS3\021E\206\203\010\321<K\333\322,\033;&\321\246\333h\320q\260F\202\306xO\337\246-/\220\013\272n\332\006\325\365_\214\026,\330D\047\346\321\003\023\367l\003\223\007\r\017\371\346\003\335\360\332\035\333\301f\245386m\202\032\016\306\256\034\233\206M\306\221)\313\310^4\023\023\303\267;\324\363\311\023\215\266\260\366\352\365\201F\014\344`\242\265\003B\265\006\326,\307C\224\310\305F`Y\330\327\240\270\333\004\024\304\376\210_\343v\003\373;\3234\373\203\016\326\365\277\006\307\360\337\221\275\276\301\307t\017[\272\216\\\250\212(\254\236\241\030?=\313\"X\315\254\3005\344\263\215lW==3p\324~\027\265\325\263\033 \347,\246\230\310S\320\223\336\302\310\324\201\r\303\363\201\047\333\305:\351#\307\361\372DG\343E*a\353\324\037\350\226\017\347\221a`GW8\221c7]5\264\261K\021\031\270\206\355U\246\231\010\242\324\047\r\3335\345\277\362\324\361\340\020yVib\027\037w|\250\336\030@\047\272\351{\235\0166\307\023\037\033\330\356a\363\234J\225\211J\025\245Re\252\222\321\302\306\221>\255\257\246$h\353\330\367A\023\303\221`\200\r\352#\0037\220qd8\036\301\206C\340|\033\271\246\256B\027N@*/\200\004r \362\265\364\330\324g\230\230\330\360L\354\253\225q\257\226\205\200A\002\232\020\013\303T\231\320\202\363\246\342\210L 61m\016|o\314V\353a\253*\t\265\333\201\314dS\334&G\030w\332\310\261<\037\232\030\363K\332`<\211i\372\302\225\262\271*\002C\000\267\235\016\362\t`k\007\035\350\306#\235\300\307\272\354\003\232u\300\021\256\t\2560\261\205\002\207J\253\022h\324\247\252[5\310\362\343`\262\352\371p\366\242\354Ju\212\232\264\345{}jCq\212\332\235\251\013(x\225\364\220\023`5\220\036\0067*\206z6\356\367[\266\321\372\224:\335\236\311\314&\351\214\374\315\347\3417J\347\303ZX\017-\266\3033\374\357(\033u\207\251\004^\356\306\305{""\002%\351\354\047\022\226\303Gl\215\3551\022\257\334\217\312I\356\253\320f]~\211\227y5I_cwY7\371\366\366(\235\215\263\313\020\216\227\343\353\017\207\251a1I\347\302l\330ey^Kr\363\341\026\233\203S[\"+h\264\021W\236\235\030\237\213I\376\032\373\216W\371\257\034\361\256,H\303j\370\232/\213YaD\245\250\0369\047\353\260kR\025\232[d\325\311Pd\305\311P`\251It5\354\312\246\312\223a!\254K8\265I\244\266\224\330\233x\365\207\341x\025r\"\201\242r<\263\304\352\2477g2\313\014\235\316\315d\346\303;!\n\317\032JrW\303\217\274\310\357AWh\374n#DIN\326\275\262\020\276\205\207\214G\347\267\235\316\316d\026\342\374\232\250\212\027@[z>\374\221=\225\020\347\342\271\2251y2\3176+\261}\276\010\370Mq\007 \257\014\253\303\232L\364\217\332\003i\201<^\237\006\243\034\000c\2179\354)\304\205UQ\026[QJ\222\273\315\026\331.$z\t\345\326\201\372\374\"{\302\353\334R\325\377\327\336\371p\023\220\303;hWd\304\373\010%\371\022\373S\244\304\222\370\000\376\310_\347yQ\023\007\361\375\237O\352I~!),\261w\240p\241\304\236\003\237Y\336\023o\241\016L_\360uQ\224\301\357\274)\352\243\302\r\020\372\225\250\047\205\233\000\345=P9\t>\014/\017\253IA\322\3628\276\2639\254\r\353\311\302\n_\343\207b#\276\367\370d\361\244v\261G\240.\010\237C\227@\024e\212\312\336\231\014iV\223\363\217l\231\253\371\034\344\251K\261\367\245\372\231$\047=\177\310\036q\005\025t\014\373\314\342\317A\2321r\226e}\216\316&9\300\323\035]\324\177.\\gK\014\261\356\271\020.\300\047\310 ]\007^E#\030Z\314\004@\333bQ\374\021\005\n\023XqGZ5\027^\006\227\327\244!K\254\316\232\374\255\230\2176\243\177O\024\222\256\222\253,\212c\233\346\212\240V\215\201\005\276\341Ey\007A\261Qn!^\320\304e0WM6Q\236\014\262r\372k\350\047\000^\017EU\341\225@\002)\215\274k\337\003\207\000./\235\271)\324}5\331*P\006\022\357\002\3045~ \326\304~\004\246\270\032\366\340\332wG\205e\346\363kpoS\242(V\305\257\340\322\305\350\345\020\004\277\001//\211rR\200\222I\001\216,\263\036\337\003&!\240\240\365.`\377-\332\210\360\360\247\223\346\347\375/\245/\357\342\375\203\370\3400\271yK\346\037""\310\317\210<m\311\373\237\024W\224T\223l\312.\323\305Q\356:OA\177\345s\327o\036nf\276\300fY\203\253{\270\027*\005\326\200R4!Rm)\305\245\273\242.<P \017\327<\311\337\002\022\274\350\035@\2300-*\340\353\013D\363\212\374\032J\177u\047\251\200\361\333\362\376^\to(\237\247\344\235\256\376\007\263\274\205\344";
+    PyObject *data = __Pyx_DecompressString(cstring, 1468, 1);
     #define __Pyx_DecompressString_LZSS_UNUSED
     if (unlikely(!data)) __PYX_ERR(0, 1, __pyx_L1_error)
     const char* const bytes = __Pyx_PyBytes_AsString(data);
     #if !CYTHON_ASSUME_SAFE_MACROS
     if (likely(bytes)); else { Py_DECREF(data); __PYX_ERR(0, 1, __pyx_L1_error) }
     #endif
-    #elif (CYTHON_COMPRESS_STRINGS) > 0 && (CYTHON_COMPRESS_STRINGS) <= 90 /* compression: lzss (1547 bytes) */
-static const char cstring[] = "\377 is not \377a slotte\377d datacl\377ass of 5\177 fields\035\007\377tuple su\375b\036\003withou\376<\001__dict_\357_?ch:\000is_\377sdk/devi\377ces/boar\377d/_compi\377led.pyxd\377isableen\336\002\001gcis\004\003dt\377he IMU s\377cales mu\377st be fl\357oats\031\001bufofer d\000ng\255\000\377sizeMemb\377erDescri\377ptorType___Pyx\001\000D\222\001\377NextRef_7_an\353\000at\033\000\250\005\276\262\003offse\273\000_\377_func___\337_main\003\002od\273ul+\002nam3\002qwual\004\005tes2\001~\221\000_head_\365\000\367cor\217 ine_\377swallows\353_a\027\003t\355\001_tr\357y_frI\000acc\367el_\343\002alig\375n\000\002mentas\277yncio.A\006s\377attrsbin\275d\000\001.<lo\232 s\377>.genexp\355r\217 by\207\000_dr\337opped\007\003re\277ceived\205H.\352\211D.\213B.\207Fche\347ck_w\006\n\002sum\377_errorsc\371l\311\001\213 trace\377backclos\357ecls\315@man\313d_\006\002n/\000k\000ou\307nts\016\001\305a\304fes\177decoder\025\002\254\241\003\304@ed\332cf3\000d\372\220\"s\315\004getgy{ro\231#h0h1\333!\367imuh\001item\377skeepmal\277formed\313#s\221m\321`\306!\010\006n\260A\264As\376\246 toutppa\257rse_F\000p\250 o\377spure_fe\277edssel\200`n\375d\204`defaul}t\216\205\001sstar\365`\302\371`s\326`%\000\306K\316Bth\277rowtim\211`a\373mp\327Ftypes\337value\000\002sv\357ecto\374\002vie\377w\200\001\3602\000\005\006\277\330\004\005\330\013\014\000\000\340\377\004\014\210A\210Q\210f\377\220D\230\005\230[\250\007\337\250q\260\001\330\022\000E\320\377\021&\240a\330\004\007\200\377s\210!\2107\220#\220\377R\220s\320\032*\250!\377\330\010\016\210i\220q\230\377\002\230!\2301\330\004\010\377\210\007\210q\220\014\230A\177\330\010\013\2105\220\n\023\000\3775\240\007\240t\2503\320\377.>\270c\300\021\330\014\377\022\220)\2301\230B\230\367a\230qM\001t\2101\210\377M\230\027\240\006\240c\250\177\024\250Q\250l\270\047#\000\314O\004z\000\023\220T\000\000\002\021\220w\021\330\004\000\002\020\220\001\003\004\373\017\210B\000\022\220!\330\004\356\000\002\r\210Q\253\001A\330\004\374\005\002\014\000\240a\250!\320""\000\377\025\220Q\360\034\000\005\027\377\220a\360\006\000\005\013\210\357$\210a\210w\0047\220$\377\220d\230\047\240\035\250d\377\260$\260g\270Q\330\010\177\017\210z\230\021\230&\220\000\335a\217 \320\014\036\251\000u\240\376R\000\007\200v\210S\220\005o\220S\230\010\255\000g\250\036\013\370\246 \003&\203\001\r\320\014#\240\3671\240F\302 \004\013\2108\323\220<\210&\177\001|\242 E\240\365\031\336!\020\315!\230U\240*\375\250\324 \024\220L\240\001\240\377\025\320&9\270\021\330\t\377\026\220c\230\026\230s\320?\"5\260S\270\001\256\n\252A\047u\210C\236 \316\000t\302!\271\003\336#\000\020\220\004\220\312\002z\220{\027\230\013\002\n\230#\230\270 w\r\210T\341!\005\330\010\205a\357V\2207\230\336@\013\2103>\254 w\220f\230C\260@\325@\3754\340@\007\220w\230a\330~\006\004\010\230\007\230q\340\254)\377\330\004\n\210\047\220\025\220\327a\220q\000\010\340\276`q\330Y\010\254A\264`a\340\271`h\372 \377!\2306\240\023\240K\250\257u\260A\260\273BD\334A\010\363\210\003\230`\310@\t\320\t\034fw\001\240\001R\001\350@\n\210\355@\353\016\210\232@\026^\000u\230A\327\230V\240\371`\005\211\003u\220\271Cr\000\344`+\230Q\237\001\014\366\343!4\240u\000\016\210d\220\275\"\366\000\014\024\220E\336@#\376\320 #\240T\250\021\330\014\377\017\210v\220R\220q\340\377\020\027\220r\230\022\2305\376\337 \021\240\"\240B\240c\377\250\023\250H\260A\330\020}\033\022\000\002\240!\330\020p\000\377\330\020\021\330\014\027\220v\257\230R\230q\005\001t\246B\023\377\240G\2503\250e\260;\377\270g\300T\310\024\310W\377\320TU\320UV\330\034\245\035\\\001y\236\205\001:\001f\367\204\001\330S\021\032\354\"G\004\340\\\0001\024\006_\340\010\030\230\001\376`!\231\205\003\374\372 \311\205\0011\330\014\020\220\006{\220b\255@\t\r\210R\323A?\022\220#\220Q\220\222\206\002\323 \357\r\320\r\037\317\205\001\t\210\033\010\376\001\325@\323`1";
-    PyObject *data = __Pyx_DecompressString_LZSS(cstring, 1547, 1885);
+    #elif (CYTHON_COMPRESS_STRINGS) > 0 && (CYTHON_COMPRESS_STRINGS) <= 90 /* compression: lzss (1902 bytes) */
+static const char cstring[] = "\377 is not \377a slotte\377d datacl\377ass of 5\177 fields\035\007\377tuple su\375b\036\003withou\376<\001__dict_\357_?ch:\000is_\377sdk/devi\377ces/boar\377d/_compi\377led.pyxd\377isableen^\002\001gcis\004\003d\212\001\376\210\001 descri\377ptors: t\377he IMU s\377cales mu\377st be fl\357oats\031\001bufofer z\000ng\303\000\377sizeMemb\367erD>\006Type___Pyx\001\000D\250\001\377NextRef_7_an\201 at\033\000\276\005\276\310\003offse\321\000_\377_func___\337_main\003\002od\273ul+\002nam3\002qwual\004\005tes2\001~\221\000_head_\213 \367cor\245 ine_\377swallows\353_a\027\003t\203!_tr\357y_frI\000acc\367el_\343\002alig\375n\000\002mentas\277yncio.A\006s\377attrsbin\275d\000\001.<lo\232 s\377>.genexp\355r\217 by\207\000_dr\337opped\007\003re\277ceived\233H.\352\237D.\241B.\235Fche\347ck_w\006\n\002sumo_err\221@cl\311\001\376\213 traceba\377ckclosec\373ls\343@mand_\362\006\002n/\000k\000ount\305c\001\001s\023\001\340a\337fes\177decoder\025\002n\246\003ffa\277 st\332@\257feed\377cfB\000d\372\237\"s\334\004getgy{ro\250#h0h1\352!\367imuw\001item\377skeepmal\277formed\332#s\221m\366`\325!\010\006n\277A\303As\376\265 toutppa\257rse_F\000p\267 o\277spure_\204\001s\267sel\217`nd\223`d\277efault\263\205\001s\006\246\000rt\251\002\256\002\366\001\003\003\027\004\317ored\350L\361Bta\377gthrowti\335m\257`amp\375Fty\377pesvalue~\000\002svecto\235\"\377viewwhic\377h\200\001\3606\000\005\006w\330\004\005\000\000\330\013\014\000\000\377\340\004\014\210A\210Q\210\377f\220D\230\005\230[\250\277\007\250q\260\001\330\022\000E\377\320\021&\240a\330\004\007\377\200s\210!\2107\220#\377\220R\220s\320\032*\250\377!\330\010\016\210i\220q\377\230\002\230!\2301\330\004\377\022\220%\220q\330\036\037?\340\004\007\320\007\027\010\000\031\003\377\320\0300\260\001\260\021\330\377\004\010\210\007\210q\220\014\377\230A\330\010\013\2105\220\375\n3\0005\240\007\240t\250\3773\320.>\270c\300\021\377\330\014\022\220)\2301\230\337B\230a\230qm\001t\210\3771\210M\230\027\240\006\240\377c\250\024\250Q\250l\2701\047#""\000o\004\232\000\023\220t\000\000\0023\021\220^\000\000\002\020\220\263\000\n\002;\017\210B\000\022\220!\226\001\002\000w\r\210Q\313\001A\330\004\005\002\376-\002\024\220N\320\"2\260\374\030\003\307\000a\240a\250!\320\377\000\025\220Q\360\034\000\005\377\027\220a\360\n\000\005\013\337\210$\210a\210\211\005\330\010\177\017\210z\230\021\230&\223\000\376\221\"t\2103\210a\330\010\236t\001\t\r\210S|\000\010\001\340\376\033\t\360\006\000\005\r\320\014\337#\2401\240F\264 \004\013\357\2108\220<\337\001\n\320\n\375\032\267#\007\200t\2106\220\337\024\220T\230\023\375\000d\240}$\360\000\032\2601\260AE\001q{\334\"`\000\272 \230Q\330\001\005\273\340\010\333\000\2209\230!\000\020\377\320\020\"\240!\2405\250}\001\331!6\220\023\220EF\000\365Hl\000\047\370 \014\023\220:\257\230Q\230fy\002\010\000)\013\343\2104\303 =\000\254\000\240\005\240\377Y\250a\330\014\024\220L\277\240\001\240\025\240j\235`\014\377\030\230\014\240A\240U\320\377*=\270Q\330\014\r\330\357\020\025\220W\337@\020\024\220}C\227`\007\230v\240S\221\000~\014\000F\230\047\240\021\330\025\000\377J\230g\240Q\340\020\033\376\346@I\240Q\330\020\034\230\347A\230Y\336`\002\004j\260\003\357\2601\330\020\223!9\320$\3774\260A\260Q\330\r\032\377\230#\230V\2403\320&\2779\270\023\270A\330\303\n\004\237\007\200u\210C\351@\226@tn\215a\007\200v\377%\004\220\354@\277\007\200z\220\027\230\226 \020\322\361`#\275 \376@T\254a\005\330}\010\360\204\001V\2207\230!\220\204\001~\305@\210w\220f\230C\373`}\010\365\002\220\007\220w\230\332@\276\007\003\010\230\007\230q\314J\330\377\004\n\210\047\220\025\220a\373\220q\000\010\340\004\007\200q\371\330\231A\236\205\001a\340\010\016\210\377h\220d\230!\2306\240\337\023\240K\250u\317\002\004\014\373\210D\247\204\001\010\210\003\2101\337\210A\330\004\021\373@Q\220\377g\230S\240\013\2504\250\317|\2701\330A\003\330@!\240m\021\241\204\003\010\021\327@A\220\200`\347\031\230\021\200\206\001\333@\340\010\r_\320\r \240\003\332`A\214\001\375!\000\002\330\004\016\210a\340\353\004\026\230\000u\336 V\2401\244\351""\206\001\321\002u\227A\350\205\001+\221`a\354\201 \226\204\0014\240\257\000\016\210ds\220\"\260 \340@E\230\021\361 \377U\240#\240T\250\021\330\377\014\017\210v\220R\220q\377\340\020\027\220r\230\022\230\3755\376@\021\240\"\240B\240\377c\250\023\250H\260A\330\376\315@5\240\002\240!\330\020\376p\000\330\020\021\330\014\027\220\337v\230R\230q\005\001t\230\3671\230E\371\000G\2503\250\377e\260;\270g\300T\310\377\024\310W\320TU\320U/V\330\034\035\\\001y\303\207\001:\001-f\374\206\001\330\021\357AQF\005\252b\376\024\006\340\010\030\230\001\230\021\362\262@\004\263\205\001\372\205\002\013\2101\330\277\014\020\220\006\220b\347@\t\367\r\210R\215a\022\220#\220\347Q\220a\302$\036\002\024\320\024\337%\240Q\240o\323`\014\025\376\306 \014\035\230Q\230o\250\365W\300\000\010\344#\240.\260\001M\330\334*\230.\212\211\001\365\206\001q\215D\272\357 \037\237\210\001\t\210\033\343\204\002\001\003\330\004~\000";
+    PyObject *data = __Pyx_DecompressString_LZSS(cstring, 1902, 2321);
     #define __Pyx_DecompressString_UNUSED
     if (unlikely(!data)) __PYX_ERR(0, 1, __pyx_L1_error)
     const char* const bytes = __Pyx_PyBytes_AsString(data);
     #if !CYTHON_ASSUME_SAFE_MACROS
     if (likely(bytes)); else { Py_DECREF(data); __PYX_ERR(0, 1, __pyx_L1_error) }
     #endif
-    #else /* compression: none (1885 bytes) */
-static const char bytes[] = " is not a slotted dataclass of 5 fields is not a tuple subclass without a __dict__?chassis_sdk/devices/board/_compiled.pyxdisableenablegcisenabledthe IMU scales must be floatsthe buffer changed sizeMemberDescriptorType__Pyx_PyDict_NextRef__annotate____dict____dictoffset____func____main____module____name____qualname____test___buf_head_is_coroutine_swallows_a_head_table_try_frameaccel_scalealignalignmentasyncio.coroutinesattrsbindbind.<locals>.genexprbufbytes_droppedbytes_receivedchassis_sdk.devices.board._compiledcheck_alignmentchecksum_errorscline_in_tracebackcloseclscommand_clsconsumedcounts_clsdatadataclassesdecoder_clsdroppedffeedfieldsfoundframesgenexprgetgyro_scaleh0h1headimu_clsitemskeepmalformed_framesmisaligned_framesnnamenamesnextoutpparse_imupoppospure_feedsselfsendsetdefaultslotsstartstatsstoredswallows_a_headtablethrowtimestamptry_frametypesvaluevaluesvector_clsview\200\001\3602\000\005\006\330\004\005\330\013\014\330\013\014\340\004\014\210A\210Q\210f\220D\230\005\230[\250\007\250q\260\001\330\004\014\210E\320\021&\240a\330\004\007\200s\210!\2107\220#\220R\220s\320\032*\250!\330\010\016\210i\220q\230\002\230!\2301\330\004\010\210\007\210q\220\014\230A\330\010\013\2105\220\n\230!\2305\240\007\240t\2503\320.>\270c\300\021\330\014\022\220)\2301\230B\230a\230q\330\004\007\200t\2101\210M\230\027\240\006\240c\250\024\250Q\250l\270\047\300\021\330\010\016\210i\220q\230\001\330\004\023\2201\330\004\023\2201\330\004\021\220\021\330\004\021\220\021\330\004\020\220\001\330\004\021\220\021\330\004\017\210q\330\004\022\220!\330\004\022\220!\330\004\r\210Q\330\004\014\210A\330\004\r\210Q\330\004\r\210Q\240a\250!\320\000\025\220Q\360\034\000\005\027\220a\360\006\000\005\013\210$\210a\210q\330\004\007\200t\2107\220$\220d\230\047\240\035\250d\260$\260g\270Q\330\010\017\210z\230\021\230&\240\006\240a\340\004\014\320\014\036\230a\230u\240A\330\004\007\200v\210S\220\005\220S\230\010\240\006\240g\250Q\330\010\017\210z\230\021\230&\240\006\240a\330\004\014\320\014\036\230a""\230u\240A\330\004\007\200v\210S\220\005\220S\230\010\240\006\240g\250Q\330\010\017\210z\230\021\230&\240\006\240a\360\006\000\005\r\320\014#\2401\240F\250!\330\004\013\2108\220<\230q\330\004\007\200t\2101\330\010\017\210|\2301\230E\240\031\250!\330\010\020\220\014\230A\230U\240*\250A\330\010\024\220L\240\001\240\025\320&9\270\021\330\t\026\220c\230\026\230s\320\"5\260S\270\001\330\010\017\210z\230\021\230&\240\006\240a\330\004\007\200u\210C\210q\330\010\017\210t\2201\330\004\007\200v\210S\220\001\330\010\020\220\004\220A\330\004\007\200z\220\027\230\001\330\010\020\220\n\230#\230Q\330\004\r\210T\220\021\330\004\005\330\010\014\210A\210V\2207\230!\330\010\013\2103\210a\210w\220f\230C\230q\330\010\013\2104\210q\220\007\220w\230a\330\010\013\2104\210q\220\010\230\007\230q\340\010\017\210z\230\021\230&\240\006\240a\330\004\n\210\047\220\025\220a\220q\330\004\n\210\047\220\025\220a\220q\340\004\007\200q\330\010\022\220!\330\010\016\210a\340\010\016\210h\220d\230!\2306\240\023\240K\250u\260A\260Q\330\004\014\210D\220\001\330\004\010\210\003\2101\210A\330\004\t\320\t\034\230C\230q\240\001\330\004\n\210!\330\004\n\210!\330\004\016\210a\340\004\026\220a\220u\230A\230V\2401\330\004\005\330\010\013\2104\210u\220C\220q\330\014\022\220+\230Q\230a\330\010\014\320\014#\2404\240q\330\010\016\210d\220\"\220A\330\014\024\220E\230\021\230#\230U\240#\240T\250\021\330\014\017\210v\220R\220q\340\020\027\220r\230\022\2305\240\001\240\021\240\"\240B\240c\250\023\250H\260A\330\020\033\2305\240\002\240!\330\020\026\220a\330\020\021\330\014\027\220v\230R\230q\330\014\027\220t\2301\230E\240\023\240G\2503\250e\260;\270g\300T\310\024\310W\320TU\320UV\330\034\035\330\014\017\210y\230\002\230!\330\020\026\220f\230B\230a\330\021\032\230#\230Q\330\020\026\220a\330\020\021\340\020\033\2301\330\020\026\220f\230B\230a\340\010\030\230\001\230\021\230!\330\004\007\200t\2103\210a\330\010\013\2101\330\014\020\220\006\220b\230\001\330\t\r\210R\210q\330\010\022\220#\220Q\220a\330\004\007\200q\330\010\r\320""\r\037\230q\330\004\t\210\033\220C\220q\230\001\330\004\013\2101";
+    #else /* compression: none (2321 bytes) */
+static const char bytes[] = " is not a slotted dataclass of 5 fields is not a tuple subclass without a __dict__?chassis_sdk/devices/board/_compiled.pyxdisableenablegcisenablednot slot descriptors: the IMU scales must be floatsthe buffer changed sizeMemberDescriptorType__Pyx_PyDict_NextRef__annotate____dict____dictoffset____func____main____module____name____qualname____test___buf_head_is_coroutine_swallows_a_head_table_try_frameaccel_scalealignalignmentasyncio.coroutinesattrsbindbind.<locals>.genexprbufbytes_droppedbytes_receivedchassis_sdk.devices.board._compiledcheck_alignmentchecksum_errorscline_in_tracebackcloseclscommand_clsconsumedcountcounts_clsdatadataclassesdecoder_clsdroppedffast_statsfeedfieldsfoundframesgenexprgetgyro_scaleh0h1headimu_clsitemskeepmalformed_framesmisaligned_framesnnamenamesnextoutpparse_imupoppospure_feedsselfsendsetdefaultslotsstartstatsstats_clsstats_slotsstoredswallows_a_headtabletagthrowtimestamptry_frametypesvaluevaluesvector_clsviewwhich\200\001\3606\000\005\006\330\004\005\330\004\005\330\013\014\330\013\014\340\004\014\210A\210Q\210f\220D\230\005\230[\250\007\250q\260\001\330\004\014\210E\320\021&\240a\330\004\007\200s\210!\2107\220#\220R\220s\320\032*\250!\330\010\016\210i\220q\230\002\230!\2301\330\004\022\220%\220q\330\036\037\340\004\007\320\007\027\220q\330\010\016\210i\220q\320\0300\260\001\260\021\330\004\010\210\007\210q\220\014\230A\330\010\013\2105\220\n\230!\2305\240\007\240t\2503\320.>\270c\300\021\330\014\022\220)\2301\230B\230a\230q\330\004\007\200t\2101\210M\230\027\240\006\240c\250\024\250Q\250l\270\047\300\021\330\010\016\210i\220q\230\001\330\004\023\2201\330\004\023\2201\330\004\021\220\021\330\004\021\220\021\330\004\020\220\001\330\004\021\220\021\330\004\017\210q\330\004\022\220!\330\004\022\220!\330\004\r\210Q\330\004\014\210A\330\004\r\210Q\330\004\021\220\021\330\004\024\220N\320\"2\260!\330\004\r\210Q\220q\230a\240a\250!\320\000\025\220Q\360\034\000\005\027\220a\360\n\000\005\013\210$\210a\210q\330\004\007\200t\2101\330\010\017\210z""\230\021\230&\240\006\240a\330\004\007\200t\2103\210a\330\010\020\220\001\330\t\r\210S\220\001\330\010\020\220\001\340\010\017\210z\230\021\230&\240\006\240a\360\006\000\005\r\320\014#\2401\240F\250!\330\004\013\2108\220<\230q\330\004\n\320\n\032\230!\2301\330\004\007\200t\2106\220\024\220T\230\023\230B\230d\240$\240c\250\032\2601\260A\340\010\017\210{\230!\2301\330\010\020\220\014\230A\230Q\330\010\020\220\014\230A\230Q\340\010\022\220!\2209\230A\340\010\020\320\020\"\240!\2405\250\001\330\010\013\2106\220\023\220E\230\023\230H\240F\250\047\260\021\330\014\023\220:\230Q\230f\240F\250!\330\010\020\320\020\"\240!\2405\250\001\330\010\013\2106\220\023\220E\230\023\230H\240F\250\047\260\021\330\014\023\220:\230Q\230f\240F\250!\330\010\013\2104\210q\330\014\023\220<\230q\240\005\240Y\250a\330\014\024\220L\240\001\240\025\240j\260\001\330\014\030\230\014\240A\240U\320*=\270Q\330\014\r\330\020\025\220W\230A\330\020\024\220C\220q\230\007\230v\240S\250\001\330\020\024\220F\230\047\240\021\330\020\024\220J\230g\240Q\340\020\033\2301\230I\240Q\330\020\034\230A\230Y\240a\330\020\034\230A\230Y\240j\260\003\2601\330\020\032\230!\2309\320$4\260A\260Q\330\r\032\230#\230V\2403\320&9\270\023\270A\330\014\023\220:\230Q\230f\240F\250!\330\004\007\200u\210C\210q\330\010\017\210t\2201\330\004\007\200v\210S\220\001\330\010\020\220\004\220A\330\004\007\200z\220\027\230\001\330\010\020\220\n\230#\230Q\330\004\r\210T\220\021\330\004\005\330\010\014\210A\210V\2207\230!\330\010\013\2103\210a\210w\220f\230C\230q\330\010\013\2104\210q\220\007\220w\230a\330\010\013\2104\210q\220\010\230\007\230q\340\010\017\210z\230\021\230&\240\006\240a\330\004\n\210\047\220\025\220a\220q\330\004\n\210\047\220\025\220a\220q\340\004\007\200q\330\010\022\220!\330\010\016\210a\340\010\016\210h\220d\230!\2306\240\023\240K\250u\260A\260Q\330\004\014\210D\220\001\330\004\010\210\003\2101\210A\330\004\021\220\024\220Q\220g\230S\240\013\2504\250|\2701\330\004\007\200q\330\010\020\320\020!\240\021\320\"2\260!\330\010""\021\220\023\220A\220Q\330\010\031\230\021\320\032*\250\047\260\021\340\010\r\320\r \240\003\2401\240A\330\004\n\210!\330\004\n\210!\330\004\016\210a\340\004\026\220a\220u\230A\230V\2401\330\004\005\330\010\013\2104\210u\220C\220q\330\014\022\220+\230Q\230a\330\010\014\320\014#\2404\240q\330\010\016\210d\220\"\220A\330\014\024\220E\230\021\230#\230U\240#\240T\250\021\330\014\017\210v\220R\220q\340\020\027\220r\230\022\2305\240\001\240\021\240\"\240B\240c\250\023\250H\260A\330\020\033\2305\240\002\240!\330\020\026\220a\330\020\021\330\014\027\220v\230R\230q\330\014\027\220t\2301\230E\240\023\240G\2503\250e\260;\270g\300T\310\024\310W\320TU\320UV\330\034\035\330\014\017\210y\230\002\230!\330\020\026\220f\230B\230a\330\021\032\230#\230Q\330\020\026\220a\330\020\021\340\020\033\2301\330\020\026\220f\230B\230a\340\010\030\230\001\230\021\230!\330\004\007\200t\2103\210a\330\010\013\2101\330\014\020\220\006\220b\230\001\330\t\r\210R\210q\330\010\022\220#\220Q\220a\330\004\007\200q\330\010\013\2101\330\014\024\320\024%\240Q\240o\260Q\330\014\025\220Q\330\014\035\230Q\230o\250W\260A\330\010\020\320\020!\240\021\240.\260\001\330\010\021\220\023\220A\220Q\330\010\031\230\021\230.\250\007\250q\330\010\017\210q\330\004\007\200q\330\010\r\320\r\037\230q\330\004\t\210\033\220C\220q\230\001\330\004\013\2101";
     PyObject *data = NULL;
     #define __Pyx_DecompressString_UNUSED
     #define __Pyx_DecompressString_LZSS_UNUSED
     #endif
     PyObject **stringtab = __pyx_mstate->__pyx_string_tab;
     Py_ssize_t pos = 0;
-    for (int i = 0; i < 94; i++) {
+    for (int i = 0; i < 101; i++) {
       Py_ssize_t bytes_length = str_length_index[i].length;
       PyObject *string = PyUnicode_DecodeUTF8(bytes + pos, bytes_length, NULL);
-      if (likely(string) && i >= 10) PyUnicode_InternInPlace(&string);
+      if (likely(string) && i >= 11) PyUnicode_InternInPlace(&string);
       if (unlikely(!string)) {
         Py_XDECREF(data);
         __PYX_ERR(0, 1, __pyx_L1_error)
@@ -9832,8 +12035,8 @@ static const char bytes[] = " is not a slotted dataclass of 5 fields is not a tu
       stringtab[i] = string;
       pos += bytes_length;
     }
-    for (int i = 94; i < 98; i++) {
-      Py_ssize_t bytes_length = bytes_length_index[i-94].length;
+    for (int i = 101; i < 107; i++) {
+      Py_ssize_t bytes_length = bytes_length_index[i-101].length;
       PyObject *string = PyBytes_FromStringAndSize(bytes + pos, bytes_length);
       stringtab[i] = string;
       pos += bytes_length;
@@ -9843,15 +12046,15 @@ static const char bytes[] = " is not a slotted dataclass of 5 fields is not a tu
       }
     }
     Py_XDECREF(data);
-    for (Py_ssize_t i = 0; i < 98; i++) {
+    for (Py_ssize_t i = 0; i < 107; i++) {
       if (unlikely(PyObject_Hash(stringtab[i]) == -1)) {
         __PYX_ERR(0, 1, __pyx_L1_error)
       }
     }
     #if CYTHON_IMMORTAL_CONSTANTS
     {
-      PyObject **table = stringtab + 94;
-      for (Py_ssize_t i=0; i<4; ++i) {
+      PyObject **table = stringtab + 101;
+      for (Py_ssize_t i=0; i<6; ++i) {
         #if PY_VERSION_HEX >= 0x030F0000
         PyUnstable_SetImmortal(table[i]);
         #elif CYTHON_COMPILING_IN_CPYTHON_FREETHREADING
@@ -9945,24 +12148,34 @@ static int __Pyx_CreateCodeObjects(__pyx_mstatetype *__pyx_mstate) {
   PyObject* tuple_dedup_map = PyDict_New();
   if (unlikely(!tuple_dedup_map)) return -1;
   {
-    const __Pyx_PyCode_New_function_description descr = {0, 0, 0, 1, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS|CO_GENERATOR), 215};
+    const __Pyx_PyCode_New_function_description descr = {0, 0, 0, 1, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS|CO_GENERATOR), 262};
     PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_name};
     __pyx_mstate_global->__pyx_codeobj_tab[0] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_kp_b_iso88591_a, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[0])) goto bad;
   }
   {
-    const __Pyx_PyCode_New_function_description descr = {0, 0, 0, 1, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS|CO_GENERATOR), 216};
+    const __Pyx_PyCode_New_function_description descr = {0, 0, 0, 1, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS|CO_GENERATOR), 263};
     PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_s};
     __pyx_mstate_global->__pyx_codeobj_tab[1] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_kp_b_iso88591__2, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[1])) goto bad;
   }
   {
-    const __Pyx_PyCode_New_function_description descr = {0, 0, 11, 20, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS), 184};
-    PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_decoder_cls, __pyx_mstate->__pyx_n_u_command_cls, __pyx_mstate->__pyx_n_u_pure_feed, __pyx_mstate->__pyx_n_u_try_frame, __pyx_mstate->__pyx_n_u_swallows_a_head, __pyx_mstate->__pyx_n_u_parse_imu, __pyx_mstate->__pyx_n_u_imu_cls, __pyx_mstate->__pyx_n_u_vector_cls, __pyx_mstate->__pyx_n_u_counts_cls, __pyx_mstate->__pyx_n_u_accel_scale, __pyx_mstate->__pyx_n_u_gyro_scale, __pyx_mstate->__pyx_n_u_dataclasses, __pyx_mstate->__pyx_n_u_types, __pyx_mstate->__pyx_n_u_names, __pyx_mstate->__pyx_n_u_slots, __pyx_mstate->__pyx_n_u_cls, __pyx_mstate->__pyx_n_u_f, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_n_u_genexpr};
-    __pyx_mstate_global->__pyx_codeobj_tab[2] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_bind, __pyx_mstate->__pyx_kp_b_iso88591_2_AQfD_q_E_a_s_7_Rs_iq_1_q_A_5, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[2])) goto bad;
+    const __Pyx_PyCode_New_function_description descr = {0, 0, 0, 1, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS|CO_GENERATOR), 266};
+    PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_name};
+    __pyx_mstate_global->__pyx_codeobj_tab[2] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_kp_b_iso88591_a_2, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[2])) goto bad;
   }
   {
-    const __Pyx_PyCode_New_function_description descr = {3, 0, 0, 24, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS), 395};
-    PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_self, __pyx_mstate->__pyx_n_u_data, __pyx_mstate->__pyx_n_u_timestamp, __pyx_mstate->__pyx_n_u_n, __pyx_mstate->__pyx_n_u_pos, __pyx_mstate->__pyx_n_u_start, __pyx_mstate->__pyx_n_u_consumed, __pyx_mstate->__pyx_n_u_keep, __pyx_mstate->__pyx_n_u_dropped, __pyx_mstate->__pyx_n_u_h0, __pyx_mstate->__pyx_n_u_h1, __pyx_mstate->__pyx_n_u_p, __pyx_mstate->__pyx_n_u_align, __pyx_mstate->__pyx_n_u_view, __pyx_mstate->__pyx_n_u_found, __pyx_mstate->__pyx_n_u_cls, __pyx_mstate->__pyx_n_u_attrs, __pyx_mstate->__pyx_n_u_head_2, __pyx_mstate->__pyx_n_u_table_2, __pyx_mstate->__pyx_n_u_alignment, __pyx_mstate->__pyx_n_u_stored, __pyx_mstate->__pyx_n_u_buf_2, __pyx_mstate->__pyx_n_u_stats, __pyx_mstate->__pyx_n_u_out};
-    __pyx_mstate_global->__pyx_codeobj_tab[3] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_feed, __pyx_mstate->__pyx_kp_b_iso88591_Q_a_aq_t7_d_d_gQ_z_a_auA_vS_S_g, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[3])) goto bad;
+    const __Pyx_PyCode_New_function_description descr = {0, 0, 0, 1, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS|CO_GENERATOR), 268};
+    PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_s};
+    __pyx_mstate_global->__pyx_codeobj_tab[3] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_kp_b_iso88591_q, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[3])) goto bad;
+  }
+  {
+    const __Pyx_PyCode_New_function_description descr = {0, 0, 12, 24, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS), 228};
+    PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_decoder_cls, __pyx_mstate->__pyx_n_u_command_cls, __pyx_mstate->__pyx_n_u_pure_feed, __pyx_mstate->__pyx_n_u_try_frame, __pyx_mstate->__pyx_n_u_swallows_a_head, __pyx_mstate->__pyx_n_u_parse_imu, __pyx_mstate->__pyx_n_u_imu_cls, __pyx_mstate->__pyx_n_u_vector_cls, __pyx_mstate->__pyx_n_u_counts_cls, __pyx_mstate->__pyx_n_u_stats_cls, __pyx_mstate->__pyx_n_u_accel_scale, __pyx_mstate->__pyx_n_u_gyro_scale, __pyx_mstate->__pyx_n_u_dataclasses, __pyx_mstate->__pyx_n_u_types, __pyx_mstate->__pyx_n_u_names, __pyx_mstate->__pyx_n_u_slots, __pyx_mstate->__pyx_n_u_stats_slots, __pyx_mstate->__pyx_n_u_cls, __pyx_mstate->__pyx_n_u_f, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_n_u_genexpr, __pyx_mstate->__pyx_n_u_genexpr};
+    __pyx_mstate_global->__pyx_codeobj_tab[4] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_bind, __pyx_mstate->__pyx_kp_b_iso88591_6_AQfD_q_E_a_s_7_Rs_iq_1_q_q_iq, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[4])) goto bad;
+  }
+  {
+    const __Pyx_PyCode_New_function_description descr = {3, 0, 0, 28, (unsigned int)(CO_OPTIMIZED|CO_NEWLOCALS), 470};
+    PyObject* const varnames[] = {__pyx_mstate->__pyx_n_u_self, __pyx_mstate->__pyx_n_u_data, __pyx_mstate->__pyx_n_u_timestamp, __pyx_mstate->__pyx_n_u_n, __pyx_mstate->__pyx_n_u_pos, __pyx_mstate->__pyx_n_u_start, __pyx_mstate->__pyx_n_u_consumed, __pyx_mstate->__pyx_n_u_keep, __pyx_mstate->__pyx_n_u_dropped, __pyx_mstate->__pyx_n_u_h0, __pyx_mstate->__pyx_n_u_h1, __pyx_mstate->__pyx_n_u_p, __pyx_mstate->__pyx_n_u_align, __pyx_mstate->__pyx_n_u_view, __pyx_mstate->__pyx_n_u_found, __pyx_mstate->__pyx_n_u_which, __pyx_mstate->__pyx_n_u_tag, __pyx_mstate->__pyx_n_u_cls, __pyx_mstate->__pyx_n_u_attrs, __pyx_mstate->__pyx_n_u_head_2, __pyx_mstate->__pyx_n_u_table_2, __pyx_mstate->__pyx_n_u_alignment, __pyx_mstate->__pyx_n_u_stored, __pyx_mstate->__pyx_n_u_buf_2, __pyx_mstate->__pyx_n_u_stats, __pyx_mstate->__pyx_n_u_fast_stats, __pyx_mstate->__pyx_n_u_count, __pyx_mstate->__pyx_n_u_out};
+    __pyx_mstate_global->__pyx_codeobj_tab[5] = __Pyx_PyCode_New(descr, varnames, __pyx_mstate->__pyx_kp_u_chassis_sdk_devices_board__compi_2, __pyx_mstate->__pyx_n_u_feed, __pyx_mstate->__pyx_kp_b_iso88591_Q_a_aq_t1_z_a_t3a_S_z_a_1F_8_q, tuple_dedup_map); if (unlikely(!__pyx_mstate_global->__pyx_codeobj_tab[5])) goto bad;
   }
   Py_DECREF(tuple_dedup_map);
   return 0;
@@ -11351,6 +13564,63 @@ static void __Pyx_Generator_Replace_StopIteration(int in_async_gen) {
     Py_DECREF(new_exc);
 }
 
+/* FormatTypeName (used by RaiseErrorWithObjectType1) */
+#if CYTHON_COMPILING_IN_LIMITED_API && __PYX_LIMITED_VERSION_HEX < 0x030d0000
+static __Pyx_TypeName
+__Pyx_PyType_GetFullyQualifiedName(PyTypeObject* tp)
+{
+    PyObject *module = NULL, *name = NULL, *result = NULL;
+    #if __PYX_LIMITED_VERSION_HEX < 0x030b0000
+    name = __Pyx_PyObject_GetAttrStr((PyObject *)tp,
+                                               __pyx_mstate_global->__pyx_n_u_qualname);
+    #else
+    name = PyType_GetQualName(tp);
+    #endif
+    if (unlikely(name == NULL) || unlikely(!PyUnicode_Check(name))) goto bad;
+    module = __Pyx_PyObject_GetAttrStr((PyObject *)tp,
+                                               __pyx_mstate_global->__pyx_n_u_module);
+    if (unlikely(module == NULL) || unlikely(!PyUnicode_Check(module))) goto bad;
+    if (PyUnicode_CompareWithASCIIString(module, "builtins") == 0) {
+        result = name;
+        name = NULL;
+        goto done;
+    }
+    result = PyUnicode_FromFormat("%U.%U", module, name);
+    if (unlikely(result == NULL)) goto bad;
+  done:
+    Py_XDECREF(name);
+    Py_XDECREF(module);
+    return result;
+  bad:
+    PyErr_Clear();
+    if (name) {
+        result = name;
+        name = NULL;
+    } else {
+        result = __Pyx_NewRef(__pyx_mstate_global->__pyx_kp_u_);
+    }
+    goto done;
+}
+#endif
+
+/* RaiseErrorWithObjectType1 (used by RaiseUnexpectedTypeError) */
+static void __Pyx_RaiseErrorWithType1(PyObject* exc_type, const char* message, const char *arg, PyTypeObject *type_obj) {
+    __Pyx_TypeName type_name = __Pyx_PyType_GetFullyQualifiedName(type_obj);
+    #if CYTHON_COMPILING_IN_LIMITED_API && __PYX_LIMITED_VERSION_HEX < 0x030d0000
+    if (unlikely(!type_name)) return;
+    #endif
+    PyErr_Format(exc_type, message, arg, type_name);
+    __Pyx_DECREF_TypeName(type_name);
+}
+
+/* RaiseUnexpectedTypeError */
+static int __Pyx_RaiseUnexpectedTypeError(const char *expected, PyObject *obj) {
+    __Pyx_RaiseTypeErrorWithObjectType1(
+        "Expected %.42s, got " __Pyx_FMT_TYPENAME,
+        expected, obj);
+    return 0;
+}
+
 /* PyErrExceptionMatches (used by PyObjectGetAttrStrNoError) */
 #if CYTHON_FAST_THREAD_STATE
 static int __Pyx_PyErr_ExceptionMatchesTuple(PyObject *exc_type, PyObject *tuple) {
@@ -11855,61 +14125,42 @@ static CYTHON_INLINE int __Pyx_PyLong_BoolEqObjC(PyObject *op1, PyObject *op2, l
     return __Pyx_PyObject_RichCompareBool(op1, op2, Py_EQ);
 }
 
-/* FormatTypeName (used by RaiseErrorWithObjectType1) */
-#if CYTHON_COMPILING_IN_LIMITED_API && __PYX_LIMITED_VERSION_HEX < 0x030d0000
-static __Pyx_TypeName
-__Pyx_PyType_GetFullyQualifiedName(PyTypeObject* tp)
-{
-    PyObject *module = NULL, *name = NULL, *result = NULL;
-    #if __PYX_LIMITED_VERSION_HEX < 0x030b0000
-    name = __Pyx_PyObject_GetAttrStr((PyObject *)tp,
-                                               __pyx_mstate_global->__pyx_n_u_qualname);
-    #else
-    name = PyType_GetQualName(tp);
-    #endif
-    if (unlikely(name == NULL) || unlikely(!PyUnicode_Check(name))) goto bad;
-    module = __Pyx_PyObject_GetAttrStr((PyObject *)tp,
-                                               __pyx_mstate_global->__pyx_n_u_module);
-    if (unlikely(module == NULL) || unlikely(!PyUnicode_Check(module))) goto bad;
-    if (PyUnicode_CompareWithASCIIString(module, "builtins") == 0) {
-        result = name;
-        name = NULL;
-        goto done;
-    }
-    result = PyUnicode_FromFormat("%U.%U", module, name);
-    if (unlikely(result == NULL)) goto bad;
-  done:
-    Py_XDECREF(name);
-    Py_XDECREF(module);
-    return result;
-  bad:
-    PyErr_Clear();
-    if (name) {
-        result = name;
-        name = NULL;
-    } else {
-        result = __Pyx_NewRef(__pyx_mstate_global->__pyx_kp_u_);
-    }
-    goto done;
-}
-#endif
-
-/* RaiseErrorWithObjectType1 (used by RaiseUnexpectedTypeError) */
-static void __Pyx_RaiseErrorWithType1(PyObject* exc_type, const char* message, const char *arg, PyTypeObject *type_obj) {
-    __Pyx_TypeName type_name = __Pyx_PyType_GetFullyQualifiedName(type_obj);
-    #if CYTHON_COMPILING_IN_LIMITED_API && __PYX_LIMITED_VERSION_HEX < 0x030d0000
-    if (unlikely(!type_name)) return;
-    #endif
-    PyErr_Format(exc_type, message, arg, type_name);
-    __Pyx_DECREF_TypeName(type_name);
+/* RaiseTooManyValuesToUnpack */
+static CYTHON_INLINE void __Pyx_RaiseTooManyValuesError(Py_ssize_t expected) {
+    PyErr_Format(PyExc_ValueError,
+                 "too many values to unpack (expected %" CYTHON_FORMAT_SSIZE_T "d)", expected);
 }
 
-/* RaiseUnexpectedTypeError */
-static int __Pyx_RaiseUnexpectedTypeError(const char *expected, PyObject *obj) {
-    __Pyx_RaiseTypeErrorWithObjectType1(
-        "Expected %.42s, got " __Pyx_FMT_TYPENAME,
-        expected, obj);
+/* RaiseNeedMoreValuesToUnpack */
+static CYTHON_INLINE void __Pyx_RaiseNeedMoreValuesError(Py_ssize_t index) {
+    PyErr_Format(PyExc_ValueError,
+                 "need more than %" CYTHON_FORMAT_SSIZE_T "d value%.1s to unpack",
+                 index, (index == 1) ? "" : "s");
+}
+
+/* IterFinish */
+static CYTHON_INLINE int __Pyx_IterFinish(void) {
+    PyObject* exc_type;
+    __Pyx_PyThreadState_declare
+    __Pyx_PyThreadState_assign
+    exc_type = __Pyx_PyErr_CurrentExceptionType();
+    if (unlikely(exc_type)) {
+        if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration)))
+            return -1;
+        __Pyx_PyErr_Clear();
+        return 0;
+    }
     return 0;
+}
+
+/* UnpackItemEndCheck */
+static int __Pyx_IternextUnpackEndCheck(PyObject *retval, Py_ssize_t expected) {
+    if (unlikely(retval)) {
+        Py_DECREF(retval);
+        __Pyx_RaiseTooManyValuesError(expected);
+        return -1;
+    }
+    return __Pyx_IterFinish();
 }
 
 /* PyObjectCompare */
@@ -12352,44 +14603,6 @@ static CYTHON_INLINE PyObject *__Pyx_GetItemInt_Fast(PyObject *o, Py_ssize_t i,
     return __Pyx_GetItemInt_Generic_size(o, i);
 }
 
-/* RaiseTooManyValuesToUnpack */
-static CYTHON_INLINE void __Pyx_RaiseTooManyValuesError(Py_ssize_t expected) {
-    PyErr_Format(PyExc_ValueError,
-                 "too many values to unpack (expected %" CYTHON_FORMAT_SSIZE_T "d)", expected);
-}
-
-/* RaiseNeedMoreValuesToUnpack */
-static CYTHON_INLINE void __Pyx_RaiseNeedMoreValuesError(Py_ssize_t index) {
-    PyErr_Format(PyExc_ValueError,
-                 "need more than %" CYTHON_FORMAT_SSIZE_T "d value%.1s to unpack",
-                 index, (index == 1) ? "" : "s");
-}
-
-/* IterFinish */
-static CYTHON_INLINE int __Pyx_IterFinish(void) {
-    PyObject* exc_type;
-    __Pyx_PyThreadState_declare
-    __Pyx_PyThreadState_assign
-    exc_type = __Pyx_PyErr_CurrentExceptionType();
-    if (unlikely(exc_type)) {
-        if (unlikely(!__Pyx_PyErr_GivenExceptionMatches(exc_type, PyExc_StopIteration)))
-            return -1;
-        __Pyx_PyErr_Clear();
-        return 0;
-    }
-    return 0;
-}
-
-/* UnpackItemEndCheck */
-static int __Pyx_IternextUnpackEndCheck(PyObject *retval, Py_ssize_t expected) {
-    if (unlikely(retval)) {
-        Py_DECREF(retval);
-        __Pyx_RaiseTooManyValuesError(expected);
-        return -1;
-    }
-    return __Pyx_IterFinish();
-}
-
 /* PyLongBinop */
 #if !CYTHON_COMPILING_IN_PYPY
 static PyObject* __Pyx_Fallback___Pyx_PyLong_AddObjC(PyObject *op1, PyObject *op2, int inplace) {
@@ -12491,6 +14704,76 @@ static CYTHON_INLINE int __Pyx_PyObject_SetAttrStr(PyObject* obj, PyObject* attr
     return PyObject_SetAttr(obj, attr_name, value);
 }
 #endif
+
+/* SetItemInt */
+static int __Pyx_SetItemInt_Generic(PyObject *o, PyObject *j, PyObject *v) {
+    int r;
+    if (unlikely(!j)) return -1;
+    r = PyObject_SetItem(o, j, v);
+    Py_DECREF(j);
+    return r;
+}
+#if CYTHON_USE_TYPE_SLOTS && !CYTHON_COMPILING_IN_PYPY
+static CYTHON_INLINE int __Pyx_SetItemInt_Fast_mapping(PyObject *o, objobjargproc setitem, Py_ssize_t i, PyObject *value) {
+    PyObject *key = PyLong_FromSsize_t(i);
+    if (unlikely(!key)) return -1;
+    int r = setitem(o, key, value);
+    Py_DECREF(key);
+    return r;
+}
+#endif
+static CYTHON_INLINE int __Pyx_SetItemInt_Fast(PyObject *o, Py_ssize_t i, PyObject *v,
+                                               int wraparound, int boundscheck, int unsafe_shared) {
+    CYTHON_MAYBE_UNUSED_VAR(unsafe_shared);
+#if CYTHON_ASSUME_SAFE_MACROS && CYTHON_ASSUME_SAFE_SIZE && !CYTHON_AVOID_BORROWED_REFS
+    if (PyList_CheckExact(o)) {
+        Py_ssize_t n = (!wraparound) ? i : ((likely(i >= 0)) ? i : i + PyList_GET_SIZE(o));
+        if ((CYTHON_AVOID_THREAD_UNSAFE_BORROWED_REFS && !__Pyx_IS_UNIQUELY_REFERENCED(o, unsafe_shared))) {
+            Py_INCREF(v);
+            return PyList_SetItem(o, n, v);
+        } else if ((!boundscheck) || likely(__Pyx_is_valid_index(n, PyList_GET_SIZE(o)))) {
+            PyObject* old;
+            Py_INCREF(v);
+            old = PyList_GET_ITEM(o, n);
+            PyList_SET_ITEM(o, n, v);
+            Py_DECREF(old);
+            return 0;
+        }
+    } else
+#endif
+#if CYTHON_USE_TYPE_SLOTS && !CYTHON_COMPILING_IN_PYPY
+    if (PyDict_CheckExact(o)) {
+        return __Pyx_SetItemInt_Fast_mapping(o, PyDict_Type.tp_as_mapping->mp_ass_subscript, i, v);
+    } else
+    {
+        PyTypeObject *obj_type = Py_TYPE(o);
+        int seq_or_mapping = __Pyx_PyType_GetFlags(obj_type) & (Py_TPFLAGS_SEQUENCE|Py_TPFLAGS_MAPPING);
+        if (seq_or_mapping != Py_TPFLAGS_SEQUENCE) {
+            PyMappingMethods *mm = obj_type->tp_as_mapping;
+            if (mm && mm->mp_ass_subscript)
+                return __Pyx_SetItemInt_Fast_mapping(o, mm->mp_ass_subscript, i, v);
+        }
+        PySequenceMethods *sm = obj_type->tp_as_sequence;
+        if (likely(sm && sm->sq_ass_item)) {
+            if (wraparound && (i < 0) && unlikely(__Pyx_GetItemInt_wraparound(o, sm, &i) == -1))
+                return -1;
+            return sm->sq_ass_item(o, i, v);
+        }
+        if (seq_or_mapping == Py_TPFLAGS_SEQUENCE) {
+            PyMappingMethods *mm = obj_type->tp_as_mapping;
+            if (likely(mm && mm->mp_ass_subscript))
+                return __Pyx_SetItemInt_Fast_mapping(o, mm->mp_ass_subscript, i, v);
+        }
+    }
+#else
+    if (!PyMapping_Check(o)) {
+        return PySequence_SetItem(o, i, v);
+    }
+#endif
+    (void)wraparound;
+    (void)boundscheck;
+    return __Pyx_SetItemInt_Generic(o, PyLong_FromSsize_t(i), v);
+}
 
 /* SetStringIndexingError (used by GetItemIntBytes) */
 static void __Pyx_SetStringIndexingError(const char* message, int has_gil) {
@@ -15865,6 +18148,85 @@ static CYTHON_INLINE PyObject* __Pyx_PyLong_From_unsigned_int(unsigned int value
         PyObject *result = NULL, *kwds = NULL;
         PyObject *py_bytes = NULL, *order_str = NULL, *from_bytes_str = NULL;;
         py_bytes = PyBytes_FromStringAndSize((char*)bytes, sizeof(unsigned int));
+        if (!py_bytes) goto limited_bad;
+        from_bytes_str = PyUnicode_FromStringAndSize("from_bytes", 10);
+        if (!from_bytes_str) goto limited_bad;
+        order_str = PyUnicode_FromString(little ? "little" : "big");
+        if (!order_str) goto limited_bad;
+        {
+            PyObject *args[] = { (PyObject*)&PyLong_Type, py_bytes, order_str, Py_True };
+            if (!is_unsigned) {
+                PyObject *signed_str = PyUnicode_FromStringAndSize("signed", 6);
+                if (!signed_str) goto limited_bad;
+#if CYTHON_VECTORCALL
+                kwds = PyTuple_Pack(1, signed_str);
+#else
+                {
+                    PyObject *keys[] = {signed_str};
+                    PyObject *values[] = {Py_True};
+                    kwds = __Pyx_MakeKwargDict(keys, values, 1);
+                }
+#endif
+                Py_DECREF(signed_str);
+                if (unlikely(!kwds)) goto limited_bad;
+            }
+            result = __Pyx_Object_VectorcallMethodKwds(from_bytes_str, args, 3 | __Pyx_PY_VECTORCALL_ARGUMENTS_OFFSET, kwds);
+        }
+        limited_bad:
+        Py_XDECREF(kwds);
+        Py_XDECREF(order_str);
+        Py_XDECREF(py_bytes);
+        Py_XDECREF(from_bytes_str);
+        return result;
+#endif
+    }
+}
+
+/* CIntToPy */
+static CYTHON_INLINE PyObject* __Pyx_PyLong_From_int(int value) {
+#ifdef __Pyx_HAS_GCC_DIAGNOSTIC
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wconversion"
+#endif
+    const int neg_one = (int) -1, const_zero = (int) 0;
+#ifdef __Pyx_HAS_GCC_DIAGNOSTIC
+#pragma GCC diagnostic pop
+#endif
+    const int is_unsigned = neg_one > const_zero;
+    if (is_unsigned) {
+        if (sizeof(int) < sizeof(long)) {
+            return PyLong_FromLong((long) value);
+        } else if (sizeof(int) <= sizeof(unsigned long)) {
+            return PyLong_FromUnsignedLong((unsigned long) value);
+#if !CYTHON_COMPILING_IN_PYPY
+        } else if (sizeof(int) <= sizeof(unsigned PY_LONG_LONG)) {
+            return PyLong_FromUnsignedLongLong((unsigned PY_LONG_LONG) value);
+#endif
+        }
+    } else {
+        if (sizeof(int) <= sizeof(long)) {
+            return PyLong_FromLong((long) value);
+        } else if (sizeof(int) <= sizeof(PY_LONG_LONG)) {
+            return PyLong_FromLongLong((PY_LONG_LONG) value);
+        }
+    }
+    {
+        unsigned char *bytes = (unsigned char *)&value;
+#if !CYTHON_COMPILING_IN_LIMITED_API && PY_VERSION_HEX >= 0x030d00A4
+        if (is_unsigned) {
+            return PyLong_FromUnsignedNativeBytes(bytes, sizeof(value), -1);
+        } else {
+            return PyLong_FromNativeBytes(bytes, sizeof(value), -1);
+        }
+#elif !CYTHON_COMPILING_IN_LIMITED_API && PY_VERSION_HEX < 0x030d0000
+        int one = 1; int little = (int)*(unsigned char *)&one;
+        return _PyLong_FromByteArray(bytes, sizeof(int),
+                                     little, !is_unsigned);
+#else
+        int one = 1; int little = (int)*(unsigned char *)&one;
+        PyObject *result = NULL, *kwds = NULL;
+        PyObject *py_bytes = NULL, *order_str = NULL, *from_bytes_str = NULL;;
+        py_bytes = PyBytes_FromStringAndSize((char*)bytes, sizeof(int));
         if (!py_bytes) goto limited_bad;
         from_bytes_str = PyUnicode_FromStringAndSize("from_bytes", 10);
         if (!from_bytes_str) goto limited_bad;

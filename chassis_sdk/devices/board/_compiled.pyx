@@ -144,12 +144,42 @@ cdef extern from *:
     static PyObject *board_b_class_attr(PyObject *cls, PyObject *name) {
         return _PyType_Lookup((PyTypeObject *)cls, name);
     }
+    /* descriptor.__get__(obj, type(obj)): a slot's value (AttributeError if unset). */
+    static PyObject *board_b_descr_get(PyObject *descr, PyObject *obj) {
+        descrgetfunc get = Py_TYPE(descr)->tp_descr_get;
+        if (get == NULL) {
+            PyErr_SetString(PyExc_TypeError, "not a descriptor");
+            return NULL;
+        }
+        return get(descr, obj, (PyObject *)Py_TYPE(obj));
+    }
+    /* Whether a type's attributes are looked up plainly (no __getattribute__/__getattr__),
+       and set plainly (no __setattr__/__delattr__). */
+    static int board_b_plain_getattr(PyObject *type) {
+        return ((PyTypeObject *)type)->tp_getattro == PyObject_GenericGetAttr;
+    }
+    static int board_b_plain_setattr(PyObject *type) {
+        return ((PyTypeObject *)type)->tp_setattro == PyObject_GenericSetAttr;
+    }
+    /* The type's version tag: CPython resets it to 0 (invalid) whenever the type or one
+       of its bases is changed, and gives it a new, unused one at its next lookup; what
+       was read from a type holds while the tag is the same. */
+    static unsigned int board_b_type_tag(PyObject *type) {
+    #if PY_VERSION_HEX < 0x030C0000
+        if (!PyType_HasFeature((PyTypeObject *)type, Py_TPFLAGS_VALID_VERSION_TAG)) return 0;
+    #endif
+        return ((PyTypeObject *)type)->tp_version_tag;
+    }
     """
     object board_b_new_object(object cls, object no_args)
     object board_b_vector(object cls, double a, double b, double c)
     object board_b_counts(object cls, const int *counts)
     int board_b_descr_set(object descr, object obj, object value) except -1
     PyObject *board_b_class_attr(object cls, object name)
+    unsigned int board_b_type_tag(object type) noexcept
+    bint board_b_plain_getattr(object type) noexcept
+    bint board_b_plain_setattr(object type) noexcept
+    object board_b_descr_get(object descr, object obj)
     object PyObject_GenericGetDict(object obj, void *context)
 
 # _try_frame's results (core.framing's NEED_DATA and INVALID), and the frame's layout:
@@ -177,8 +207,22 @@ cdef object _counts_cls = None  # ImuCounts
 cdef double _accel = 1.0  # ACCEL_SCALE
 cdef double _gyro = 1.0  # GYRO_SCALE
 cdef tuple _slots = ()  # ImuSample's slot descriptors, in field order
+cdef object _stats_cls = None  # DecoderStats, and its counters' slot descriptors
+cdef object _received_slot = None
+cdef object _frames_slot = None
+cdef object _dropped_slot = None
+cdef unsigned int _stats_tag = 0
 cdef tuple _no_args = ()
 cdef bint _bound = False
+
+# What feed read from each decoder class (0: BoardDecoder, 1: BoardCommandDecoder) for an
+# instance with nothing of its own, and the class's version tag then (0: nothing kept):
+# while the tag is the same, the class is as it was read, and feed skips the lookups.
+cdef unsigned int _class_tag[2]
+cdef list _class_head = [None, None]
+cdef list _class_table = [None, None]
+cdef int _class_align[2]
+_class_tag[0] = _class_tag[1] = 0
 
 
 def bind(
@@ -192,6 +236,7 @@ def bind(
     imu_cls,
     vector_cls,
     counts_cls,
+    stats_cls,
     accel_scale,
     gyro_scale,
 ):
@@ -204,10 +249,12 @@ def bind(
         TypeError: ``imu_cls`` is not a slotted dataclass of five fields held in slot
             descriptors, ``vector_cls`` or ``counts_cls`` is not a tuple subclass
             without a ``__dict__`` (its instances are left untracked by the collector),
-            or a scale is not a float.
+            ``stats_cls`` does not hold its counters in slot descriptors, or a scale is
+            not a float.
     """
     global _decoder_cls, _command_cls, _pure_feed, _try_frame, _swallows, _parse_imu
     global _imu_cls, _vector_cls, _counts_cls, _accel, _gyro, _slots, _bound
+    global _stats_cls, _received_slot, _frames_slot, _dropped_slot
     import dataclasses
     import types
 
@@ -215,6 +262,11 @@ def bind(
     slots = tuple(imu_cls.__dict__.get(name) for name in names)
     if len(slots) != 5 or not all(type(s) is types.MemberDescriptorType for s in slots):
         raise TypeError(f"{imu_cls!r} is not a slotted dataclass of 5 fields")
+    stats_slots = tuple(
+        stats_cls.__dict__.get(name) for name in ("bytes_received", "frames", "bytes_dropped")
+    )
+    if not all(type(s) is types.MemberDescriptorType for s in stats_slots):
+        raise TypeError(f"not slot descriptors: {stats_slots!r}")
     for cls in (vector_cls, counts_cls):
         if not (issubclass(cls, tuple) and cls.__dictoffset__ == 0):
             raise TypeError(f"{cls!r} is not a tuple subclass without a __dict__")
@@ -232,6 +284,8 @@ def bind(
     _accel = accel_scale
     _gyro = gyro_scale
     _slots = slots
+    _stats_cls = stats_cls
+    _received_slot, _frames_slot, _dropped_slot = stats_slots
     _bound = True
 
 
@@ -383,6 +437,27 @@ cdef Py_ssize_t _try(object buf, const unsigned char *p, Py_ssize_t start, Py_ss
     return stop - start
 
 
+cdef bint _stats_plain():
+    """Whether DecoderStats is as bind found it (its counters in the slots recorded, read
+    and written plainly); checked again only when its version tag changes."""
+    global _stats_tag
+    cdef unsigned int tag = board_b_type_tag(_stats_cls)
+    if tag != 0 and tag == _stats_tag:
+        return True
+    _stats_tag = 0
+    names = _stats_cls.__dict__
+    if not (
+        board_b_plain_getattr(_stats_cls)
+        and board_b_plain_setattr(_stats_cls)
+        and names.get("bytes_received") is _received_slot
+        and names.get("frames") is _frames_slot
+        and names.get("bytes_dropped") is _dropped_slot
+    ):
+        return False
+    _stats_tag = board_b_type_tag(_stats_cls)
+    return True
+
+
 cdef object _class_value(object cls, object name, type kind):
     """What ``instance.name`` is for an instance with nothing of its own under ``name``,
     if the class holds a ``kind`` (which is no descriptor) there; else None."""
@@ -409,26 +484,52 @@ def feed(self, data, timestamp=0.0):
     cdef int align = -1
     cdef Py_buffer view
     cdef PyObject *found
+    cdef int which
+    cdef unsigned int tag
     cls = type(self)
-    if not _bound or (cls is not _decoder_cls and cls is not _command_cls):
+    if not _bound:
         return _pure_feed(self, data, timestamp)
-    # The methods the pure loop would call, as the class has them...
-    found = board_b_class_attr(cls, "_try_frame")
-    if found == NULL or <object>found is not _try_frame:
+    if cls is _decoder_cls:
+        which = 0
+    elif cls is _command_cls:
+        which = 1
+    else:
         return _pure_feed(self, data, timestamp)
-    found = board_b_class_attr(cls, "_swallows_a_head")
-    if found == NULL or <object>found is not _swallows:
-        return _pure_feed(self, data, timestamp)
-    # ...and the instance (almost always with nothing of its own: its attributes are
-    # then the class's, read without the instance).
+    # The instance (almost always with nothing of its own: its attributes are then the
+    # class's, read without the instance).
     attrs = PyObject_GenericGetDict(self, NULL)
     head = table = alignment = None
-    if not attrs:
-        head = _class_value(cls, "_head", bytes)
-        table = _class_value(cls, "_table", dict)
-        alignment = _class_value(cls, "check_alignment", bool)
-    elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
-        return _pure_feed(self, data, timestamp)
+    tag = board_b_type_tag(cls)
+    if not attrs and tag != 0 and tag == _class_tag[which]:
+        # The class is as it was read last time: the same methods and values.
+        head = _class_head[which]
+        table = _class_table[which]
+        align = _class_align[which]
+    else:
+        _class_tag[which] = 0
+        # The methods the pure loop would call, as the class has them...
+        found = board_b_class_attr(cls, "_try_frame")
+        if found == NULL or <object>found is not _try_frame:
+            return _pure_feed(self, data, timestamp)
+        found = board_b_class_attr(cls, "_swallows_a_head")
+        if found == NULL or <object>found is not _swallows:
+            return _pure_feed(self, data, timestamp)
+        if not attrs:
+            head = _class_value(cls, "_head", bytes)
+            table = _class_value(cls, "_table", dict)
+            alignment = _class_value(cls, "check_alignment", bool)
+            if (
+                head is not None
+                and len(<bytes>head) == 2
+                and table is not None
+                and alignment is not None
+            ):
+                _class_head[which] = head
+                _class_table[which] = table
+                _class_align[which] = alignment is True
+                _class_tag[which] = board_b_type_tag(cls)  # (the lookups gave it one)
+        elif "_try_frame" in attrs or "_swallows_a_head" in attrs:
+            return _pure_feed(self, data, timestamp)
     if head is None:
         head = self._head
     if table is None:
@@ -453,7 +554,13 @@ def feed(self, data, timestamp=0.0):
         buf = data if type(data) is bytes else bytes(data)
     stats = self.stats
     n = len(buf)
-    stats.bytes_received += len(data)
+    fast_stats = type(stats) is _stats_cls and _stats_plain()
+    if fast_stats:  # stats.bytes_received += len(data)
+        count = board_b_descr_get(_received_slot, stats)
+        count += len(data)
+        board_b_descr_set(_received_slot, stats, count)
+    else:
+        stats.bytes_received += len(data)
     out = []
     pos = 0
     dropped = 0
@@ -489,6 +596,15 @@ def feed(self, data, timestamp=0.0):
             del stored[:pos]
     elif pos < n:
         stored += buf[pos:]
+    if fast_stats:
+        if dropped:  # stats.bytes_dropped += dropped
+            count = board_b_descr_get(_dropped_slot, stats)
+            count += dropped
+            board_b_descr_set(_dropped_slot, stats, count)
+        count = board_b_descr_get(_frames_slot, stats)  # stats.frames += len(out)
+        count += len(out)
+        board_b_descr_set(_frames_slot, stats, count)
+        return out
     if dropped:
         stats.bytes_dropped += dropped
     stats.frames += len(out)

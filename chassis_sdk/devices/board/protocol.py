@@ -29,6 +29,7 @@ from ...core.framing import (
     INVALID,
     NEED_DATA,
     Column,
+    DecoderStats,
     FrameDecoder,
     FrameLayout,
     FrameTable,
@@ -492,6 +493,7 @@ if _compiled is not None:
         imu_cls=ImuSample,
         vector_cls=Vector3,
         counts_cls=ImuCounts,
+        stats_cls=DecoderStats,
         accel_scale=ACCEL_SCALE,
         gyro_scale=GYRO_SCALE,
     )
