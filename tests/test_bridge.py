@@ -506,3 +506,17 @@ async def test_the_bridge_command_logs_in_over_tls_and_says_when_it_cannot(
                 proc.send_signal(signal.SIGTERM)
                 await proc.wait()
         await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "OFFLINE")
+
+
+def test_bridges_spread_their_telemetry_slots_over_the_period() -> None:
+    """Bridges started together must not publish in one burst every period (a command
+    arriving then waited behind all of them: p99 6-11 ms at 50 robots in one process):
+    each topic has its own place in the period, the same every time."""
+    from chassis_sdk.integrations.mqtt_publish import PHASES, slot_phase
+
+    phases = [slot_phase(f"robots/r{i}", 0.1) for i in range(50)]
+    assert len(set(phases)) == PHASES
+    assert all(0 <= phase < 0.1 for phase in phases)
+    # No instant holds much more than its share of a fleet.
+    assert max(phases.count(phase) for phase in phases) <= 2 * 50 // PHASES
+    assert slot_phase("robots/r7", 0.1) == slot_phase("robots/r7", 0.1)

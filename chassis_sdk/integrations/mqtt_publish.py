@@ -43,6 +43,7 @@ import functools
 import json
 import logging
 import time
+import zlib
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
@@ -68,6 +69,7 @@ __all__ = [
     "connection_will",
     "epoch_now",
     "send_latest",
+    "slot_phase",
     "state_payload",
     "unwritten",
 ]
@@ -96,6 +98,25 @@ def unwritten(client: aiomqtt.Client) -> bool:
     if paho._sock is None:
         raise _not_connected(client, paho_mqtt.MQTT_ERR_NO_CONN)
     return paho.want_write()
+
+
+#: The instants in each telemetry period the bridges' slots are spread over (`slot_phase`).
+PHASES = 8
+
+
+def slot_phase(topic: str, period: float) -> float:
+    """Where in each ``period`` the bridge of ``topic`` publishes its telemetry (s):
+    one of `PHASES` evenly spaced instants, chosen by the topic.
+
+    Bridges started together (many robots in one process, or a fleet's processes after
+    a broker restart) would otherwise publish in the same instant, every period: one
+    burst of all their messages, which a command arriving then waits behind (50 robots
+    in one process: p99 command -> wire 6-11 ms). Spread over a few instants, a command
+    waits behind a few bridges at most, while the bridges of one instant still share
+    one wake-up of the process (each instant more costs a wake-up per period). The
+    phase comes from the topic, so a bridge keeps its place across restarts.
+    """
+    return zlib.crc32(topic.encode()) % PHASES / PHASES * period
 
 
 def send_latest(client: aiomqtt.Client, messages: list[tuple[str, bytes]]) -> None:
@@ -278,7 +299,7 @@ class Publisher:
             state = device.connection_state.value
             await self.publish("link", state_payload(state), qos=1, retain=True)
             period = 1.0 / bridge.rate
-            due = next_slot(anyio.current_time(), period, anyio.current_time())
+            due = anyio.current_time() + slot_phase(bridge.topic, period)
             while True:
                 # Cleared before the queues are read: whatever arrives from here on
                 # (also while publishing) wakes the wait below.
