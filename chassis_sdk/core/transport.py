@@ -294,9 +294,11 @@ class Link(asyncio.Protocol, Generic[M]):
         costs beyond the read itself (docs/figures.md). Should a transport register
         its reader again (``resume_reading``; the SDK never pauses reading), it simply
         delivers through `data_received` again; the transport removes whichever reader
-        is registered when it closes. A read that fails, or finds the device gone (readable, no
-        data), ends the link once, with that error: the reader is removed, so there is
-        no error per wake-up, and the transport is aborted.
+        is registered when it closes. A read that fails, or finds the device gone
+        (readable, no data), ends the link once, with that error: the reader is
+        removed, so there is no error per wake-up, and the transport is aborted. (The
+        first chunk is the transport's read; for the pyserial transports that is
+        `_fd_reader`, which meets the same conditions in the way they expect.)
         """
         try:
             data = os.read(cast(int, self._rfd), READ_SIZE)
