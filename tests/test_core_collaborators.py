@@ -244,6 +244,23 @@ def test_edges_come_from_the_device_table_once_per_change() -> None:
     assert str(edges.update(Flags.BUMP, Mode.IDLE, 4.0)[0]) == "docking changed: IDLE"
 
 
+def test_a_word_that_differs_only_in_an_unwatched_bit_stays_the_usual_case() -> None:
+    # A chassis under host control reports REMOTE_OFFLINE, a bit no edge watches, in
+    # every frame: the levels kept are the whole word, so after the first such frame
+    # the next ones are the usual case (nothing to build), and a caller on the read
+    # path can skip the call by comparing with ``bits`` and ``state``.
+    table = [(Flags.STOP, EventKind.ESTOP_ENGAGED, EventKind.ESTOP_RELEASED, "panel")]
+    edges = EdgeDetector(table)
+    assert edges.update(Flags.NOTE, Mode.IDLE, 1.0) == []
+    assert (edges.bits, edges.state) == (Flags.NOTE, Mode.IDLE)
+    assert edges.update(Flags.NOTE, Mode.IDLE, 2.0) == ()  # the shared "no events"
+    assert edges.update(Flags.NOTE | Flags.STOP, Mode.IDLE, 3.0) == [
+        RobotEvent(EventKind.ESTOP_ENGAGED, "panel", 3.0)
+    ]
+    assert edges.update(Flags.STOP, Mode.IDLE, 4.0) == []  # NOTE went: no edge
+    assert edges.update(Flags.STOP, Mode.IDLE, 5.0) == ()
+
+
 def test_findings_name_every_set_bit_faults_apart_from_notes() -> None:
     found = Findings()
     found.flags("status", Flags.STOP | Flags.NOTE | Flags(16), Flags.STOP | Flags.BUMP)

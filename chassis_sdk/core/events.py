@@ -118,25 +118,32 @@ class EdgeDetector:
         for bits, *_ in self._table:
             self._watched |= bits
         self._state_changed = state_changed
-        self._bits = 0  # plain int: IntFlag arithmetic costs a microsecond per operation
-        self._state: enum.Enum | None = None
+        #: The last status word (a plain int: IntFlag arithmetic costs a microsecond
+        #: per operation). With `state`, what a caller on the read
+        #: path may compare a frame's levels with first, to skip the call when, as in
+        #: nearly every frame, nothing changed.
+        self.bits = 0
+        #: The last state (``None`` before the first).
+        self.state: enum.Enum | None = None
 
     def update(self, status: int, state: enum.Enum | None, ts: float) -> Sequence[RobotEvent]:
         """The edges between the previous levels and these (usually none)."""
-        if status == self._bits and state is self._state:  # the usual case, every frame
+        if status == self.bits and state is self.state:  # the usual case, every frame
             return _NO_EVENTS
         bits = int(status)
         events: list[RobotEvent] = []
-        changed = (bits ^ self._bits) & self._watched
+        changed = (bits ^ self.bits) & self._watched
+        # Kept whole, watched bits or not: a word that differs only in a bit nobody
+        # watches (REMOTE_OFFLINE under host control) is then the usual case too.
+        self.bits = bits
         if changed:
             for mask, on, off, source in self._table:
                 if mask & changed:
                     events.append(RobotEvent(on if mask & bits else off, source, ts))
-            self._bits = bits
-        if state is not self._state:
-            if self._state is not None and self._state_changed is not None:
+        if state is not self.state:
+            if self.state is not None and self._state_changed is not None:
                 events.append(RobotEvent(self._state_changed, "", ts, state=state))
-            self._state = state
+            self.state = state
         return events
 
 

@@ -181,12 +181,18 @@ class Chassis(ChassisCommands, FromConfig):
     def _on_telemetry(self, t: Telemetry) -> None:
         # Every 0x81 (50 Hz) comes here: each call below goes straight to the code that
         # does the work, with no forwarding method in between.
+        # The usual frame (no status change, no battery threshold) calls nothing
+        # beyond the publish and the integration.
         self._telemetry.publish(t)
         ts = t.timestamp
-        for event in self._edges.update(t.status, t.docking, ts):
-            self._emit(event)
-        self._battery(t.voltage, ts)
-        if self._reports.battery_model is not None and ts - self._power_at > _POWER_FRESH:
+        edges = self._edges
+        if t.status != edges.bits or t.docking is not edges.state:
+            for event in edges.update(t.status, t.docking, ts):
+                self._emit(event)
+        reports = self._reports
+        if reports.battery_monitor.threshold is not None:
+            self._battery(t.voltage, ts)
+        if reports.battery_model is not None and ts - self._power_at > _POWER_FRESH:
             w = t.wheels
             moving = max(abs(w.front_left), abs(w.front_right), abs(w.rear_left), abs(w.rear_right))
             self._charge(t.voltage, None, ts, moving > _MOVING)
