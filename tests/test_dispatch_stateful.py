@@ -23,6 +23,7 @@ from chassis_sdk.core.dispatch import (
     LATENCY_MARGIN,
     MAX_LATENCY,
     Broadcast,
+    Listener,
     Reply,
     RequestTable,
     Subscription,
@@ -221,6 +222,7 @@ class BroadcastMachine(RuleBasedStateMachine):
     """The fan-out against a model: each subscriber a bounded deque, drop-oldest."""
 
     subs = Bundle("subs")
+    listeners = Bundle("listeners")
     MAXLEN = 4
 
     def __init__(self) -> None:
@@ -231,6 +233,20 @@ class BroadcastMachine(RuleBasedStateMachine):
         self.closed = False
         self.error: BaseException | None = None
         self.total_dropped = 0
+        self.heard: list[int] = []
+        self.listening = 0  # listeners not closed nor dropped
+
+    @rule(target=listeners)
+    def listen(self) -> Listener[int]:
+        self.listening += 1
+        return self.bc.listen(self.heard.append)
+
+    @rule(listener=consumes(listeners))
+    def unlisten(self, listener: Listener[int]) -> None:
+        # (A dropped one is let go too, but hypothesis keeps every value it made:
+        # tests/test_listeners.py drops them.)
+        listener.close()
+        self.listening -= 1
 
     @rule(target=subs)
     def subscribe(self) -> Subscription[int]:
@@ -300,7 +316,10 @@ class BroadcastMachine(RuleBasedStateMachine):
             assert len(sub._buffer) <= self.MAXLEN
             assert sub.dropped == m.dropped
         assert self.bc.dropped == self.total_dropped
-        assert len(self.bc) == sum(1 for m in self.model.values() if not m.ended)
+        live = sum(1 for m in self.model.values() if not m.ended)
+        assert len(self.bc) == live + self.listening
+        # What the read path checks on every frame before it builds a message.
+        assert self.bc.listened is (live + self.listening > 0)
 
     def teardown(self) -> None:
         self.rt.close()

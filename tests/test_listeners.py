@@ -211,6 +211,30 @@ def test_calls_count_what_each_was_called_with_from_joining_to_leaving() -> None
     assert b.stats.calls == 2  # frozen when it left
 
 
+def test_listened_says_whether_anyone_takes_the_stream_dropped_members_included() -> None:
+    # The read path reads ``listened`` on every frame to decide whether a pose is worth
+    # building: it must follow every way a member comes and goes, a member simply
+    # dropped (held weakly) included.
+    stream: Broadcast[int] = Broadcast(4)
+    assert stream.listened is False
+    listener = stream.listen(lambda item: None)
+    assert stream.listened is True
+    del listener  # collected at once (reference counting): it unlistens itself
+    assert stream.listened is False
+    sub = stream.subscribe()
+    assert stream.listened is True
+    del sub
+    assert stream.listened is False
+    raising = stream.listen(lambda item: 1 / 0)
+    stream.publish(1)  # the callback raised: removed
+    assert raising.closed
+    assert stream.listened is False
+    sub = stream.subscribe()
+    stream.fail(None)  # subscriptions end; nothing listens any more
+    assert stream.listened is False
+    assert sub is not None
+
+
 def test_a_partial_is_named_by_what_it_wraps() -> None:
     stream: Broadcast[int] = Broadcast(4)
     latest: dict[str, int] = {}

@@ -382,6 +382,7 @@ class Broadcast(Generic[T]):
         "_refs",
         "dropped",
         "latest",
+        "listened",
         "listener_errors",
         "maxlen",
         "name",
@@ -408,15 +409,13 @@ class Broadcast(Generic[T]):
         self.listener_errors = 0
         #: The latest message published, or ``None``.
         self.latest: T | None = None
+        #: Whether anyone subscribes or listens (so a message is worth building): a
+        #: plain attribute, kept by every change of the members (read on every frame).
+        self.listened = False
 
     def __len__(self) -> int:
         subs = sum(1 for ref in self._refs if ref() is not None)
         return subs + sum(1 for ref in self._listeners if ref() is not None)
-
-    @property
-    def listened(self) -> bool:
-        """Whether anyone subscribes or listens (so a message is worth building)."""
-        return bool(self._refs or self._listeners)
 
     def subscribe(self) -> Subscription[T]:
         """Return a new subscription; it receives everything published from now on.
@@ -467,11 +466,14 @@ class Broadcast(Generic[T]):
         def gone(ref: weakref.ref[Any]) -> None:
             broadcast = this()
             if broadcast is not None:
-                setattr(
-                    broadcast, where, tuple(r for r in getattr(broadcast, where) if r is not ref)
-                )
+                broadcast._set(where, tuple(r for r in getattr(broadcast, where) if r is not ref))
 
-        setattr(self, where, (*getattr(self, where), weakref.ref(member, gone)))
+        self._set(where, (*getattr(self, where), weakref.ref(member, gone)))
+
+    def _set(self, where: str, members: tuple[weakref.ref[Any], ...]) -> None:
+        """Replace the members in ``where`` (``_refs`` or ``_listeners``)."""
+        setattr(self, where, members)
+        self.listened = bool(self._refs or self._listeners)
 
     def publish(self, item: T) -> None:
         """Deliver ``item`` to every listener and subscriber (synchronous, never
@@ -514,7 +516,7 @@ class Broadcast(Generic[T]):
         self._closed = True
         self._error = error
         subs = [sub for ref in self._refs if (sub := ref()) is not None]
-        self._refs = ()
+        self._set("_refs", ())
         for sub in subs:
             # One instance each: an exception raised in several tasks would collect
             # all their tracebacks.
@@ -526,10 +528,10 @@ class Broadcast(Generic[T]):
         self._error = None
 
     def _discard(self, sub: Subscription[T]) -> None:
-        self._refs = tuple(ref for ref in self._refs if ref() is not sub)
+        self._set("_refs", tuple(ref for ref in self._refs if ref() is not sub))
 
     def _discard_listener(self, listener: Listener[T]) -> None:
-        self._listeners = tuple(ref for ref in self._listeners if ref() is not listener)
+        self._set("_listeners", tuple(ref for ref in self._listeners if ref() is not listener))
 
 
 async def first_match(
