@@ -354,7 +354,9 @@ class LinkSupervisor(Generic[M]):
         self._lost = asyncio.Event()
         self._closing = asyncio.Event()
         self._opened_at = 0.0
-        self.last_frame_time: float | None = None
+        # The link that reads now or read last, and the last frame's time before it.
+        self._reader: Link[M] | None = None
+        self._frame_before: float | None = None
         self._lost_exc: Exception | None = None
         self._runner: asyncio.Task[None] | None = None
         self._shutdown: asyncio.Future[None] | None = None
@@ -388,6 +390,15 @@ class LinkSupervisor(Generic[M]):
             self.writer.link.tap = self._tap
 
     # --- state --------------------------------------------------------------------------
+
+    @property
+    def last_frame_time(self) -> float | None:
+        """The ``time.monotonic()`` of the last chunk of bytes that held a valid frame
+        (any link so far), or ``None``."""
+        reader = self._reader
+        if reader is not None and reader.received_at is not None:
+            return reader.received_at
+        return self._frame_before
 
     @property
     def state(self) -> ConnectionState:
@@ -447,17 +458,11 @@ class LinkSupervisor(Generic[M]):
         self._lost_exc = None
         decoder, sink = self._owner.link_opening()
 
-        states = self.states
-
-        def received(messages: list[M], now: float) -> None:
-            self.last_frame_time = now
-            if states.state is ConnectionState.STALE:
-                self._log.warning("%s: frames arrive again; link restored", self.port)
-                self.states.set(ConnectionState.CONNECTED)
-            sink(messages, now)
-
         def make_link() -> Link[M]:
-            link: Link[M] = Link(decoder, received, lambda exc: self._on_lost(link, exc), self._log)
+            # The messages go straight to the sink: the link keeps the time of the last
+            # (`last_frame_time`), and `_monitor_link` puts `_restore` in between only
+            # while the link is stale.
+            link: Link[M] = Link(decoder, sink, lambda exc: self._on_lost(link, exc), self._log)
             link.tap = self._tap
             return link
 
@@ -466,6 +471,7 @@ class LinkSupervisor(Generic[M]):
             await self._close_link(link)
             return
         self.writer.link = link
+        self._frame_before, self._reader = self.last_frame_time, link
         self._opened_at = time.monotonic()
         if link.node != self.last_node:
             # A usb: port or a by-id link that reached another node than last time (a
@@ -521,8 +527,9 @@ class LinkSupervisor(Generic[M]):
                 await changed.wait()
                 continue
             last = self._opened_at
-            if self.last_frame_time is not None and self.last_frame_time > last:
-                last = self.last_frame_time
+            last_frame = self.last_frame_time
+            if last_frame is not None and last_frame > last:
+                last = last_frame
             wait = last + timeout - time.monotonic()
             if wait > 0:
                 await anyio.sleep(wait)
@@ -532,7 +539,16 @@ class LinkSupervisor(Generic[M]):
                 self.port,
                 timeout,
             )
+            link = self.writer.link
+            if link is not None:
+                link.intercept(self._restore)
             self.states.set(ConnectionState.STALE)
+
+    def _restore(self, link: Link[M]) -> None:
+        """The first frame on a stale link: it is ``CONNECTED`` again."""
+        if self.states.state is ConnectionState.STALE:
+            self._log.warning("%s: frames arrive again; link restored", self.port)
+            self.states.set(ConnectionState.CONNECTED)
 
     async def _supervise(self) -> None:
         while True:

@@ -238,6 +238,9 @@ class Link(asyncio.Protocol, Generic[M]):
         self._write_error: Exception | None = None
         self._read_error: Exception | None = None
         self._flushed: asyncio.Future[None] | None = None
+        #: The ``time.monotonic()`` of the last chunk that decoded into messages.
+        self.received_at: float | None = None
+        self._intercept: Callable[[Link[M]], None] | None = None
         #: Set by the owner once it has counted this link's losses.
         self.accounted = False
         #: Sees every byte both ways (a recorder), or ``None``.
@@ -275,6 +278,39 @@ class Link(asyncio.Protocol, Generic[M]):
             # only after connection_made.)
             self._loop.add_reader(self._rfd, self._read_ready)
             self._reading = True
+        self._read_ready(data)
+
+    def _read_ready(self, data: bytes | None = None) -> None:
+        """The link's own read callback, in place of the transport's (called with no
+        ``data``: one ``os.read``), and what `data_received` hands the transport's
+        chunks to: the chunk to the tap and the decoder, its messages on.
+
+        Every transport's read callback is Python of its own around the same
+        ``os.read`` (serialx logs twice per read at DEBUG level, the pyserial ones go
+        through ``Serial.read``), and at 50 Hz that is a good part of what a chassis
+        costs beyond the read itself (docs/figures.md), as is every call on this path:
+        one function serves both. Should a transport register its reader again
+        (``resume_reading``; the SDK never pauses reading), it simply delivers through
+        `data_received` again; the transport removes whichever reader is registered
+        when it closes. A read that fails, or finds the device gone (readable, no
+        data), ends the link once, with that error: the reader is removed, so there is
+        no error per wake-up, and the transport is aborted. (The first chunk is the
+        transport's read; for the pyserial transports that is `_fd_reader`, which meets
+        the same conditions in the way they expect.)
+        """
+        if data is None:
+            try:
+                data = os.read(cast(int, self._rfd), READ_SIZE)
+            except (BlockingIOError, InterruptedError):
+                return
+            except Exception as exc:  # whatever it is, the port is lost, once
+                self._lose_reading(exc)
+                return
+            if not data:  # what the kernel says of a tty hung up: the device has gone
+                self._lose_reading(
+                    OSError(errno.EIO, "the port reports data but has none: device disconnected?")
+                )
+                return
         now = time.monotonic()
         if self._log.isEnabledFor(logging.DEBUG):
             self._log.debug("rx %s", data.hex(" "))
@@ -282,37 +318,16 @@ class Link(asyncio.Protocol, Generic[M]):
             self.tap.rx(data, now)
         messages = self._decoder.feed(data, now)
         if messages:
+            self.received_at = now
+            if self._intercept is not None:
+                intercept, self._intercept = self._intercept, None
+                intercept(self)
             self._on_messages(messages, now)
 
-    def _read_ready(self) -> None:
-        """The link's own read callback, in place of the transport's: one ``os.read``
-        and the chunk straight to the decoder.
-
-        Every transport's read callback is Python of its own around the same
-        ``os.read`` (serialx logs twice per read at DEBUG level, the pyserial ones go
-        through ``Serial.read``), and at 50 Hz that is a good part of what a chassis
-        costs beyond the read itself (docs/figures.md). Should a transport register
-        its reader again (``resume_reading``; the SDK never pauses reading), it simply
-        delivers through `data_received` again; the transport removes whichever reader
-        is registered when it closes. A read that fails, or finds the device gone
-        (readable, no data), ends the link once, with that error: the reader is
-        removed, so there is no error per wake-up, and the transport is aborted. (The
-        first chunk is the transport's read; for the pyserial transports that is
-        `_fd_reader`, which meets the same conditions in the way they expect.)
-        """
-        try:
-            data = os.read(cast(int, self._rfd), READ_SIZE)
-        except (BlockingIOError, InterruptedError):
-            return
-        except Exception as exc:  # whatever it is, the port is lost, once
-            self._lose_reading(exc)
-            return
-        if data:
-            self.data_received(data)
-        else:  # what the kernel says of a tty hung up: the device has gone
-            self._lose_reading(
-                OSError(errno.EIO, "the port reports data but has none: device disconnected?")
-            )
+    def intercept(self, call: Callable[[Link[M]], None]) -> None:
+        """Call ``call(link)`` once, before the messages of the next chunk that holds
+        any are handed on (a stale link's first frame: see the supervisor)."""
+        self._intercept = call
 
     def _lose_reading(self, exc: Exception) -> None:
         self._read_error = exc
