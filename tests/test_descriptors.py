@@ -187,3 +187,40 @@ async def test_the_link_reads_the_port_itself_after_the_first_chunk(
         assert callers.pop(0) == "_fd_reader.<locals>.read", callers[0]
     assert len(callers) >= 10
     assert set(callers) == {"Link._read_ready"}, set(callers)
+
+
+async def test_the_rx_dump_follows_the_loggers_level_while_the_link_reads() -> None:
+    # The link asks the logger nothing per read while DEBUG is off (it reads what the
+    # logger has cached); a level set while it reads must still turn the dump on, and
+    # off again, from the next read.
+    log = logging.getLogger("chassis_sdk")
+    dumps: list[str] = []
+
+    class Dumps(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.getMessage().startswith("rx "):
+                dumps.append(record.getMessage())
+
+    handler, old = Dumps(logging.DEBUG), log.level
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    try:
+        async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+            telemetry = robot.telemetry()
+            for _ in range(5):
+                await anext(telemetry)
+            assert dumps == []
+            log.setLevel(logging.DEBUG)
+            async with asyncio.timeout(5):  # (frames read before the change may wait)
+                while not dumps:
+                    await anext(telemetry)
+            assert all(bytes.fromhex(d[3:]) for d in dumps)
+            log.setLevel(logging.INFO)
+            await anext(telemetry)
+            seen = len(dumps)
+            for _ in range(5):
+                await anext(telemetry)
+            assert len(dumps) == seen
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(old)

@@ -219,6 +219,10 @@ class Link(asyncio.Protocol, Generic[M]):
         self._on_messages = on_messages
         self._on_lost = on_lost
         self._log = logger
+        # What the logger knows of its levels (CPython's Logger._cache, emptied by every
+        # change of level or disable()): a False there is what isEnabledFor would
+        # answer, so a read asks it nothing when DEBUG is off (it is a Python call).
+        self._levels: dict[int, bool] = getattr(logger, "_cache", {})
         self._loop = asyncio.get_running_loop()
         self.transport: asyncio.WriteTransport | None = None
         self.closed = self._loop.create_future()
@@ -312,7 +316,7 @@ class Link(asyncio.Protocol, Generic[M]):
                 )
                 return
         now = time.monotonic()
-        if self._log.isEnabledFor(logging.DEBUG):
+        if self._levels.get(logging.DEBUG) is not False and self._log.isEnabledFor(logging.DEBUG):
             self._log.debug("rx %s", data.hex(" "))
         if self.tap is not None:
             self.tap.rx(data, now)
