@@ -19,7 +19,7 @@ from collections import deque
 from collections.abc import Callable, Coroutine, Hashable
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import anyio
 
@@ -73,16 +73,6 @@ class Subscription(Generic[T]):
         #: Messages dropped from this subscription's buffer because it fell behind.
         self.dropped = 0
 
-    def _push(self, item: T) -> None:
-        buffer = self._buffer
-        if len(buffer) == buffer.maxlen:
-            self.dropped += 1
-            self._broadcast.dropped += 1
-        buffer.append(item)
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
-
     def _finish(self, error: BaseException | None) -> None:
         self._ended = True
         self._error = error
@@ -99,20 +89,13 @@ class Subscription(Generic[T]):
     def __aiter__(self) -> _Iteration[T]:
         return _Iteration(self)
 
-    async def __anext__(self) -> T:
-        while True:
-            if self._buffer:
-                return self._buffer.popleft()
-            if self._ended:
-                if self._error is not None:
-                    raise self._error
-                raise StopAsyncIteration
-            waiter = asyncio.get_running_loop().create_future()
-            self._waiter = waiter
-            try:
-                await waiter
-            finally:
-                self._waiter = None
+    def __anext__(self) -> Coroutine[Any, Any, T]:
+        return _next(self)
+
+    @property
+    def _sub(self) -> Subscription[T]:
+        """Itself, as `_next` reads it (an `_Iteration`'s is its subscription)."""
+        return self
 
     async def __aenter__(self) -> Subscription[T]:
         return self
@@ -337,21 +320,45 @@ class Listener(Generic[T]):
             self._pending_max = 0.0
 
 
+async def _next(holder: Subscription[T] | _Iteration[T]) -> T:
+    """The next message of ``holder._sub``: what ``anext(subscription)`` awaits, and,
+    as `_Iteration.__anext__` itself, what every step of an ``async for`` awaits, with
+    no Python call before the coroutine (a method returning one would be a call per
+    message)."""
+    sub = holder._sub
+    while True:
+        if sub._buffer:
+            return sub._buffer.popleft()
+        if sub._ended:
+            if sub._error is not None:
+                raise sub._error
+            raise StopAsyncIteration
+        waiter = asyncio.get_running_loop().create_future()
+        sub._waiter = waiter
+        try:
+            await waiter
+        finally:
+            sub._waiter = None
+
+
 class _Iteration(Generic[T]):
     """What ``async for`` holds while it iterates a `Subscription`; when the
     loop ends, however it ends, the loop drops it and it ends the subscription."""
 
-    __slots__ = ("_next", "_sub")
+    __slots__ = ("_sub",)
 
     def __init__(self, sub: Subscription[T]) -> None:
         self._sub = sub
-        self._next = sub.__anext__
 
     def __aiter__(self) -> _Iteration[T]:
         return self
 
-    def __anext__(self) -> Coroutine[Any, Any, T]:
-        return self._next()
+    if TYPE_CHECKING:
+
+        def __anext__(self) -> Coroutine[Any, Any, T]: ...
+
+    else:
+        __anext__ = _next
 
     def __del__(self) -> None:
         self._sub.close()
@@ -505,8 +512,15 @@ class Broadcast(Generic[T]):
                         listener._timed(took, end)
         for sub_ref in self._refs:
             sub = sub_ref()
-            if sub is not None:
-                sub._push(item)
+            if sub is not None:  # into its buffer (the oldest dropped when full)
+                buffer = sub._buffer
+                if len(buffer) == buffer.maxlen:
+                    sub.dropped += 1
+                    self.dropped += 1
+                buffer.append(item)
+                waiter = sub._waiter
+                if waiter is not None and not waiter.done():
+                    waiter.set_result(None)
 
     def fail(self, error: BaseException | None) -> None:
         """End every subscription after its buffered items: with ``error`` raised, or,
