@@ -5,6 +5,7 @@ is measured, warned about once and then summarised at most every 10 s."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import logging
 import time
@@ -341,3 +342,37 @@ def test_the_listener_api_is_public() -> None:
         assert name in chassis_sdk.__all__
         assert name in chassis_sdk.core.__all__
     assert chassis_sdk.Notifier is Notifier
+
+
+# --- leaving an async for by an exception ------------------------------------------------------
+
+
+async def test_a_loop_left_by_cancellation_or_timeout_unsubscribes_at_once() -> None:
+    # "An exception unsubscribes at once" (Subscription): the traceback of a cancelled
+    # or timed-out wait keeps the waiting frame, which must not keep what the loop
+    # iterated, or the dead subscription would buffer, count drops and keep the
+    # stream "listened" (odometry built for no one) until the traceback goes.
+    stream: Broadcast[int] = Broadcast(4)
+
+    async def consume() -> None:
+        async for _ in stream.subscribe():
+            pass
+
+    task = asyncio.create_task(consume())
+    await asyncio.sleep(0)  # it waits for the first item
+    assert stream.listened is True
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task  # the task, and its exception's traceback, are still held here
+    assert len(stream) == 0
+    assert stream.listened is False
+
+    with contextlib.suppress(TimeoutError):
+        async with asyncio.timeout(0.01):
+            async for _ in stream.subscribe():
+                pass
+    assert len(stream) == 0  # before any further await
+    assert stream.listened is False
+    for item in range(10):
+        stream.publish(item)
+    assert stream.dropped == 0

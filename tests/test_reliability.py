@@ -91,6 +91,8 @@ async def test_tcp_reconnect_fails_fast_resumes_telemetry_and_never_resumes_moti
 
         dev.unplug()
         assert await next_state(states) is S.RECONNECTING
+        age = robot.last_frame_age  # kept across the outage ...
+        assert age is not None
         t0 = time.monotonic()
         with pytest.raises(NotConnectedError):
             await robot.get_firmware_version()
@@ -103,6 +105,8 @@ async def test_tcp_reconnect_fails_fast_resumes_telemetry_and_never_resumes_moti
         await dev.replug()
         replugged = time.monotonic()
         assert await next_state(states) is S.CONNECTED
+        again = robot.last_frame_age  # ... and by the new link until its first frame
+        assert again is not None
         await robot.wait_connected(1.0)
         # The same iterator goes on yielding after the outage.
         async with asyncio.timeout(5):

@@ -326,6 +326,9 @@ async def _next(holder: Subscription[T] | _Iteration[T]) -> T:
     no Python call before the coroutine (a method returning one would be a call per
     message)."""
     sub = holder._sub
+    # A traceback through this frame (a cancelled or timed-out loop) keeps its locals:
+    # it must not keep the _Iteration, whose collection ends the subscription at once.
+    del holder
     while True:
         if sub._buffer:
             return sub._buffer.popleft()

@@ -181,6 +181,7 @@ class Linger:
             return True
         link._finished = True
         link._on_messages = _ignore_messages  # what comes now is of no one's use
+        link._intercept = None
         link.tap = None
         if link._wfd is not None or not transport.can_write_eof():
             transport.close()
@@ -242,6 +243,7 @@ class Linger:
         link = self._link
         # Nobody is listening any more (a recording is closed once close() returns).
         link._on_messages = _ignore_messages
+        link._intercept = None
         link.tap = None
         _lingering[link._loop, link.url] = self  # an open of this port from now on waits
         self._task = asyncio.ensure_future(self._linger_then_close(linger))

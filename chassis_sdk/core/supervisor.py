@@ -546,7 +546,11 @@ class LinkSupervisor(Generic[M]):
 
     def _restore(self, link: Link[M]) -> None:
         """The first frame on a stale link: it is ``CONNECTED`` again."""
-        if self.states.state is ConnectionState.STALE:
+        if (
+            link is self.writer.link
+            and not self.writer.is_fenced
+            and self.states.state is ConnectionState.STALE
+        ):
             self._log.warning("%s: frames arrive again; link restored", self.port)
             self.states.set(ConnectionState.CONNECTED)
 
@@ -592,6 +596,9 @@ class LinkSupervisor(Generic[M]):
         if shutdown is None:
             # First, synchronously, before anything that can be interrupted.
             self.writer.fence()
+            # The last frame is the last one before close(): what a closing link
+            # still reads reaches no one.
+            self._frame_before, self._reader = self.last_frame_time, None
             runner = self._runner
             if runner is None:
                 connecting = self._connecting

@@ -274,6 +274,8 @@ class Link(asyncio.Protocol, Generic[M]):
             # asyncio's socket transport: pause as soon as it holds a byte, so that
             # from then on the link holds frames itself.
             self.transport.set_write_buffer_limits(high=0, low=0)
+            # It reads itself, always: its chunks go straight to the work.
+            self.data_received = self._read_ready  # type: ignore[method-assign]
 
     def data_received(self, data: bytes) -> None:
         if not self._reading and self._rfd is not None:
