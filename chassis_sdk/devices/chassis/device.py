@@ -179,10 +179,9 @@ class Chassis(ChassisCommands, FromConfig):
         return self._decoder.sequence.scheme
 
     def _on_telemetry(self, t: Telemetry) -> None:
-        # Every 0x81 (50 Hz) comes here: each call below goes straight to the code that
-        # does the work, with no forwarding method in between.
-        # The usual frame (no status change, no battery threshold) calls nothing
-        # beyond the publish and the integration.
+        # Every 0x81 (50 Hz) comes here. The usual frame (no status change, no battery
+        # threshold) calls only the publish and the integration, each straight to the
+        # code that does the work.
         self._telemetry.publish(t)
         ts = t.timestamp
         edges = self._edges
