@@ -166,6 +166,36 @@ def test_deferred_samples_wait_at_most_the_limit() -> None:
     assert odo.x == pytest.approx((DEFER_LIMIT - 1) * 0.01)
 
 
+def test_a_device_defers_unheard_samples_within_the_limit_and_to_the_bit() -> None:
+    """``Reports.integrate`` with nobody listening defers each calibrated sample: never
+    `DEFER_LIMIT` of them wait, and the pose read is the one integrating each at once
+    gives, to the bit; with a listener, each is integrated and published at once."""
+    import logging
+
+    from chassis_sdk.core.calibration import Calibration
+    from chassis_sdk.core.dispatch import Broadcast
+    from chassis_sdk.core.observation import Reports
+    from chassis_sdk.core.odometry import DEFER_LIMIT, Odometry
+
+    reports = Reports("test", logging.getLogger("test"), Broadcast(8), Broadcast(8), None)
+    reports.calibration = Calibration(linear_scale=1.02, angular_scale=0.97)
+    reference = OdometryIntegrator()
+    samples = [(0.3 + i * 1e-3, 0.2 - i * 2e-3, 10.0 + i * 0.02) for i in range(5 * DEFER_LIMIT)]
+    for i, (v, w, t) in enumerate(samples):
+        reports.integrate(v, w, t)
+        reference.advance(v * 1.02, w * 0.97, t)
+        assert len(reports.pose._deferred) == (i + 1) % DEFER_LIMIT
+    assert reports.latest_odometry == reference.current()
+    assert not reports.pose._deferred
+    heard: list[Odometry] = []
+    listener = reports.odometry.listen(heard.append)  # (held: a dropped one stops)
+    reports.integrate(0.5, 0.1, 20.0)
+    reference.advance(0.5 * 1.02, 0.1 * 0.97, 20.0)
+    assert not reports.pose._deferred
+    assert heard == [reference.current()]
+    listener.close()
+
+
 # --- against the simulators -------------------------------------------------------------------
 
 

@@ -306,7 +306,7 @@ class Link(asyncio.Protocol, Generic[M]):
         """
         if data is None:
             try:
-                data = os.read(cast(int, self._rfd), READ_SIZE)
+                data = os.read(self._rfd, READ_SIZE)  # type: ignore[arg-type]  # (no cast() call)
             except (BlockingIOError, InterruptedError):
                 return
             except Exception as exc:  # whatever it is, the port is lost, once
