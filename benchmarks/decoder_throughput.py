@@ -59,9 +59,11 @@ PROTOCOLS = {"chassis": "protocol A (chassis 0x81)", "board": "protocol B (board
 #: development machine (AMD EPYC, CPython 3.11.7, pymavlink 2.4.50; load average 1.5-5
 #: from other work: pymavlink itself went from 31,000 to 104,000 frames/s between runs).
 #: Two runs at commit ab500e9, the third at 3d954c5 with CHASSIS_SDK_PURE=1 (the same
-#: pure code: that commit added the compiled twin beside it). ``vs_pymavlink`` is the
-#: median of the three runs, ``vs_pymavlink_min`` the slowest, ``vs_pymavlink_max``
-#: the fastest; ``frames_per_s`` the medians (they move with the load).
+#: pure code: that commit added the compiled twin beside it); both were on a branch
+#: squashed into 43d36c2, whose parent 80e8c90 holds the pure code they measured.
+#: ``vs_pymavlink`` is the median of the three runs, ``vs_pymavlink_min`` the slowest,
+#: ``vs_pymavlink_max`` the fastest; ``frames_per_s`` the medians (they move with the
+#: load).
 REFERENCE: dict[str, Any] = {
     "date": "2026-12-02",
     "commit": "ab500e9",
