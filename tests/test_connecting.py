@@ -12,10 +12,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import logging
 import os
 import socket
 import sys
 import time
+import tty
 from collections.abc import Iterator
 from typing import Any
 
@@ -175,3 +177,62 @@ async def test_a_second_open_of_a_serial_port_fails_at_once_naming_the_holder() 
         assert f"port busy, held by process {os.getpid()}" in err.decode()
         assert robot.is_connected
         assert robot.stats.frames > 0
+
+
+# --- the flush at open ----------------------------------------------------------------------
+
+
+async def test_a_frame_between_the_flush_and_a_queued_read_is_not_a_hang_up() -> None:
+    # Opening flushes what the port received before; a frame that lands between that
+    # flush and the transport's read callback already queued for it must not read as an
+    # unplugged device (a usb: open awaits a thread in between: CI saw it once).
+    from chassis_sdk.core.transport import Link, open_link
+    from chassis_sdk.protocol import (
+        ChassisDecoder,
+        ChassisEncoder,
+        ChassisStatus,
+        DockingState,
+        Telemetry,
+        WheelSpeeds,
+    )
+
+    loop = asyncio.get_running_loop()
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    got: list[Any] = []
+    lost: list[Exception | None] = []
+
+    def factory() -> Link[Any]:
+        return Link(
+            ChassisDecoder(), lambda m, now: got.extend(m), lost.append, logging.getLogger("t")
+        )
+
+    link = await open_link(os.ttyname(slave), 115200, factory)
+    try:
+        frame = ChassisEncoder().encode(
+            Telemetry(
+                24.6, ChassisStatus(0), DockingState.SEARCHING, 0.0, 0.0, WheelSpeeds(0, 0, 0, 0)
+            )
+        )
+
+        def frame_then_flush() -> None:
+            # The loop is held here while the frame lands in the port; the flush is
+            # queued ahead of the read callback the next poll queues for that frame.
+            os.write(master, frame)
+            time.sleep(0.05)
+            loop.call_soon(link.flush_input)
+
+        loop.call_soon(frame_then_flush)
+        await asyncio.sleep(0.1)
+        assert lost == []  # before: "device disconnected" (serialx) / "no data" (pyserial)
+        assert link.transport is not None
+        os.write(master, frame)  # and it still reads
+        async with asyncio.timeout(2):
+            while not got:
+                await asyncio.sleep(0.01)
+    finally:
+        if link.transport is not None:
+            link.transport.close()
+        await asyncio.sleep(0.05)
+        os.close(master)
+        os.close(slave)

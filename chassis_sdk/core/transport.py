@@ -233,7 +233,6 @@ class Link(asyncio.Protocol, Generic[M]):
         # For a serial port: the descriptor the transport reads, which the link reads
         # itself once the transport has delivered the first chunk (see `_read_ready`).
         self._rfd: int | None = None
-        self._reading = False  # the link's own reader is the one registered
         self._blocked = False  # the port cannot take bytes now
         self._partial = b""  # the unsent rest of a frame (serial ports)
         # What waits while the port cannot take bytes, and what is discarded.
@@ -278,13 +277,17 @@ class Link(asyncio.Protocol, Generic[M]):
             self.data_received = self._read_ready  # type: ignore[method-assign]
 
     def data_received(self, data: bytes) -> None:
-        if not self._reading and self._rfd is not None:
+        if self._rfd is not None:
             # The transport's reader delivered this: from now on the link reads itself.
             # (Its reader was registered by now; the pyserial transports register it
-            # only after connection_made.)
-            self._loop.add_reader(self._rfd, self._read_ready)
-            self._reading = True
+            # only after connection_made, so it may have replaced the link's.)
+            self._read_here(self._rfd)
         self._read_ready(data)
+
+    def _read_here(self, fd: int) -> None:
+        """Make the link's `_read_ready` the port's read callback. It replaces the one
+        registered, and cancels a call of it the loop had already queued."""
+        self._loop.add_reader(fd, self._read_ready)
 
     def _read_ready(self, data: bytes | None = None) -> None:
         """The link's own read callback, in place of the transport's (called with no
@@ -337,7 +340,6 @@ class Link(asyncio.Protocol, Generic[M]):
 
     def _lose_reading(self, exc: Exception) -> None:
         self._read_error = exc
-        self._reading = False
         rfd, self._rfd = self._rfd, None
         transport = self.transport
         if rfd is not None and transport is not None:
@@ -346,7 +348,6 @@ class Link(asyncio.Protocol, Generic[M]):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._rfd = None
-        self._reading = False
         self.transport = None
         self._drop_held()
         self._release_wfd()
@@ -373,8 +374,14 @@ class Link(asyncio.Protocol, Generic[M]):
         must not hand them to the application as if they were new. Both pyserial and
         serialx flush on open today, but this promise is the SDK's, so it is kept here
         whatever the transport does. A TCP connection is new: nothing in it is old.
+
+        The link takes the port's reading over first: a read callback the loop had
+        queued for bytes the flush then discards would find the port empty, which a
+        tty reads as 0 bytes and every transport as a device unplugged.
         """
         if self._wfd is not None:
+            if self._rfd is not None:
+                self._read_here(self._rfd)
             with contextlib.suppress(OSError, termios.error):
                 termios.tcflush(self._wfd, termios.TCIFLUSH)
             self._decoder.reset()
