@@ -1,28 +1,20 @@
 """Which decoding path runs, and how a user finds out: `chassis-sdk --version` and
-`info` say it; ``CHASSIS_SDK_PURE=1`` forces the pure path; the generated C in the tree
-is what the pinned Cython makes of the ``.pyx`` beside it (an edit to one without the
-other fails here). The differential tests of the two paths are in
-tests/test_compiled_chassis.py and tests/test_compiled_board.py."""
+`info` say it; ``CHASSIS_SDK_PURE=1`` forces the pure path. The differential tests of
+the two paths are in tests/test_compiled_chassis.py and tests/test_compiled_board.py."""
 
 from __future__ import annotations
 
 import importlib.util
 import os
 import re
-import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-ROOT = Path(__file__).resolve().parent.parent
-SOURCES = ["chassis_sdk/devices/chassis/_compiled.pyx", "chassis_sdk/devices/board/_compiled.pyx"]
 MODULES = ["chassis_sdk.devices.chassis._compiled", "chassis_sdk.devices.board._compiled"]
-#: The Cython that generated the committed C (tools/cythonize.sh checks it too).
-CYTHON = "3.3.1"
 
 
 def built() -> bool:
@@ -108,41 +100,3 @@ async def test_info_names_the_decoders(
     assert lines[0].startswith("port ")
     shown = "pure (CHASSIS_SDK_PURE=1)" if pure else expected_path()
     assert lines[1] == f"decoders     {shown}"
-
-
-def _cython_version() -> str | None:
-    from importlib import metadata
-
-    try:
-        return metadata.version("cython")
-    except metadata.PackageNotFoundError:
-        return None
-
-
-def _canonical(c: str) -> str:
-    """The C with Cython's own .pxd files named from its include directory: Cython names
-    them by where it is installed (relative to the current directory when under it)."""
-    return re.sub(r'"[^"\n]*?Cython/Includes/', '"', c)
-
-
-@pytest.mark.skipif(
-    _cython_version() != CYTHON, reason=f"needs Cython {CYTHON} (the test extra pins it)"
-)
-@pytest.mark.parametrize("pyx", SOURCES)
-def test_the_committed_c_is_generated_from_the_pyx(pyx: str, tmp_path: Path) -> None:
-    # The same relative path as tools/cythonize.sh uses, so the C is byte for byte the same.
-    # and the packages' __init__.py, from which Cython takes the module's full name.
-    copy = tmp_path / pyx
-    copy.parent.mkdir(parents=True)
-    shutil.copy(ROOT / pyx, copy)
-    for package in copy.relative_to(tmp_path).parents[:-1]:
-        (tmp_path / package / "__init__.py").touch()
-    subprocess.run(
-        [sys.executable, "-m", "cython", "-3", "--fast-fail", pyx],
-        cwd=tmp_path,
-        check=True,
-        capture_output=True,
-    )
-    generated = _canonical(copy.with_suffix(".c").read_text())
-    committed = _canonical((ROOT / pyx).with_suffix(".c").read_text())
-    assert generated == committed, f"{pyx} changed: run tools/cythonize.sh and commit the C"
