@@ -39,8 +39,8 @@ from chassis_sdk.sim import (
     PackSpec,
 )
 
+from .support.cli import cli
 from .support.helpers import until
-from .test_cli_operator import cli
 
 CHEMISTRIES = sorted(OCV_CURVES)
 

@@ -12,7 +12,6 @@ import asyncio
 import math
 import os
 import signal
-import sys
 from dataclasses import FrozenInstanceError
 from pathlib import Path
 from typing import Any
@@ -26,10 +25,9 @@ from chassis_sdk.devices.config import load_profile
 from chassis_sdk.protocol import DriveVelocity, DriveWheels
 from chassis_sdk.sim import BoardSimulator, BoardSpec, ChassisSimulator, ChassisSpec
 
+from .support.cli import CLI, one_line
 from .support.helpers import until
 
-ROOT = Path(__file__).resolve().parent.parent
-CLI = (sys.executable, "-m", "chassis_sdk.cli")
 #: The miscalibration of the simulated robots: wheels 4 % bigger, 20 % slip in turns.
 DIAMETER_ERROR, TURN_SLIP = 0.04, 0.2
 TRUE_LINEAR = 1 + DIAMETER_ERROR
@@ -297,13 +295,6 @@ class Cli:
         return self.proc.returncode, err.decode()
 
 
-def _one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("chassis-sdk: "), err
-    return lines[0]
-
-
 async def test_calibrate_recovers_the_chassis_factors(tmp_path: Path) -> None:
     """linear then angular, the operator answering with the simulator's truth; then
     linear again, which keeps the factor (it converges); then a fresh drive with the
@@ -396,7 +387,7 @@ async def test_measured_on_the_command_line_and_dry_run(tmp_path: Path) -> None:
     assert not (tmp_path / "x.toml").exists()
 
 
-async def test_a_robot_that_does_not_move_fails_in_one_line(tmp_path: Path) -> None:
+async def test_a_robot_that_does_not_move_fails_inone_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.set_hardware_estop(True)
         run = await Cli.start(
@@ -406,14 +397,14 @@ async def test_a_robot_that_does_not_move_fails_in_one_line(tmp_path: Path) -> N
         code, err = await run.finish()
         stops = sim.firmware.received
     assert code == 1
-    assert "did not move" in _one_line(err)
+    assert "did not move" in one_line(err)
     assert not (tmp_path / "x.toml").exists()
     drives = [c for _, c in stops if isinstance(c, DriveVelocity)]
     assert any(d.linear_mm != 0 for d in drives)  # it was driven, not refused before
     assert drives[-1] == DriveVelocity(0, 0.0)  # and stopped
 
 
-async def test_no_telemetry_fails_in_one_line(tmp_path: Path) -> None:
+async def test_no_telemetry_fails_inone_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.telemetry_enabled = False
         run = await Cli.start(
@@ -422,7 +413,7 @@ async def test_no_telemetry_fails_in_one_line(tmp_path: Path) -> None:
         )  # fmt: skip
         code, err = await run.finish()
     assert code != 0
-    assert "within 0.5 s" in _one_line(err)
+    assert "within 0.5 s" in one_line(err)
     assert not (tmp_path / "x.toml").exists()
 
 
@@ -449,7 +440,7 @@ async def test_nonsense_fails_in_one_line_and_writes_nothing(
             await run.prompt()
         code, err = await run.finish(answer)
     assert code != 0
-    assert message in _one_line(err)
+    assert message in one_line(err)
     assert not (tmp_path / "x.toml").exists()
 
 

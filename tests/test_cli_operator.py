@@ -16,9 +16,7 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import tty
-from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -28,85 +26,8 @@ from chassis_sdk.cli import main as cli_main
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-ROOT = Path(__file__).resolve().parent.parent
-CLI = (sys.executable, "-m", "chassis_sdk.cli")
-
-
-async def cli(
-    *args: str, env: dict[str, str] | None = None, timeout: float = 30.0
-) -> tuple[int, str, str]:
-    proc = await asyncio.create_subprocess_exec(
-        *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=ROOT,
-        env={**os.environ, **(env or {})},
-    )  # fmt: skip
-    async with asyncio.timeout(timeout):
-        out, err = await proc.communicate()
-    assert proc.returncode is not None
-    return proc.returncode, out.decode(), err.decode()
-
-
-def one_line(err: str) -> str:
-    """The whole of stderr is one ``chassis-sdk: ...`` line."""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("chassis-sdk: "), err
-    return lines[0]
-
-
-@contextlib.contextmanager
-def silent_pty() -> Iterator[str]:
-    """A port that accepts bytes and never says anything."""
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    try:
-        yield os.ttyname(slave)
-    finally:
-        os.close(master)
-        os.close(slave)
-
-
-class Running:
-    """A CLI command running in the background, read line by line."""
-
-    def __init__(self, proc: asyncio.subprocess.Process) -> None:
-        self.proc = proc
-        self.lines: list[str] = []
-
-    async def wait_for_line(self, predicate: Callable[[str], bool], timeout: float = 10.0) -> str:
-        assert self.proc.stdout is not None
-        async with asyncio.timeout(timeout):
-            while True:
-                line = (await self.proc.stdout.readline()).decode()
-                if not line:
-                    raise AssertionError(f"ended before the line; got {self.lines}")
-                self.lines.append(line)
-                if predicate(line):
-                    return line
-
-    async def finish(self, timeout: float = 20.0) -> tuple[int, str, str]:
-        async with asyncio.timeout(timeout):
-            out, err = await self.proc.communicate()
-        self.lines += out.decode().splitlines(keepends=True)
-        assert self.proc.returncode is not None
-        return self.proc.returncode, "".join(self.lines), err.decode()
-
-
-@contextlib.asynccontextmanager
-async def running(*args: str) -> AsyncIterator[Running]:
-    proc = await asyncio.create_subprocess_exec(
-        *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=ROOT
-    )
-    try:
-        yield Running(proc)
-    finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
-
-
-def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
-    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-
+from .support.cli import CLI, ROOT, cli, one_line, running, silent_pty
+from .support.helpers import drives
 
 # --- finding the port ---------------------------------------------------------------------
 

@@ -28,7 +28,7 @@ from chassis_sdk.devices.chassis.health import (
 from chassis_sdk.protocol import ChassisStatus, CommandId, DockingState, DriverError
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .test_cli_operator import cli, one_line, silent_pty
+from .support.cli import cli, one_line, silent_pty
 
 S = ChassisStatus
 

@@ -7,14 +7,14 @@ import json
 import os
 import re
 import sys
-import tty
 from pathlib import Path
 
 import pytest
 
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-ROOT = Path(__file__).resolve().parent.parent
+from .support.cli import ROOT, silent_pty
+
 #: The examples that run against the built-in simulator (fleet_console needs a broker:
 #: tests/test_bridge.py runs it against a real one).
 EXAMPLES = sorted(p for p in (ROOT / "examples").glob("*.py") if p.name != "fleet_console.py")
@@ -107,15 +107,8 @@ async def test_missing_port_is_one_clear_line() -> None:
 
 
 async def test_silent_port_says_what_was_expected() -> None:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    try:
-        code, _out, err = await run(
-            "-m", "chassis_sdk.cli", "info", os.ttyname(slave), "--timeout", "0.2"
-        )
-    finally:
-        os.close(master)
-        os.close(slave)
+    with silent_pty() as quiet:
+        code, _out, err = await run("-m", "chassis_sdk.cli", "info", quiet, "--timeout", "0.2")
     assert code == 2
     assert "no reply to FIRMWARE_VERSION" in err
     assert "Traceback" not in err

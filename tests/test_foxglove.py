@@ -23,9 +23,9 @@ from chassis_sdk.recording import capture
 from chassis_sdk.recording.sink import json_schema
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.cli import ROOT, cli, running
 from .support.foxglove_client import FoxgloveClient
 from .support.helpers import kill_while_recording
-from .test_cli_operator import ROOT, cli, running
 
 pytestmark = pytest.mark.timeout(60)
 

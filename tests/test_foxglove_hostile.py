@@ -26,8 +26,8 @@ from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
+from .support.cli import cli, running
 from .support.foxglove_client import FoxgloveClient
-from .test_cli_operator import cli, running
 
 pytestmark = pytest.mark.timeout(60)
 

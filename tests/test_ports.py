@@ -17,7 +17,6 @@ import json
 import logging
 import os
 import subprocess
-import sys
 import threading
 from collections.abc import AsyncIterator, Callable, Iterator
 from contextlib import contextmanager
@@ -38,11 +37,9 @@ from chassis_sdk.core.ports import (
 )
 from chassis_sdk.sim import ChassisSimulator
 
+from .support.cli import CLI, ROOT, silent_pty
 from .support.helpers import open_fds_on, until
-from .test_cli_operator import silent_pty
 
-ROOT = Path(__file__).resolve().parent.parent
-CLI = (sys.executable, "-m", "chassis_sdk.cli")
 S = ConnectionState
 
 #: The two robots are told apart by their battery (volts).

@@ -27,10 +27,10 @@ from chassis_sdk.integrations.ros2_dds import Discovery
 from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.sim import ChassisSimulator
 
+from .support.cli import ROOT
 from .support.dds_peer import start_peer
 from .support.helpers import Heartbeat
 from .support.ros2 import bridged, drives, until
-from .test_cli_operator import ROOT
 
 pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
 

@@ -28,10 +28,10 @@ from chassis_sdk.integrations.ros2_dds import Discovery
 from chassis_sdk.recording.ros2_types import DEFAULT_POSE_COVARIANCE, wall_time
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.cli import CLI, ROOT, cli, one_line
 from .support.dds_peer import Event, start_peer
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
-from .test_cli_operator import CLI, ROOT, cli, one_line
 
 pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
 

@@ -36,8 +36,8 @@ from chassis_sdk.recording.ros2 import Ros2Recording, rosbag
 from chassis_sdk.recording.ros2_types import StaticTransform
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.cli import ROOT, cli, one_line
 from .support.helpers import kill_while_recording
-from .test_cli_operator import ROOT, cli, one_line
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -16,8 +16,8 @@ import pytest
 
 from chassis_sdk.core.ports import command_line, lock_holder
 from chassis_sdk.sim import ChassisSimulator
+from tests.support.cli import silent_pty
 from tests.support.helpers import until
-from tests.test_cli_operator import silent_pty
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = Path(sys.executable).with_name("chassis-sdk")

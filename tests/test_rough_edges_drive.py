@@ -20,7 +20,8 @@ from chassis_sdk.devices.chassis.firmware import ChassisFirmware
 from chassis_sdk.protocol import ChassisStatus, DriverError, DriveVelocity
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .test_cli_operator import ROOT, cli, drives, one_line, running, silent_pty
+from .support.cli import ROOT, cli, one_line, running, silent_pty
+from .support.helpers import drives
 
 # --- user scripts under chassis_sdk.run --------------------------------------------------------
 

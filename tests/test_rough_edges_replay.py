@@ -25,7 +25,7 @@ from chassis_sdk.cli.monitor_command import brief
 from chassis_sdk.recording import capture
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .test_cli_operator import ROOT, cli, one_line, running, silent_pty
+from .support.cli import ROOT, cli, one_line, running, silent_pty
 
 
 def no_traceback(err: str) -> None:

@@ -19,7 +19,6 @@ import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterator
-from pathlib import Path
 
 import pytest
 
@@ -37,10 +36,8 @@ from chassis_sdk import (
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
+from .support.cli import ROOT, silent_pty
 from .support.helpers import wait_until
-from .test_cli_operator import silent_pty
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def drives(firmware: object) -> list[tuple[float, DriveVelocity]]:

@@ -17,7 +17,6 @@ import shlex
 import shutil
 import signal
 import struct
-import sys
 import time
 import uuid
 from collections.abc import AsyncIterator, Callable
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.cli import CLI, ROOT
 from tests.support.standin import (
     ChassisStandIn,
     Received,
@@ -33,8 +33,6 @@ from tests.support.standin import (
     last_drive_is_zero,
 )
 
-ROOT = Path(__file__).resolve().parent.parent
-CLI = (sys.executable, "-m", "chassis_sdk.cli")
 needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
 pytestmark = pytest.mark.timeout(90)
 

@@ -11,7 +11,6 @@ import math
 import os
 import random
 import signal
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -25,9 +24,9 @@ from chassis_sdk.cli.devices import DeviceCommands, commands
 from chassis_sdk.devices import DeviceProfile, profile, profiles, register, unregister
 from chassis_sdk.recording import capture
 
+from .support.cli import CLI, ROOT, cli
 from .support.toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
 
-REPO = Path(__file__).resolve().parent.parent
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 
 
@@ -208,34 +207,25 @@ def test_a_broken_entry_point_is_reported_and_skipped(
     assert "device entry point toy = tests.no_such_module:PROFILE failed" in caplog.text
 
 
-async def _cli(env: dict[str, str], *args: str) -> tuple[int, str, str]:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "chassis_sdk.cli", *args,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, env=env, cwd=REPO,
-    )  # fmt: skip
-    out, err = await asyncio.wait_for(proc.communicate(), 20)
-    assert proc.returncode is not None
-    return proc.returncode, out.decode(), err.decode()
-
-
 async def test_sim_detect_and_drive_from_the_command_line(tmp_path: Path) -> None:
     _install_entry_point(tmp_path, "tests.support.toy_device:PROFILE")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path), str(REPO)))}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path), str(ROOT)))}
     sim = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "chassis_sdk.cli", "sim", "toy", "--tcp", "0",
-        stdout=asyncio.subprocess.PIPE, env=env, cwd=REPO,
+        *CLI, "sim", "toy", "--tcp", "0",
+        stdout=asyncio.subprocess.PIPE, env=env, cwd=ROOT,
     )  # fmt: skip
     try:
         assert sim.stdout is not None
         port = (await asyncio.wait_for(sim.stdout.readline(), 20)).decode().strip()
         assert port.startswith("socket://127.0.0.1:")
-        code, out, err = await _cli(env, "detect", port)
+        code, out, err = await cli("detect", port, env=env, timeout=20)
         assert (code, out.strip()) == (0, "toy"), err
-        code, out, err = await _cli(
-            env, "drive", port, "--protocol", "toy", "--linear", "0.2", "--duration", "0.3"
-        )
+        code, out, err = await cli(
+            "drive", port, "--protocol", "toy", "--linear", "0.2", "--duration", "0.3",
+            env=env, timeout=20,
+        )  # fmt: skip
         assert (code, out.splitlines()[-1]) == (0, "stopped"), err
-        code, out, err = await _cli(env, "info", port, "--protocol", "toy")
+        code, out, err = await cli("info", port, "--protocol", "toy", env=env, timeout=20)
         assert code == 0, err
         assert "toy: a toy differential base" in out
     finally:

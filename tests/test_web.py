@@ -27,8 +27,8 @@ from chassis_sdk.integrations.web import GamepadMapping, WebDashboard
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec, PackSpec
 
+from .support.cli import cli, running
 from .support.dashboard import moving, served, until
-from .test_cli_operator import cli, running
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -1,7 +1,8 @@
-"""Helpers shared by the failure tests (test_stopping.py, test_connecting.py,
-test_requests.py, test_streams.py, test_loops.py): the transports they run on, a
-heartbeat of the event loop, a wait on the SDK's own state, the descriptors held on a
-port, and a firmware stand-in on its own thread for tests that block or replace the loop.
+"""Small helpers shared by the tests: the transports the failure tests run on, a
+heartbeat of the event loop, a wait on the SDK's own state (from a coroutine or a plain
+test), the velocity commands a simulated chassis read, the descriptors held on a port,
+a firmware stand-in on its own thread for tests that block or replace the loop, and a
+program killed while it records.
 """
 
 from __future__ import annotations
@@ -17,15 +18,22 @@ import threading
 import time
 import tty
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import pytest
 
+from chassis_sdk.protocol import DriveVelocity
+
 from .standin import ChassisStandIn, Received, frame_a
+
+if TYPE_CHECKING:
+    from chassis_sdk.sim import ChassisSimulator
 
 __all__ = [
     "TRANSPORTS",
     "Heartbeat",
     "ThreadedPeer",
+    "drives",
     "kill_while_recording",
     "open_fds_on",
     "until",
@@ -79,6 +87,11 @@ def wait_until(condition: Callable[[], bool], timeout: float = 5.0) -> float:
             raise AssertionError(f"not within {timeout} s")
         time.sleep(0.005)
     return time.monotonic() - start
+
+
+def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
+    """The velocity commands the simulated chassis read, in order."""
+    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
 
 
 def open_fds_on(path: str) -> int:
