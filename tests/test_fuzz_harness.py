@@ -4,46 +4,11 @@ drives the same checks coverage-guided in CI (see README)."""
 
 from __future__ import annotations
 
-import importlib.util
 import random
-import sys
-from pathlib import Path
-from types import ModuleType
 
 import pytest
 
-HARNESS = Path(__file__).resolve().parent.parent / "fuzz" / "harness.py"
-
-
-def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("fuzz_harness", HARNESS)
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-harness = _load()
-
-
-def _mutate(rng: random.Random, data: bytes) -> bytes:
-    buf = bytearray(data)
-    for _ in range(rng.randint(1, 6)):
-        op = rng.random()
-        if op < 0.3 and buf:
-            buf[rng.randrange(len(buf))] ^= 1 << rng.randrange(8)
-        elif op < 0.5 and buf:
-            del buf[rng.randrange(len(buf))]
-        elif op < 0.7:
-            buf.insert(rng.randrange(len(buf) + 1), rng.randrange(256))
-        elif op < 0.85 and len(buf) > 2:
-            cut = rng.randrange(1, len(buf))
-            buf = buf[cut:] + buf[:cut]
-        else:
-            buf += rng.randbytes(rng.randint(1, 20))
-    return bytes(buf)
+from .support.fuzz import harness, mutate
 
 
 @pytest.mark.parametrize("target", sorted(harness.targets()))
@@ -60,7 +25,7 @@ def test_checks_hold_on_seeds_and_mutations(target: str) -> None:
     for seed in seeds:
         harness.check(target, seed)
     for _ in range(300):
-        harness.check(target, _mutate(rng, rng.choice(seeds)))
+        harness.check(target, mutate(rng, rng.choice(seeds)))
 
 
 def test_a_split_dependent_decoder_would_be_caught(monkeypatch: pytest.MonkeyPatch) -> None:

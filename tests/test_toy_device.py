@@ -25,6 +25,7 @@ from chassis_sdk.devices import DeviceProfile, profile, profiles, register, unre
 from chassis_sdk.recording import capture
 
 from .support.cli import CLI, ROOT, cli
+from .support.fuzz import harness, mutate
 from .support.toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
 
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
@@ -164,12 +165,10 @@ async def test_detect_record_replay_and_plot(
 
 
 def test_the_fuzz_harness_and_the_registry_see_it(toy: DeviceProfile) -> None:
-    from .test_fuzz_harness import _mutate, harness
-
     rng = random.Random(5)
     for target in ("toy", "toy-commands"):
         seeds = harness.seeds(target)
-        for blob in seeds + [_mutate(rng, rng.choice(seeds)) for _ in range(300)]:
+        for blob in seeds + [mutate(rng, rng.choice(seeds)) for _ in range(300)]:
             harness.check(target, blob)
     assert profile("toy") is toy
     assert list(profiles())[-1] == "toy"
