@@ -7,119 +7,27 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import os
 import signal
 import ssl
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
 
 import aiomqtt
 import pytest
-from paho.mqtt.packettypes import PacketTypes
-from paho.mqtt.properties import Properties
 
 from chassis_sdk import BatteryModel, Board, Chassis
-from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
+from chassis_sdk.integrations.mqtt import MqttBridge
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator, ChassisSpec, PackSpec
 
+from .support.cli import ROOT
+from .support.helpers import drives, until
+from .support.mqtt import Observer, bridge_client, bridged, request
 from .support.mqtt_broker import Broker, broker
-
-ROOT = Path(__file__).resolve().parent.parent
-V5 = aiomqtt.ProtocolVersion.V5
-
-
-def bridge_client(b: Broker, robot_id: str, **options: Any) -> aiomqtt.Client:
-    """A bridge's client on ``b``; ``options`` go to ``aiomqtt.Client`` as well."""
-    return aiomqtt.Client(
-        "127.0.0.1",
-        b.port,
-        identifier=f"bridge-{robot_id}",
-        protocol=V5,
-        will=connection_will(robot_id),
-        clean_start=True,
-        **options,
-    )
-
-
-class Observer:
-    """A dashboard: subscribes under ``robots/#`` and keeps what arrives, in order."""
-
-    count = 0
-
-    def __init__(self, b: Broker, **login: Any) -> None:
-        Observer.count += 1
-        name = f"observer-{os.getpid()}-{Observer.count}"  # a shared id would evict the other
-        self.client = aiomqtt.Client("127.0.0.1", b.port, identifier=name, protocol=V5, **login)
-        self.seen: list[tuple[str, Any, bool]] = []
-        self._task: asyncio.Task[None] | None = None
-        self._arrived = asyncio.Event()
-
-    async def __aenter__(self) -> Observer:
-        await self.client.__aenter__()
-        await self.client.subscribe("robots/#", qos=1)
-        self._task = asyncio.create_task(self._collect())
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        assert self._task is not None
-        self._task.cancel()
-        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
-            await self._task
-        with contextlib.suppress(aiomqtt.MqttError):  # the broker may be gone (killed)
-            await self.client.__aexit__(None, None, None)
-
-    async def _collect(self) -> None:
-        async for m in self.client.messages:
-            raw = m.payload if isinstance(m.payload, bytes | bytearray) else b""
-            try:
-                payload: Any = json.loads(raw) if raw else None
-            except ValueError:
-                payload = raw
-            self.seen.append((str(m.topic), payload, bool(m.retain)))
-            self._arrived.set()
-
-    def on(self, topic: str) -> list[Any]:
-        return [p for t, p, _ in self.seen if t == topic]
-
-    async def wait(self, predicate: Callable[[], bool], timeout: float = 5.0) -> None:
-        async with asyncio.timeout(timeout):
-            while not predicate():
-                self._arrived.clear()
-                await self._arrived.wait()
-
-    async def publish(self, topic: str, payload: Any, **kwargs: Any) -> None:
-        data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
-        await self.client.publish(topic, data, **kwargs)
-
-
-@contextlib.asynccontextmanager
-async def bridged(
-    b: Broker, device: Chassis | Board, robot_id: str = "r1", **options: Any
-) -> AsyncIterator[asyncio.Task[None]]:
-    bridge = MqttBridge(device, bridge_client(b, robot_id), robot_id, **options)
-    task = asyncio.create_task(bridge.run())
-    try:
-        yield task
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
-            await task
-
-
-def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
-    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-
-
-async def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> None:
-    async with asyncio.timeout(timeout):
-        while not predicate():
-            await asyncio.sleep(0.01)
 
 
 @pytest.fixture
@@ -186,18 +94,18 @@ async def test_a_velocity_command_moves_the_robot_and_stops_when_commands_stop(
         for _ in range(6):
             await obs.publish("robots/r1/cmd/velocity", {"linear": 0.3, "angular": 0.1})
             await asyncio.sleep(0.1)
-        await wait_until(lambda: any(d.linear_mm == 300 for d in drives(sim)))
+        await until(lambda: any(d.linear_mm == 300 for d in drives(sim)))
         stopped_publishing = time.monotonic()
-        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=2.0)
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=2.0)
         # The deadman (command_timeout 0.5 s) stopped it: the dashboard went quiet.
         assert time.monotonic() - stopped_publishing < 1.0
         assert robot.stats.command_expiries == 1
         await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
-        await wait_until(lambda: drives(sim)[-1].linear_mm == 200)
+        await until(lambda: drives(sim)[-1].linear_mm == 200)
         await obs.publish("robots/r1/cmd/stop", b"")
-        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
         await obs.publish("robots/r1/cmd/estop", {"engaged": True})
-        await wait_until(
+        await until(
             lambda: robot.latest_telemetry is not None and robot.latest_telemetry.emergency_stopped
         )
 
@@ -216,12 +124,12 @@ async def test_losing_the_broker_stops_the_robot_at_once(
                 await asyncio.sleep(0.05)
 
     joystick = asyncio.create_task(dashboard())
-    await wait_until(lambda: any(d.linear_mm == 300 for d in drives(sim)))
+    await until(lambda: any(d.linear_mm == 300 for d in drives(sim)))
     killed = time.monotonic()
     b.kill()
     with pytest.raises(aiomqtt.MqttError):
         await asyncio.wait_for(task, 5)
-    await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=1.0)
+    await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=1.0)
     # At once: well before the deadman's 0.5 s after the last command would have.
     assert time.monotonic() - killed < 0.3
     assert robot.commanded_velocity is None
@@ -289,18 +197,6 @@ async def test_read_only_never_takes_a_command_but_answers_requests(
         assert result == {"result": sim.firmware.spec.firmware_version}
         assert drives(sim) == []
         assert obs.on("robots/r1/errors") == []
-
-
-async def request(obs: Observer, robot_id: str, name: str) -> Any:
-    """One MQTT 5 request/response round trip, matched by correlation data."""
-    reply_to = f"replies/{robot_id}/{name}"
-    await obs.client.subscribe(reply_to)
-    props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
-    props.ResponseTopic = reply_to
-    props.CorrelationData = b"req-42"
-    await obs.client.publish(f"robots/{robot_id}/request/{name}", b"", properties=props)
-    await obs.wait(lambda: bool([p for t, p, _ in obs.seen if t == reply_to]))
-    return [p for t, p, _ in obs.seen if t == reply_to][-1]
 
 
 async def test_requests_and_responses_over_mqtt5(
@@ -425,7 +321,7 @@ async def test_the_fleet_console_lists_every_robot_and_stops_them_all() -> None:
         assert "chassis  ONLINE            connected     25." in lines["r1"]
         assert "board    ONLINE            connected     " in lines["b2"]
         assert "sent cmd/stop to 2 robot(s)" in text
-        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
         assert robot.commanded_velocity is None
 
 

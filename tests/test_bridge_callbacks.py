@@ -24,8 +24,9 @@ from chassis_sdk.integrations import mqtt_publish
 from chassis_sdk.integrations.mqtt import MqttBridge
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.helpers import until
+from .support.mqtt import Observer, bridge_client
 from .support.mqtt_broker import Broker, broker
-from .test_bridge import Observer, bridge_client, wait_until
 
 #: The most tasks one bridge may start, whatever the number of streams it publishes:
 #: commands, ownership, errors, publishing and two request workers.
@@ -178,7 +179,7 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
                     most = max(most, len(paho._out_packet))
                     return bridge.telemetry_skipped >= 20
 
-                await wait_until(skipped, timeout=30.0)
+                await until(skipped, timeout=30.0)
                 assert most <= streams, (most, streams)
             finally:
                 os.kill(b.proc.pid, signal.SIGCONT)
@@ -213,7 +214,7 @@ async def test_a_broker_that_reads_nothing_for_the_timeout_ends_the_bridge() -> 
             await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
             os.kill(b.proc.pid, signal.SIGSTOP)
             try:
-                await wait_until(lambda: bridge.telemetry_skipped > 0, timeout=30.0)
+                await until(lambda: bridge.telemetry_skipped > 0, timeout=30.0)
                 first_skip = time.monotonic()
                 # (Its disconnect then times out too, and that is the error raised.)
                 with pytest.raises(aiomqtt.MqttError):
@@ -255,7 +256,7 @@ async def test_a_skipped_slot_keeps_its_readings_for_the_next(
             await asyncio.sleep(0.05)  # what was on its way is read
             last = produced[-1]
             # Two slots (of 200 ms) skipped after the last reading.
-            await wait_until(lambda: bridge.telemetry_skipped >= skipped + 2)
+            await until(lambda: bridge.telemetry_skipped >= skipped + 2)
             assert produced[-1] == last
             monkeypatch.undo()
             await obs.wait(lambda: any(m["monotonic"] == last for m in obs.on(topic)))
@@ -288,7 +289,7 @@ async def test_events_behind_a_stalled_broker_keep_the_newest_and_count_the_rest
             try:
                 for k in range(10):
                     sim.firmware.set_remote_estop(k % 2 == 0)
-                    await wait_until(lambda k=k: len(produced) > k)  # type: ignore[misc]
+                    await until(lambda k=k: len(produced) > k)  # type: ignore[misc]
             finally:
                 os.kill(b.proc.pid, signal.SIGCONT)
                 notifier.close()

@@ -38,10 +38,11 @@ from chassis_sdk.integrations.mqtt_inbox import READ_BATCH, install_batched_read
 from chassis_sdk.protocol import CommandId, DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
+from .support.cli import ROOT
+from .support.helpers import drives, until
+from .support.mqtt import Observer, bridge_client, request
 from .support.mqtt_broker import Broker, broker
-from .test_bridge import Observer, bridge_client, drives, request, wait_until
 
-ROOT = Path(__file__).resolve().parent.parent
 NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
 
 pytestmark = pytest.mark.timeout(60)
@@ -233,7 +234,7 @@ async def test_no_message_ends_the_bridge(
         else:
             assert bridge.rejected == 14  # 9 commands (a stop is a stop whatever it says)
             await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
-            await wait_until(lambda: bool(moving(sim)))  # it still takes commands
+            await until(lambda: bool(moving(sim)))  # it still takes commands
 
 
 async def test_a_wildcard_response_topic_is_refused_on_errors(
@@ -263,7 +264,7 @@ async def test_an_error_of_its_own_ends_the_bridge_with_its_last_will(
         await asyncio.wait_for(task, 10)
     # The fleet learns it: the broker published the will, not a clean goodbye.
     await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "CONNECTIONBROKEN")
-    await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
+    await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
 
 
 async def test_the_bridge_command_lives_through_hostile_messages() -> None:
@@ -299,7 +300,7 @@ async def test_a_velocity_flood_stops_within_the_deadman_of_its_end() -> None:
         assert proc.pid is not None
         rss = peak_rss_mb(proc.pid)
         sender = await flood(b, "robots/r1/cmd/velocity", kind="velocity", seconds=2.0)
-        await wait_until(lambda: bool(moving(sim)), timeout=5)
+        await until(lambda: bool(moving(sim)), timeout=5)
         # While it floods: telemetry keeps its rate, and a request is answered at once.
         first, start = len(obs.on("robots/r1/telemetry/telemetry")), time.monotonic()
         asked = time.monotonic()
@@ -310,7 +311,7 @@ async def test_a_velocity_flood_stops_within_the_deadman_of_its_end() -> None:
         sent = await flood_result(sender)
         last_published = sent["last_monotonic"]
         written = [t for t, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=10)
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=10)
         zero_at = next(t for t, c in reversed(sim.firmware.received) if c == DriveVelocity(0, 0.0))
         assert sent["sent"] == 2 * FLOOD_RATE
         assert zero_at - last_published < 0.5 + 0.2  # command_timeout + 0.2 s
@@ -356,7 +357,7 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
             )  # fmt: skip
             sent = json.loads(stalled.stdout)["sent"]
             queue = client._queue
-            await wait_until(lambda: queue.qsize() >= sent, timeout=20)
+            await until(lambda: queue.qsize() >= sent, timeout=20)
         assert sent == 2_000
         assert queue.qsize() == sent  # nothing lost, nothing twice
         assert wakes <= sent / 8, (wakes, sent)  # one a packet without the batches
@@ -379,7 +380,7 @@ async def test_an_estop_behind_a_junk_flood_reaches_the_wire_within_50_ms() -> N
         await asyncio.sleep(0.5)  # deep in the flood
         published = time.monotonic()
         await obs.publish("robots/r1/cmd/estop", {"engaged": True})
-        await wait_until(lambda: bool(estops(sim)), timeout=10)
+        await until(lambda: bool(estops(sim)), timeout=10)
         latency = estops(sim)[0] - published
         sent = await flood_result(sender)
         await asyncio.sleep(1.2)  # the last summary of the flood
@@ -411,7 +412,7 @@ async def test_a_stop_cancels_the_velocity_command_before_it(
         assert lanes.velocity is not None
         assert b"0.2" in bytes(lanes.velocity.payload)
         assert bridge.superseded == 1  # the 0.3 came before the stop: never acted on
-        await wait_until(lambda: bool(estops(sim)))
+        await until(lambda: bool(estops(sim)))
         assert all(c.linear_mm != 300 for c in drives(sim))
 
 
@@ -439,7 +440,7 @@ async def test_a_stale_command_is_refused(
         await obs.wait(lambda: bool(obs.on("robots/r1/errors")))
         assert why in obs.on("robots/r1/errors")[0]["error"]
         await obs.publish("robots/r1/cmd/velocity", {**command, "timestamp": now_iso()})
-        await wait_until(lambda: bool(moving(sim)))  # a fresh one drives
+        await until(lambda: bool(moving(sim)))  # a fresh one drives
 
 
 async def test_require_timestamp_refuses_a_command_without_one(
@@ -453,11 +454,11 @@ async def test_require_timestamp_refuses_a_command_without_one(
         assert "no 'timestamp'" in obs.on("robots/r1/errors")[0]["error"]
         assert moving(sim) == []
         await obs.publish("robots/r1/cmd/estop", {"engaged": True})  # never refused
-        await wait_until(lambda: bool(estops(sim)))
+        await until(lambda: bool(estops(sim)))
         stamped = {"linear": 0.3, "angular": 0.0, "timestamp": time.time()}
         await obs.publish("robots/r1/cmd/estop", {"engaged": False, "timestamp": time.time()})
         await obs.publish("robots/r1/cmd/velocity", stamped)
-        await wait_until(lambda: bool(moving(sim)))
+        await until(lambda: bool(moving(sim)))
 
 
 async def test_a_burst_of_held_up_commands_moves_the_robot_only_as_the_newest_says(
@@ -473,7 +474,7 @@ async def test_a_burst_of_held_up_commands_moves_the_robot_only_as_the_newest_sa
         await obs.publish(
             "robots/r1/cmd/velocity", {"linear": 0.1, "angular": 0.0, "timestamp": sent}
         )
-        await wait_until(lambda: bool(moving(sim)))
+        await until(lambda: bool(moving(sim)))
         await obs.wait(lambda: sum(e.get("count", 1) for e in obs.on("robots/r1/errors")) >= 10)
         assert {c.linear_mm for _, c in moving(sim)} == {100}
 
@@ -521,7 +522,7 @@ async def test_a_second_bridge_for_an_online_robot_id_refuses_to_start() -> None
         # The first one's state is back, and its robot alone takes the commands.
         await obs.wait(lambda: owner_of(obs) == owner)
         await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
-        await wait_until(lambda: bool(moving(first_sim)))
+        await until(lambda: bool(moving(first_sim)))
         assert moving(second_sim) == []
 
 
@@ -547,7 +548,7 @@ async def test_a_take_over_stops_the_old_bridge_and_no_command_reaches_both() ->
                 await asyncio.sleep(0.01)
 
         driving = asyncio.create_task(joystick())
-        await wait_until(lambda: len(sent) > 30)
+        await until(lambda: len(sent) > 30)
         client = aiomqtt.Client(
             "127.0.0.1", b.port, identifier="bridge-r1-new", protocol=aiomqtt.ProtocolVersion.V5
         )
@@ -556,7 +557,7 @@ async def test_a_take_over_stops_the_old_bridge_and_no_command_reaches_both() ->
             with pytest.raises(RobotIdTaken, match="taken over by"):
                 await asyncio.wait_for(old, 10)
             await driving
-            await wait_until(lambda: bool(moving(new_sim)))
+            await until(lambda: bool(moving(new_sim)))
         old_values = {c.linear_mm for _, c in moving(old_sim)}
         new_values = {c.linear_mm for _, c in moving(new_sim)}
         assert old_values
@@ -731,9 +732,9 @@ async def test_a_velocity_taken_out_before_a_stop_never_acts_after_it(
     loop = asyncio.create_task(bridge._commands())
     try:
         inbox.put_nowait(command("velocity", b'{"linear": 0.1, "angular": 0}'))
-        await wait_until(lambda: robot.commanded_velocity == (0.1, 0.0))
+        await until(lambda: robot.commanded_velocity == (0.1, 0.0))
         inbox.put_nowait(late)  # within the velocity period of the first
-        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))  # the stop
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))  # the stop
         await asyncio.sleep(0.6)  # two velocity periods: a put-back V would have acted
     finally:
         loop.cancel()
@@ -760,7 +761,7 @@ async def test_a_take_over_that_is_not_retained_is_ignored_and_reported(
         assert not task.done()
         assert bridge.online
         await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
-        await wait_until(lambda: bool(moving(sim)))  # it still owns the robot
+        await until(lambda: bool(moving(sim)))  # it still owns the robot
         assert not task.done()
     # The retained state is the bridge's own goodbye, never an ONLINE left behind.
     async with Watcher(b) as late:
@@ -783,9 +784,9 @@ async def test_a_stamped_command_holds_only_until_its_stamp_plus_command_timeout
         await ready(obs)
         command = {"linear": 0.3, "angular": 0.0, "timestamp": time.time() - 0.6}
         await obs.publish("robots/r1/cmd/velocity", command)
-        await wait_until(lambda: bool(moving(sim)))
+        await until(lambda: bool(moving(sim)))
         start = moving(sim)[0][0]
-        await wait_until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=3)
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), timeout=3)
         zero = next(t for t, c in sim.firmware.received if t > start and c == DriveVelocity(0, 0.0))
         # 0.8 s after its stamp, plus the 0.25 s skew at most: 0.2-0.45 s from now.
         assert 0.1 < zero - start < 0.5, zero - start

@@ -28,6 +28,7 @@ from chassis_sdk.sim import ChassisSimulator
 
 from .support.cli import cli, running
 from .support.foxglove_client import FoxgloveClient
+from .support.helpers import drives
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -40,10 +41,6 @@ APP_ORIGINS = ("https://app.foxglove.dev", "https://studio.foxglove.dev", "file:
 
 def twist(linear: float, angular: float = 0.0) -> bytes:
     return json.dumps({"linear": {"x": linear}, "angular": {"z": angular}}).encode()
-
-
-def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
-    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
 
 
 async def until(condition: Callable[[], bool], timeout: float) -> float:

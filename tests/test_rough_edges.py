@@ -145,8 +145,8 @@ async def test_monitor_json_stamps_are_wall_time() -> None:
 async def test_mqtt_telemetry_and_events_are_stamped_in_wall_time() -> None:
     pytest.importorskip("aiomqtt")
     from chassis_sdk import Chassis
+    from tests.support.mqtt import Observer, bridged
     from tests.support.mqtt_broker import broker, find_mosquitto
-    from tests.test_bridge import Observer, bridged
 
     if find_mosquitto() is None:
         pytest.skip("needs mosquitto")
@@ -173,8 +173,8 @@ async def test_mqtt_telemetry_and_events_are_stamped_in_wall_time() -> None:
 async def test_the_fleet_console_shows_an_offline_robots_link_as_unknown_as_the_docs_do() -> None:
     pytest.importorskip("aiomqtt")
     from chassis_sdk import Chassis
+    from tests.support.mqtt import Observer, bridged
     from tests.support.mqtt_broker import broker, find_mosquitto
-    from tests.test_bridge import Observer, bridged
 
     if find_mosquitto() is None:
         pytest.skip("needs mosquitto")
