@@ -9,8 +9,6 @@ import csv
 import itertools
 import json
 import signal
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -25,7 +23,7 @@ from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import ROOT, cli, running
 from .support.foxglove_client import FoxgloveClient
-from .support.helpers import kill_while_recording
+from .support.helpers import kill_while_recording, until
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -260,18 +258,9 @@ def _twist(linear: float, angular: float) -> bytes:
     return json.dumps({"linear": {"x": linear}, "angular": {"z": angular}}).encode()
 
 
-async def _until(condition: Callable[[], bool], timeout: float) -> float:
-    """Seconds until ``condition()`` holds (TimeoutError after ``timeout``)."""
-    start = time.monotonic()
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.005)
-    return time.monotonic() - start
-
-
 async def _moving(sim: ChassisSimulator, moving: bool, timeout: float) -> float:
     """Seconds until the simulated wheels' targets are (not) zero."""
-    return await _until(lambda: any(sim.firmware.target) == moving, timeout)
+    return await until(lambda: any(sim.firmware.target) == moving, timeout)
 
 
 async def test_foxglove_client_sees_streams_calls_services_and_drives(tmp_path: Path) -> None:
@@ -328,9 +317,9 @@ async def test_foxglove_client_sees_streams_calls_services_and_drives(tmp_path: 
         assert await _moving(sim, False, 0.2) < 0.2  # well before the 0.3 s deadman
         # E-stop and its release, through the services.
         assert (await client.call("emergency_stop"))["success"]
-        await _until(lambda: sim.firmware.software_estop, 1.0)
+        await until(lambda: sim.firmware.software_estop, 1.0)
         assert (await client.call("release_emergency_stop"))["success"]
-        await _until(lambda: not sim.firmware.software_estop, 1.0)
+        await until(lambda: not sim.firmware.software_estop, 1.0)
         assert (await client.call("clear_faults"))["success"]
         # The panel going away stops the robot at once, not at the deadman.
         await client.publish(1, _twist(0.2, 0.0))

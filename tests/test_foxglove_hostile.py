@@ -13,7 +13,7 @@ import os
 import signal
 import socket
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -28,7 +28,7 @@ from chassis_sdk.sim import ChassisSimulator
 
 from .support.cli import cli, running
 from .support.foxglove_client import FoxgloveClient
-from .support.helpers import drives
+from .support.helpers import drives, until
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -43,19 +43,9 @@ def twist(linear: float, angular: float = 0.0) -> bytes:
     return json.dumps({"linear": {"x": linear}, "angular": {"z": angular}}).encode()
 
 
-async def until(condition: Callable[[], bool], timeout: float) -> float:
-    """Seconds until ``condition()`` holds, checked every loop turn (TimeoutError after
-    ``timeout``)."""
-    start = time.monotonic()
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.002)
-    return time.monotonic() - start
-
-
 async def moving(sim: ChassisSimulator, moving: bool, timeout: float) -> float:
-    """Seconds until the simulated wheels' targets are (not) zero."""
-    return await until(lambda: any(sim.firmware.target) == moving, timeout)
+    """Seconds until the simulated wheels' targets are (not) zero, checked every 2 ms."""
+    return await until(lambda: any(sim.firmware.target) == moving, timeout, poll=0.002)
 
 
 @contextlib.asynccontextmanager

@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Iterator
 
 import pytest
 
@@ -37,7 +37,7 @@ from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
 from .support.cli import ROOT, silent_pty
-from .support.helpers import wait_until
+from .support.helpers import until, wait_until
 
 
 def drives(firmware: object) -> list[tuple[float, DriveVelocity]]:
@@ -444,14 +444,6 @@ async def line(proc: asyncio.subprocess.Process, timeout: float = 15.0) -> str:
         assert proc.stderr is not None
         raise AssertionError(f"ended: {(await proc.stderr.read()).decode()}")
     return text.strip()
-
-
-async def until(condition: Callable[[], bool], timeout: float = 5.0) -> float:
-    start = time.monotonic()
-    async with asyncio.timeout(timeout):
-        while not condition():
-            await asyncio.sleep(0.005)
-    return time.monotonic() - start
 
 
 def moving(sim: ChassisSimulator) -> bool:

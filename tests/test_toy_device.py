@@ -12,7 +12,7 @@ import os
 import random
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -26,6 +26,7 @@ from chassis_sdk.recording import capture
 
 from .support.cli import CLI, ROOT, cli
 from .support.fuzz import harness, mutate
+from .support.helpers import until
 from .support.toy_device import PROFILE, Drive, Ping, Toy, ToyFirmware, ToySimulator, ToyTelemetry
 
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
@@ -38,12 +39,6 @@ def toy() -> Iterator[DeviceProfile]:
         yield PROFILE
     finally:
         unregister("toy")
-
-
-async def wait_until(predicate: Callable[[], bool], timeout: float = 3.0) -> None:
-    async with asyncio.timeout(timeout):
-        while not predicate():
-            await asyncio.sleep(0.005)
 
 
 def drives(firmware: ToyFirmware) -> list[Drive]:
@@ -83,11 +78,9 @@ async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | Non
 async def test_watchdog_resends_and_the_deadman_writes_one_zero() -> None:
     async with ToySimulator() as sim, Toy(sim.port, command_timeout=0.3) as robot:
         await robot.set_velocity(0.4, 0.0)
-        await wait_until(lambda: robot.stats.command_expiries == 1)
+        await until(lambda: robot.stats.command_expiries == 1)
         sent = drives(sim.firmware)
-        await wait_until(
-            lambda: bool(drives(sim.firmware)) and drives(sim.firmware)[-1].linear_mm == 0
-        )
+        await until(lambda: bool(drives(sim.firmware)) and drives(sim.firmware)[-1].linear_mm == 0)
         assert sum(d.linear_mm == 400 for d in sent) >= 4  # resent every 50 ms
         async for t in robot.telemetry():  # the toy stops, and nothing more is sent
             if t.speed == 0.0:
@@ -105,9 +98,7 @@ async def test_leaving_the_block_writes_zero_last(tcp_port: int | None) -> None:
     async with ToySimulator(tcp_port=tcp_port) as sim:
         async with Toy(sim.port) as robot:
             await robot.set_velocity(0.5, 0.2)
-        await wait_until(
-            lambda: bool(drives(sim.firmware)) and drives(sim.firmware)[-1] == Drive(0, 0)
-        )
+        await until(lambda: bool(drives(sim.firmware)) and drives(sim.firmware)[-1] == Drive(0, 0))
         assert drives(sim.firmware)[0] == Drive(500, 200)
 
 
@@ -124,7 +115,7 @@ async def test_requests_retry_time_out_and_drop_late_replies() -> None:
         robot.retries = 0
         with pytest.raises(RequestTimeoutError):
             await robot.ping()
-        await wait_until(lambda: robot.stats.late_replies == 1)
+        await until(lambda: robot.stats.late_replies == 1)
         sim.faults.reply_delay = 0.0
         uptime = await robot.ping()  # whole seconds since the toy booted
         assert 0 <= uptime <= time.monotonic() - booted_after
