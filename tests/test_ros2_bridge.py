@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
 import threading
 import time
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
+import tty
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from typing import Any
 
 import anyio
@@ -21,7 +23,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from chassis_sdk import Board, Chassis
+from chassis_sdk import Board, Chassis, ConnectionLostError
 from chassis_sdk.devices.chassis.messages import DriveVelocity
 from chassis_sdk.integrations.ros2 import Ros2Bridge
 from chassis_sdk.integrations.ros2_dds import (
@@ -29,10 +31,12 @@ from chassis_sdk.integrations.ros2_dds import (
     Participant,
     discovery_from_env,
 )
+from chassis_sdk.protocol import BoardEncoder, ImuSample, Vector3
 from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.recording.ros2_types import check_namespace
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.helpers import tasks_of
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
 
@@ -513,3 +517,132 @@ async def test_no_writer_left_is_told_once_per_leaving(
     for count, matched in statuses:
         reader._on_loop(count, matched)  # what the listener schedules on the loop
     assert len(calls) == told
+
+
+# --- by callback: no task per stream, readings in order, the newest kept ---------------------
+
+
+def samples(reader: DataReader[Any]) -> list[Any]:
+    """What ``reader`` holds now, taken (the samples only, not the instance states)."""
+    return [s for s in reader.take(N=1000) if hasattr(s, "__idl_typename__")]
+
+
+def seconds(stamp: Any) -> float:
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+@asynccontextmanager
+async def device_on_simulator(board: bool) -> AsyncIterator[tuple[Any, Any]]:
+    simulator = BoardSimulator() if board else ChassisSimulator()
+    device = Board if board else Chassis
+    async with simulator as sim, device(sim.port) as robot:
+        yield sim, robot
+
+
+@contextmanager
+def raw_pty() -> Iterator[tuple[int, str]]:
+    """A pty in raw mode: its master (what the device writes) and the port's name."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        yield master, os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("board", [False, True], ids=["chassis", "board"])
+async def test_the_ros2_bridge_has_no_task_per_stream_and_odometry_comes_in_order(
+    board: bool,
+) -> None:
+    # The bridge takes its data by callback (issue 29, item 3): a fixed number of tasks
+    # whatever the device's streams (a chassis has three, a board four).
+    async with device_on_simulator(board) as (_sim, robot), bridged(robot) as (bridge, _):
+        odom = Graph().reader("rt/odom", m.Odometry)
+        got: list[Any] = []
+
+        def enough() -> bool:
+            got.extend(samples(odom))
+            return len(got) >= 40
+
+        await until(enough, 10.0)
+        # run() itself, and one task each for the readings, /diagnostics, cmd_vel and
+        # emergency_stop: before, one per stream instead of "_publish" (a chassis's
+        # odometry and telemetry, a board's odometry, imu and battery).
+        assert tasks_of("ros2.py") == ["_commands", "_diagnostics", "_estops", "_publish", "run"]
+        published = bridge.odometry_published
+    stamps = [seconds(o.header.stamp) for o in got]
+    assert stamps == sorted(stamps)
+    assert len(set(stamps)) == len(stamps)
+    assert published >= len(got)
+    assert bridge.dropped_readings == 0
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_a_link_lost_for_good_ends_the_bridge_with_connection_lost() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:  # no reconnect
+        bridge = Ros2Bridge(robot, discovery=Discovery(domain_id=DOMAIN))
+        ended: list[BaseException] = []
+
+        async def run() -> None:
+            try:
+                await bridge.run()
+            except* ConnectionLostError as group:
+                ended.extend(group.exceptions)
+
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(run)
+            await bridge.started.wait()
+            await until(lambda: bridge.odometry_published > 5, 5.0)
+            sim.unplug()
+            with anyio.fail_after(5.0):
+                while not ended:
+                    await asyncio.sleep(0.01)
+        assert ended  # (before: one for each stream's task)
+        assert all(sim.port in str(error) for error in ended)
+
+
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_a_burst_keeps_the_newest_queue_size_readings_and_counts_the_rest() -> None:
+    encoder = BoardEncoder()
+    zero = Vector3(0.0, 0.0, 0.0)
+    # Accelerations of k / 164 g (exact on the wire: 164 counts a g).
+    burst = b"".join(
+        encoder.encode(ImuSample(accel=Vector3(k / 164, 0.0, 0.0), gyro=zero, mag=zero))
+        for k in range(1, 21)
+    )
+    with raw_pty() as (master, path):
+        async with (
+            Board(path, queue_size=4) as board,
+            bridged(board, read_only=True) as (bridge, _),
+        ):
+            imu = Graph().reader("rt/imu/data_raw", m.Imu)
+            probe = encoder.encode(ImuSample(accel=Vector3(1.0, 0.0, 0.0), gyro=zero, mag=zero))
+            seen: list[Any] = []
+
+            def matched() -> bool:  # the reader sees the bridge's writer
+                os.write(master, probe)
+                seen.extend(samples(imu))
+                return bool(seen)
+
+            await until(matched, 10.0)
+            dropped = bridge.dropped_readings
+            os.write(master, burst)  # one read, 20 readings before the publisher runs
+            got: list[Any] = []
+
+            def arrived() -> bool:
+                got.extend(samples(imu))
+                return any(round(s.linear_acceleration.x / 9.80665 * 164) == 20 for s in got)
+
+            start = time.monotonic()
+            await until(arrived, 5.0)
+            assert time.monotonic() - start < 5.0
+    ks = [round(s.linear_acceleration.x / 9.80665 * 164) for s in got]
+    ks = [k for k in ks if k != 164]  # the probes still in flight
+    assert ks == [17, 18, 19, 20]  # the newest queue_size, in order
+    # The 16 older ones of the burst (and any probe read with it) dropped and counted.
+    assert bridge.dropped_readings - dropped >= 16

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import time
 import urllib.error
@@ -22,13 +23,14 @@ pytest.importorskip("aiohttp", reason="the dashboard's extra: pip install '.[web
 import websockets
 from websockets.typing import Origin
 
-from chassis_sdk import BatteryModel, Chassis, MotionLimits
+from chassis_sdk import BatteryModel, Chassis, EventKind, MotionLimits
 from chassis_sdk.integrations.web import GamepadMapping, WebDashboard
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec, PackSpec
 
 from .support.cli import cli, running
 from .support.dashboard import moving, served, until
+from .support.helpers import tasks_of
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -197,6 +199,47 @@ async def test_the_state_of_charge_null_until_known_then_the_percentage_and_leve
     async with served() as (_sim, robot, web), page(web) as p:  # no model: no charge
         await p.wait(lambda: bool(p.states))
         assert p.states[-1]["battery"] is None
+
+
+@pytest.mark.parametrize("board", [False, True], ids=["chassis", "board"])
+async def test_the_dashboard_has_no_task_per_stream_and_pages_get_states_in_order(
+    board: bool,
+) -> None:
+    # The dashboard takes its data by callback (issue 29, item 3): a fixed number of
+    # tasks whatever the device's streams (a chassis has three, a board four).
+    async with (
+        served(board=board, web={"rate": 50}) as (_sim, robot, web),
+        websockets.connect(f"ws://127.0.0.1:{web.port}/ws") as ws,
+    ):
+        hello = json.loads(await ws.recv())
+        assert hello["type"] == "hello"
+        states = [json.loads(await ws.recv()) for _ in range(15)]
+        # Its own task, the velocity writer, the state broadcast, and this page's two
+        # (its handler, its sender): before, also one for the events and one per stream
+        # (9 for a chassis, 10 for a board).
+        tasks = ["_guarded", "_guarded", "_run_tasks", "_send", "_socket"]
+        assert tasks_of("web.py") == tasks
+        events: list[dict[str, Any]] = []
+        if not board:
+            await robot.emergency_stop(confirm=True)
+            await robot.release_emergency_stop(confirm=True)
+            async with asyncio.timeout(5.0):
+                while len(events) < 2:
+                    state = json.loads(await ws.recv())
+                    states.append(state)
+                    events += [e for e in state.get("events", []) if "ESTOP" in e["kind"]]
+    assert all(s["type"] == "state" for s in states)
+    times = [s["time"] for s in states]
+    assert times == sorted(times)
+    stamps = [s["odometry"]["timestamp"] for s in states if s["odometry"] is not None]
+    assert len(stamps) >= 10
+    # The newest kept each time, never an older one (each state converts the reading's
+    # monotonic time to wall time afresh: the same reading differs by microseconds).
+    assert all(later > earlier - 0.001 for earlier, later in itertools.pairwise(stamps))
+    assert len({round(t, 3) for t in stamps}) >= 3  # and newer ones come
+    if not board:
+        kinds = [e["kind"] for e in events]
+        assert kinds[:2] == [EventKind.ESTOP_ENGAGED.name, EventKind.ESTOP_RELEASED.name]
 
 
 # --- driving -------------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """Small helpers shared by the tests: the transports the failure tests run on, a
 heartbeat of the event loop, a wait on the SDK's own state (from a coroutine or a plain
 test), the velocity commands a simulated chassis read, the descriptors held on a port,
-a firmware stand-in on its own thread for tests that block or replace the loop, and a
-program killed while it records.
+a firmware stand-in on its own thread for tests that block or replace the loop, a
+program killed while it records, and the tasks an integration runs.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import threading
 import time
 import tty
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -36,11 +37,13 @@ __all__ = [
     "drives",
     "kill_while_recording",
     "open_fds_on",
+    "tasks_of",
     "until",
     "wait_until",
 ]
 
 TRANSPORTS = [pytest.param(False, id="pty"), pytest.param(True, id="tcp")]
+INTEGRATIONS = Path(__file__).resolve().parents[2] / "chassis_sdk" / "integrations"
 
 
 class Heartbeat:
@@ -102,6 +105,21 @@ def open_fds_on(path: str) -> int:
         with contextlib.suppress(OSError):
             n += os.readlink(f"/proc/self/fd/{fd}") == target
     return n
+
+
+def tasks_of(module: str) -> list[str]:
+    """The running tasks that run a function of ``chassis_sdk/integrations/<module>``
+    (the first such function of each, through anyio's wrapper), by the function's name."""
+    path = str(INTEGRATIONS / module)
+    found = []
+    for task in asyncio.all_tasks():
+        coro: Any = task.get_coro()
+        while coro is not None and hasattr(coro, "cr_code"):
+            if coro.cr_code.co_filename == path:
+                found.append(coro.cr_code.co_name)
+                break
+            coro = coro.cr_await
+    return sorted(found)
 
 
 class ThreadedPeer:
