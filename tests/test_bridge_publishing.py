@@ -1,8 +1,9 @@
-"""The MQTT bridge takes its data by callback (issue 29, item 3): a bridged robot runs
-no task per stream, every message the bridge publishes reaches the broker in the
-order the device produced it, and a device lost for good still ends the bridge with
-its last will. A real mosquitto on loopback and the simulators on ptys, as in
-tests/test_bridge.py."""
+"""How the MQTT bridge publishes what the device produces, which it takes by callback
+(issue 29, item 3): a bridged robot runs no task per stream, every message the bridge
+publishes reaches the broker in the order the device produced it, a stalled broker
+makes it skip and count rather than queue (and end after its timeout), and a device
+lost for good still ends the bridge with its last will. A real mosquitto on loopback
+and the simulators on ptys, as in tests/test_bridge.py."""
 
 from __future__ import annotations
 
