@@ -1,4 +1,5 @@
-"""The example scripts and the command line, run as a user would, in subprocesses."""
+"""The example scripts and the command line, run as a user would, in subprocesses; and
+the testing page's snippet (docs/testing.md), run as written."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ import json
 import os
 import re
 import sys
+import textwrap
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -80,6 +83,36 @@ async def test_example_takes_a_port_argument() -> None:
         )
     assert code == 0, err
     assert "ZKWL-brush-motor-chassis" in out
+
+
+def snippet_of_the_testing_page() -> str:
+    page = (ROOT / "docs" / "testing.md").read_text()
+    match = re.search(r"```python\n(.*?)```", page, re.S)
+    assert match, "no python block in docs/testing.md"
+    return match.group(1)
+
+
+async def test_the_testing_page_snippet_survives_the_replug() -> None:
+    snippet = snippet_of_the_testing_page()
+    assert "await sim.replug()" in snippet
+    # The block as written, then, inside its `async with`, 2.5 s of telemetry after the
+    # replug (LOST comes 1.5 s after it without reconnect=True) and the state.
+    check = """
+    seen = 0
+    async for _ in robot.telemetry():
+        seen += 1
+        if seen == 125:
+            break
+    result["state"] = robot.connection_state.value
+    result["seen"] = seen
+"""
+    source = "async def snippet(result):\n" + textwrap.indent(snippet + check, "    ")
+    scope: dict[str, Any] = {}
+    exec(compile(source, "docs/testing.md", "exec"), scope)
+    result: dict[str, Any] = {}
+    async with asyncio.timeout(20):
+        await scope["snippet"](result)
+    assert result == {"state": "connected", "seen": 125}
 
 
 @pytest.mark.parametrize("flag", [[], ["--board"]], ids=["chassis", "board"])

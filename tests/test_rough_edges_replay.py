@@ -13,7 +13,6 @@ import importlib.util
 import json
 import re
 import socket
-import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -359,37 +358,7 @@ async def test_plot_without_output_writes_beside_the_input(
     assert stray.exists() == before  # nothing in the current directory
 
 
-# --- row 23: the testing page's snippet, as written ----------------------------------------
-
-
-def snippet_of_the_testing_page() -> str:
-    page = (ROOT / "docs" / "testing.md").read_text()
-    match = re.search(r"```python\n(.*?)```", page, re.S)
-    assert match, "no python block in docs/testing.md"
-    return match.group(1)
-
-
-async def test_the_testing_page_snippet_survives_the_replug() -> None:
-    snippet = snippet_of_the_testing_page()
-    assert "await sim.replug()" in snippet
-    # The block as written, then, inside its `async with`, 2.5 s of telemetry after the
-    # replug (LOST comes 1.5 s after it without reconnect=True) and the state.
-    check = """
-    seen = 0
-    async for _ in robot.telemetry():
-        seen += 1
-        if seen == 125:
-            break
-    result["state"] = robot.connection_state.value
-    result["seen"] = seen
-"""
-    source = "async def snippet(result):\n" + textwrap.indent(snippet + check, "    ")
-    scope: dict[str, Any] = {}
-    exec(compile(source, "docs/testing.md", "exec"), scope)
-    result: dict[str, Any] = {}
-    async with asyncio.timeout(20):
-        await scope["snippet"](result)
-    assert result == {"state": "connected", "seen": 125}
+# --- replay's lines: the monitor form, as first written ---------------------------------
 
 
 def _brief_reference(value: object) -> str:
