@@ -1,9 +1,10 @@
-"""Issue 28's rows on captures and simulators: the real ``chassis-sdk`` in a
-subprocess against a simulator, a silent pty or a bad path (``sim``, ``record``,
-``replay``, ``plot``), and the testing page's snippet run as written.
+"""The command line's capture and simulator commands (``sim``, ``record``, ``replay``,
+``plot``): the real ``chassis-sdk`` in a subprocess against a simulator, a silent pty
+or a bad path, and replay's lines in the monitor's form.
 
 Each failure is one line on stderr with no traceback and an exit code that says so
-(2 for an argument refused while parsing); each success says what it did.
+(2 for an argument refused while parsing); each success says what it did. The rows
+named are those of issue 28, which asked for them.
 """
 
 from __future__ import annotations
