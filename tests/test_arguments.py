@@ -2,7 +2,8 @@
 and by the settings that take a number without a device to talk to (the timeouts,
 ``MotionLimits``, ``reset_odometry``) (field hardening, issue 11): as the standard
 library does, a wrong type (a bool, a string, ``None``) is a ``TypeError`` and a bad
-value (NaN, infinities, huge numbers) a ``ValueError`` (issue 28 row 18).
+value (NaN, infinities, huge numbers) a ``ValueError`` (issue 28 row 18); a servo angle
+out of the board's range is refused too.
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ from typing import Any
 import pytest
 
 from chassis_sdk import Board, Chassis, MotionLimits
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
+from .support.helpers import drives
 from .support.standin import BoardStandIn, ChassisStandIn, drive_frames
 
 BAD = [
@@ -115,3 +118,31 @@ async def test_every_bad_number_is_refused_before_a_byte_is_written(bad: Any) ->
         if not _valid_anyway(bad, allows):
             with pytest.raises(_error_of(bad), match="must be"):
                 make(bad)
+
+
+async def test_row18_a_wrong_type_is_a_type_error_and_nothing_is_written() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        for linear in ("0.1", None, True):
+            with pytest.raises(TypeError, match="linear must be a number"):
+                await robot.set_velocity(linear, 0)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="linear must be finite"):
+            await robot.set_velocity(float("nan"), 0)
+        await robot.get_firmware_version()  # everything written before it has arrived
+        assert drives(sim) == []
+
+
+async def test_row18_the_servo_range_is_enforced_before_a_byte_is_written() -> None:
+    async with BoardSimulator() as sim, Board(sim.port) as board:
+        assert board.servo_range == (0.0, 180.0)
+        for angle in (400.0, -0.1, 180.1):
+            with pytest.raises(ValueError, match="out of range: the servo takes 0 to 180"):
+                await board.set_servo(1, angle)
+        with pytest.raises(TypeError, match="angle must be a number"):
+            await board.set_servo(1, "90")  # type: ignore[arg-type]
+        with pytest.raises(TypeError, match="not an integer"):
+            await board.set_servo(1.0, 90)  # type: ignore[arg-type]
+        assert sim.firmware.servo == {1: 0.0, 2: 0.0}
+        await board.set_servo(1, 180)
+        await board.set_servo(2, 0.0)
+        await board.get_led()  # the servo frames have arrived by its reply
+        assert sim.firmware.servo == {1: 180.0, 2: 0.0}

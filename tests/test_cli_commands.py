@@ -1,5 +1,6 @@
-"""The command line's dispatch: every command is its own ``func``, none falls through
-to another, and ``--device`` has one meaning whichever of its names is typed."""
+"""The command line's parser: every command is its own ``func``, none falls through to
+another, ``--device`` has one meaning whichever of its names is typed, and a bad
+argument is refused while parsing (exit 2, nothing printed first, no port opened)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import pytest
 
 import chassis_sdk.cli
 from chassis_sdk.cli import build_parser, drive_command, main
+
+from .support.cli import cli
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
@@ -113,3 +116,58 @@ def test_the_device_comes_from_chassis_sdk_device_before_its_old_name(
         main(["info", "/dev/ttyX"])
     assert exited.value.code == 2
     assert "CHASSIS_SDK_DEVICE='tractor' is not a known device" in capsys.readouterr().err
+
+
+# --- refused while parsing -----------------------------------------------------------------
+
+
+def test_row18_argument_types_refuse_a_type_error_too(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import argparse
+
+    from chassis_sdk.cli.arguments import arg_type
+
+    def must_be_int(value: object) -> object:
+        if not isinstance(value, int):
+            raise TypeError(f"n must be an integer, got {value!r}")
+        return value
+
+    parser = argparse.ArgumentParser(prog="x")
+    parser.add_argument("--n", type=arg_type(float, must_be_int))
+    with pytest.raises(SystemExit) as exited:
+        parser.parse_args(["--n", "1.5"])
+    assert exited.value.code == 2
+    assert "argument --n: n must be an integer, got 1.5" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        pytest.param(("serve", "/dev/ttyX", "--foxglove-port", "70000"), "argument --foxglove-port: port=70000 is out of range", id="serve-port"),
+        pytest.param(("bridge", "/dev/ttyX", "--robot-id", "r1", "--broker", "http://x"), "argument --broker: must be mqtt://HOST:PORT or mqtts://HOST:PORT, got 'http://x'", id="broker-http"),
+        pytest.param(("bridge", "/dev/ttyX", "--robot-id", "r1", "--broker", "mqtt://h:99999"), "argument --broker: has a bad port", id="broker-port"),
+        pytest.param(("bridge", "/dev/ttyX", "--robot-id", "a/b#"), "argument --robot-id: robot_id must be letters, digits, '-' or '_', got 'a/b#'", id="robot-id"),
+        pytest.param(("bridge", "/dev/ttyX", "--robot-id", "r1", "--prefix", "+"), "argument --prefix: prefix must be letters", id="prefix"),
+        pytest.param(("bridge", "/dev/ttyX", "--robot-id", "r1", "--rate", "1000"), "argument --rate: rate must be a finite number 0 to 100", id="bridge-rate"),
+        pytest.param(("sim", "chassis", "--noise", "2"), "argument --noise: noise must be a finite number 0 to 1, got 2.0", id="sim-noise"),
+        pytest.param(("sim", "chassis", "--drop", "-0.1"), "argument --drop: drop must be a finite number 0 to 1", id="sim-drop"),
+    ],
+)  # fmt: skip
+async def test_row11_bad_arguments_are_refused_while_parsing(
+    args: tuple[str, ...], says: str
+) -> None:
+    code, out, err = await cli(*args)
+    assert code == 2, err
+    assert says in err
+    assert "Traceback" not in err
+    assert out == ""  # nothing printed first ("bridging ... as robots/a/b#")
+
+
+async def test_row11_a_bad_broker_from_the_environment_is_refused_while_parsing() -> None:
+    code, out, err = await cli(
+        "bridge", "/dev/ttyX", "--robot-id", "r1", env={"CHASSIS_SDK_BROKER": "http://y"}
+    )
+    assert code == 2, err
+    assert "argument --broker: must be mqtt://HOST:PORT or mqtts://HOST:PORT, got 'http://y'" in err
+    assert out == ""

@@ -92,6 +92,23 @@ def test_detect_without_a_port_listens_on_every_port(
             proc.wait()
 
 
+async def test_row11_detect_on_a_silent_port_exits_2_like_info_and_monitor() -> None:
+    with silent_pty() as quiet:
+        code, out, err = await cli("detect", quiet, "--seconds", "0.5")
+        assert code == 2, err
+        assert out == ""
+        line = one_line(err)
+        assert line.startswith(f"chassis-sdk: {quiet}: nothing recognisable within 0.5 s")
+        code, _, err = await cli("info", quiet, "--timeout", "0.3")
+        assert code == 2, err  # the same code for the same silent port
+    code, _, err = await cli("detect", "/dev/ttyDOESNOTEXIST")
+    assert code == 1  # a port that does not open is an everyday failure, as for info
+    assert "no such device" in one_line(err)
+    async with ChassisSimulator() as sim:
+        code, out, err = await cli("detect", sim.port)
+    assert (code, out) == (0, "chassis\n"), err
+
+
 async def test_baudrate_and_environment_defaults_reach_every_command() -> None:
     async with ChassisSimulator() as sim, BoardSimulator() as board:
         code, out, err = await cli("info", "-b", "57600", env={"CHASSIS_SDK_PORT": sim.port})

@@ -1,5 +1,6 @@
 """Events (each kind produced by the simulators' fault injection, once per edge),
-wait_for and the confirm= variants, and diagnose() reports."""
+wait_for, wait_connected and the confirm= variants (a timeout is an SDK error), and what
+a device reports of itself: diagnose() and motion_blocked()."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ import pytest
 from chassis_sdk import (
     Board,
     Chassis,
+    ChassisError,
     ChassisStatus,
+    ConnectionState,
     DockingState,
     DriverError,
     EventKind,
@@ -177,6 +180,25 @@ async def test_wait_for_returns_the_latest_at_once_and_times_out_otherwise() -> 
             await robot.wait_for(lambda t: True, float("inf"))
 
 
+async def test_row2_every_public_waiter_raises_an_sdk_error_that_is_a_timeout() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        with pytest.raises(ChassisError) as waited:
+            await robot.wait_for(lambda t: False, timeout=0.2)
+        assert isinstance(waited.value, TimeoutError)
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        Chassis(sim.port, reconnect=True) as robot,
+    ):
+        states = robot.connection_states()
+        sim.unplug()  # and not plugged back: the device reconnects for ever
+        async for state in states:
+            if state is ConnectionState.RECONNECTING:
+                break
+        with pytest.raises(ChassisError, match="not connected within 0.05 s") as connected:
+            await robot.wait_connected(0.05)
+        assert isinstance(connected.value, TimeoutError)
+
+
 async def test_confirm_times_out_when_the_device_does_not_show_the_effect() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port, link_timeout=None) as robot:
         await anext(robot.telemetry())
@@ -231,3 +253,15 @@ async def test_board_diagnose_and_a_closed_device() -> None:
     assert "LED on" in report.notes
     closed = await board.diagnose()
     assert "link disconnected" in closed.faults
+
+
+async def test_row1_motion_blocked_is_the_device_s_own_public_answer() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        await robot.wait_for(lambda t: True, timeout=2.0)
+        assert robot.motion_blocked() == ()
+        await robot.emergency_stop()
+        sim.firmware.hold_bumper(front=False)
+        await robot.wait_for(lambda t: bool(t.status & ChassisStatus.REAR_BUMPER), timeout=2.0)
+        assert robot.motion_blocked() == ("SOFTWARE_ESTOP", "REAR_BUMPER")
+    async with BoardSimulator() as board_sim, Board(board_sim.port) as board:
+        assert board.motion_blocked() == ()  # a board reports nothing that blocks it

@@ -1,22 +1,28 @@
 """``chassis_sdk.run`` and the event loop it runs on: uvloop when installed; a device
-object works in whichever event loop it is connected in."""
+object works in whichever event loop it is connected in; a user's script under it ends
+in one line on a timeout, and quietly with the robot stopped on Ctrl-C."""
 
 from __future__ import annotations
 
 import asyncio
 import importlib.util
+import signal
 import socket
 import struct
 import sys
+import textwrap
 import time
+from pathlib import Path
 
 import pytest
 
 import chassis_sdk
 from chassis_sdk import Chassis, ConnectionState
+from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
-from .support.helpers import ThreadedPeer, until
+from .support.cli import ROOT
+from .support.helpers import ThreadedPeer, drives, until
 from .support.standin import is_zero_drive
 
 
@@ -167,3 +173,81 @@ def test_a_device_works_in_a_second_event_loop() -> None:
         assert sum(not is_zero_drive(f) for f in frames[first:]) >= 3  # resends in loop 2
     finally:
         peer.close()
+
+
+# --- user scripts under chassis_sdk.run ----------------------------------------------------
+
+
+async def _script(tmp_path: Path, body: str, *args: str) -> tuple[asyncio.subprocess.Process, Path]:
+    path = tmp_path / "operator_script.py"
+    path.write_text(textwrap.dedent(body))
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, str(path), *args, cwd=ROOT,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    return proc, path
+
+
+def _script_line(err: str) -> str:
+    """The whole of stderr is one line named after the script, with no traceback."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("operator_script.py: "), err
+    return lines[0]
+
+
+async def test_row2_wait_for_times_out_with_an_sdk_error_on_one_line(tmp_path: Path) -> None:
+    async with ChassisSimulator() as sim:
+        proc, _ = await _script(
+            tmp_path,
+            """
+            import sys
+            import chassis_sdk
+
+            async def main() -> None:
+                async with chassis_sdk.Chassis(sys.argv[1]) as robot:
+                    await robot.wait_for(lambda t: False, timeout=0.3)
+
+            chassis_sdk.run(main(), one_line_errors=True)
+            """,
+            sim.port,
+        )
+        async with asyncio.timeout(20):
+            _, err = await proc.communicate()
+    assert proc.returncode == 2, err  # the timeout's status, as for a request's
+    assert "no telemetry satisfied the condition in 0.3 s" in _script_line(err.decode())
+
+
+async def test_row22_ctrl_c_in_a_script_is_quiet_exit_130_and_the_robot_stopped(
+    tmp_path: Path,
+) -> None:
+    async with ChassisSimulator() as sim:
+        proc, _ = await _script(
+            tmp_path,
+            """
+            import asyncio
+            import sys
+            import chassis_sdk
+
+            async def main() -> None:
+                async with chassis_sdk.Chassis(sys.argv[1]) as robot:
+                    await robot.set_velocity(0.3, 0.0)
+                    print("driving", flush=True)
+                    while True:
+                        await robot.set_velocity(0.3, 0.0)
+                        await asyncio.sleep(0.05)
+
+            chassis_sdk.run(main(), one_line_errors=True)
+            """,
+            sim.port,
+        )
+        assert proc.stdout is not None
+        async with asyncio.timeout(20):
+            assert await proc.stdout.readline() == b"driving\n"
+            proc.send_signal(signal.SIGINT)
+            _, err = await proc.communicate()
+            while not drives(sim) or drives(sim)[-1] != DriveVelocity(0, 0.0):
+                await asyncio.sleep(0.01)
+    assert proc.returncode == 130
+    assert err.decode() == ""  # quiet: no KeyboardInterrupt traceback
+    assert any(d.linear_mm == 300 for d in drives(sim))
