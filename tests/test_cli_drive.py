@@ -1,7 +1,9 @@
-"""Issue 28's rough edges around driving, waiting and arguments (rows 1, 2, 11, 17, 18,
-22): the real ``chassis-sdk`` and user scripts in a subprocess against the simulators
-or a silent pty, each failure one line on stderr with no traceback and the exit code
-docs/cli.md gives it, and the API refusing a wrong type with ``TypeError``.
+"""The ``drive`` command: the real ``chassis-sdk`` in a subprocess against the
+simulators: a chassis whose motion is blocked is refused before a velocity is written,
+a velocity is required, the duration and the caps are checked while parsing and the
+caps are raised only explicitly, and Ctrl-C stops it with zero as the last frame. Each
+failure is one line on stderr with no traceback and the exit code docs/cli.md gives
+it. The rows named are those of issue 28, which asked for them.
 """
 
 from __future__ import annotations
