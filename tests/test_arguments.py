@@ -146,3 +146,22 @@ async def test_row18_the_servo_range_is_enforced_before_a_byte_is_written() -> N
         await board.set_servo(2, 0.0)
         await board.get_led()  # the servo frames have arrived by its reply
         assert sim.firmware.servo == {1: 180.0, 2: 0.0}
+
+
+def test_wrong_types_are_type_errors_and_bad_values_value_errors() -> None:
+    from chassis_sdk import Chassis
+    from chassis_sdk.integrations.access import check_token
+    from chassis_sdk.integrations.inbound import check_topic_level
+
+    with pytest.raises(TypeError, match="port must be"):
+        Chassis(5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="port must be"):
+        Chassis("")
+    with pytest.raises(TypeError, match="token must be a string"):
+        check_token(12345678901234567890)
+    with pytest.raises(ValueError, match="at least"):
+        check_token("short")
+    with pytest.raises(TypeError, match="robot_id must be a string"):
+        check_topic_level(7, "robot_id")
+    with pytest.raises(ValueError, match="letters, digits"):
+        check_topic_level("a/b#", "robot_id")

@@ -1,7 +1,7 @@
 """The MQTT bridge against a real mosquitto on loopback and the simulators on ptys:
-the connection topic and last will, retained info, telemetry at the rate, events,
-commands under the deadman, broker loss, no late command, malformed payloads,
-read-only mode and MQTT 5 request/response."""
+the connection topic and last will, retained info, telemetry at the rate and events
+(stamped in wall time), commands under the deadman, broker loss, no late command,
+malformed payloads, read-only mode, MQTT 5 request/response, and the fleet console."""
 
 from __future__ import annotations
 
@@ -83,6 +83,24 @@ async def test_telemetry_at_the_rate_and_events(
         await obs.wait(lambda: any(e["kind"] == "bumper_hit" for e in obs.on("robots/r1/events")))
         hit = next(e for e in obs.on("robots/r1/events") if e["kind"] == "bumper_hit")
         assert hit["source"] == "front"
+
+
+async def test_mqtt_telemetry_and_events_are_stamped_in_wall_time() -> None:
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Chassis(sim.port, reconnect=True) as robot,
+        Observer(b) as obs,
+        bridged(b, robot, rate=10.0),
+    ):
+        await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
+        sim.firmware.press_bumper(front=True)
+        await obs.wait(lambda: bool(obs.on("robots/r1/events")))
+        telemetry = obs.on("robots/r1/telemetry/telemetry")[-1]
+        event = obs.on("robots/r1/events")[-1]
+    for body in (telemetry, event):
+        assert abs(body["timestamp"] - time.time()) < 30
+        assert "monotonic" in body
 
 
 async def test_a_velocity_command_moves_the_robot_and_stops_when_commands_stop(
@@ -402,6 +420,28 @@ async def test_the_bridge_command_logs_in_over_tls_and_says_when_it_cannot(
                 proc.send_signal(signal.SIGTERM)
                 await proc.wait()
         await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "OFFLINE")
+
+
+async def test_the_fleet_console_shows_an_offline_robots_link_as_unknown_as_the_docs_do() -> None:
+    async with broker() as b, ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        async with Observer(b) as obs:
+            async with bridged(b, robot, "r2"):
+                await obs.wait(lambda: bool(obs.on("robots/r2/link")))
+            await obs.wait(lambda: obs.on("robots/r2/connection")[-1]["state"] == "OFFLINE")
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, str(ROOT / "examples" / "fleet_console.py"),
+            "--broker", f"mqtt://127.0.0.1:{b.port}", "--seconds", "1",
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        async with asyncio.timeout(20):
+            out, err = await proc.communicate()
+    assert proc.returncode == 0, err.decode()
+    header, line = out.decode().splitlines()[:2]
+    assert line.split() == ["r2", "chassis", "OFFLINE", "unknown", "-"]
+    docs = (ROOT / "docs" / "mqtt.md").read_text()
+    block = docs[docs.index("$ python examples/fleet_console.py") :].splitlines()
+    assert block[1] == header
+    assert block[3].split() == ["r2", "chassis", "OFFLINE", "unknown", "-"]
 
 
 def test_bridges_spread_their_telemetry_slots_over_the_period() -> None:

@@ -1,6 +1,7 @@
 """The commands an operator reaches for: ``estop``, ``clear-faults`` and ``dock``, each
 confirmed by telemetry (exit 3 when the chassis does not confirm), and ``info`` as a
-health check (exit 4 on a fault, REMOTE_OFFLINE only information). The real
+health check (exit 4 on a fault, REMOTE_OFFLINE only information; exit 5 when it could
+read only part, every field it read printed). The real
 ``chassis-sdk`` in a subprocess against the simulators on ptys; the failure paths run
 on every transport (``CHASSIS_SDK_BACKEND`` reaches the subprocess).
 """
@@ -8,6 +9,7 @@ on every transport (``CHASSIS_SDK_BACKEND`` reaches the subprocess).
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
@@ -124,6 +126,32 @@ async def test_a_release_says_what_else_still_stops_the_robot() -> None:
         assert code == 0, err
         assert out.startswith("e-stop released (SOFTWARE_ESTOP clear); still set: HARDWARE_ESTOP")
         assert "emergency-stop button is pressed" in out
+
+
+async def test_info_prints_every_field_it_read_marks_the_one_it_did_not_and_exits_partial() -> None:
+    from chassis_sdk.protocol import CommandId
+
+    async with ChassisSimulator() as sim:
+        sim.firmware.ignored.add(CommandId.CHASSIS_INFO)  # as a line that loses each one
+        code, out, err = await cli("info", sim.port, "--timeout", "0.2")
+    assert code == 5, err
+    assert "firmware     v1.0.3 (103)" in out
+    assert "hardware     ZKWL-brush-motor-chassis" in out
+    assert "geometry     (no reply: " in out
+    assert "ship date    2024-01-02" in out
+    assert "flags" in out  # the telemetry and the diagnosis still came
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "partial: no reply for geometry" in lines[0]
+
+
+async def test_info_on_a_silent_port_still_fails_at_the_first_request() -> None:
+    with silent_pty() as quiet:
+        started = time.monotonic()
+        code, _, err = await cli("info", quiet, "--timeout", "0.2")
+        elapsed = time.monotonic() - started
+    assert code == 2, err
+    assert elapsed < 0.2 * 3 * 2 + 5  # one request's attempts, not four requests'
 
 
 # --- clear-faults -----------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Opening, reconnecting and closing during either: connects are bounded and never
 block the loop (nor another robot's watchdog), ``close()`` during a connect or a
 reconnect leaves nothing open, the first telemetry after opening is fresh, and ports are
-exclusive.
+exclusive, the refusal naming who holds the port in words that say what it is.
 
 From the field hardening of issue 11, against the stand-ins of ``standin.py``, on ptys
 and TCP.
@@ -19,11 +19,14 @@ import sys
 import time
 import tty
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from chassis_sdk import Chassis, ConnectionState, NotConnectedError, PortOpenError
+from chassis_sdk.core.ports import command_line, lock_holder
+from chassis_sdk.sim import ChassisSimulator
 
 from .support.helpers import TRANSPORTS, Heartbeat, open_fds_on, until
 from .support.stalls import first_telemetry
@@ -177,6 +180,62 @@ async def test_a_second_open_of_a_serial_port_fails_at_once_naming_the_holder() 
         assert f"port busy, held by process {os.getpid()}" in err.decode()
         assert robot.is_connected
         assert robot.stats.frames > 0
+
+
+#: The installed ``chassis-sdk`` script, as an operator runs it.
+SCRIPT = Path(sys.executable).with_name("chassis-sdk")
+
+
+@pytest.mark.parametrize(
+    ("argv", "shown"),
+    [
+        (
+            ["/srv/venv/bin/python3", "/srv/venv/bin/chassis-sdk", "monitor", "/dev/x"],
+            "chassis-sdk monitor /dev/x",
+        ),
+        (
+            ["/usr/bin/python3.11", "-u", "-m", "chassis_sdk.cli", "record", "p"],
+            "chassis_sdk.cli record p",
+        ),
+        (["/usr/bin/minicom", "-D", "/dev/ttyUSB0"], "minicom -D /dev/ttyUSB0"),
+        ([], ""),
+    ],
+)
+def test_command_line_keeps_the_program_and_its_arguments(argv: list[str], shown: str) -> None:
+    assert command_line(argv) == shown
+
+
+def test_a_long_command_line_is_cut_and_marked() -> None:
+    shown = command_line(["tool", *["argument"] * 20])
+    assert len(shown) == 80
+    assert shown.startswith("tool argument")
+    assert shown.endswith("…")
+
+
+@pytest.mark.skipif(not SCRIPT.exists(), reason="needs the installed chassis-sdk script")
+async def test_info_on_a_port_monitor_holds_names_monitor_and_its_subcommand() -> None:
+    async with ChassisSimulator() as sim:
+        port = sim.port
+        monitor = await asyncio.create_subprocess_exec(
+            str(SCRIPT), "monitor", sim.port, "--json", stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            await until(lambda: lock_holder(sim.port) is not None, timeout=15)
+            info = await asyncio.create_subprocess_exec(
+                str(SCRIPT), "info", sim.port, stdout=asyncio.subprocess.PIPE,
+                stderr=asyncio.subprocess.PIPE,
+            )  # fmt: skip
+            async with asyncio.timeout(30):
+                _, err = await info.communicate()
+        finally:
+            monitor.terminate()
+            await monitor.wait()
+    lines = err.decode().strip().splitlines()
+    assert info.returncode != 0
+    assert len(lines) == 1, lines
+    assert f"held by process {monitor.pid} (chassis-sdk monitor {port} --json)" in lines[0]
+    assert os.sep + "python" not in lines[0]
 
 
 # --- the flush at open ----------------------------------------------------------------------

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import enum
 import logging
+import time
 
 import pytest
 
@@ -360,3 +361,17 @@ def test_a_velocity_command_is_checked_and_made_once() -> None:
     assert made == [(0.3, 0.1), (0.2, 0.1)]
     with pytest.raises(ValueError, match="linear"):
         frame_builder(make, lambda m: b"", float("nan"), 0.0)
+
+
+# --- what leaves the process: wall time, the monotonic reading named --------------------
+
+
+def test_outbound_json_carries_wall_time_and_names_the_monotonic_reading() -> None:
+    from chassis_sdk.core.events import EventKind, RobotEvent
+    from chassis_sdk.core.plain import outbound
+
+    now = time.monotonic()
+    body = outbound(RobotEvent(EventKind.BUMPER_HIT, source="front", timestamp=now - 2.0))
+    assert body["monotonic"] == now - 2.0
+    assert abs(body["timestamp"] - (time.time() - 2.0)) < 0.5
+    assert "monotonic" not in outbound({"value": 1})

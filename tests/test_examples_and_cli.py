@@ -1,8 +1,11 @@
 """The example scripts and the command line, run as a user would, in subprocesses; and
-the testing page's snippet (docs/testing.md), run as written."""
+the docs that show them held to what they do: the testing page's snippet
+(docs/testing.md) run as written, docs/cli.md's commands and synopsis against
+``--help``."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import os
@@ -16,7 +19,7 @@ import pytest
 
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .support.cli import ROOT, silent_pty
+from .support.cli import ROOT, cli, silent_pty
 
 #: The examples that run against the built-in simulator (fleet_console needs a broker:
 #: tests/test_bridge.py runs it against a real one).
@@ -121,6 +124,16 @@ async def test_demo_exits_zero_and_shows_what_it_does(flag: list[str]) -> None:
     assert code == 0, err
     assert "done:" in out
     assert "v=" in out
+
+
+async def test_the_demo_explains_the_status_where_it_first_shows_it() -> None:
+    code, out, err = await cli("demo", timeout=60)
+    assert code == 0, err
+    lines = out.splitlines()
+    first = next(i for i, line in enumerate(lines) if "status=REMOTE_OFFLINE" in line)
+    assert "REMOTE_OFFLINE: the remote control is off" in lines[first + 1]
+    assert "normal under host control" in lines[first + 1]
+    assert "firmware     v1.0.3 (103)" in out
 
 
 async def test_info_against_a_running_simulator() -> None:
@@ -264,3 +277,36 @@ async def test_the_cli_page_documents_every_command_and_no_other() -> None:
     assert documented == commands
     for command in commands:
         assert f"**{command}**" in page, f"docs/cli.md says nothing of {command}"
+
+
+def synopsis(page: str) -> dict[str, str]:
+    """Each command's lines in the synopsis block at the top of docs/cli.md."""
+    block = page.split("```text\n", 1)[1].split("```", 1)[0]
+    found: dict[str, str] = {}
+    current = None
+    for line in block.splitlines():
+        if line.startswith("chassis-sdk "):
+            current = line.split()[1]
+            found[current] = found.get(current, "") + line.split("#", 1)[0]
+        elif current is not None and line.startswith(" "):
+            found[current] += " " + line.split("#", 1)[0]
+    return found
+
+
+def test_the_cli_synopsis_names_every_option_of_every_command() -> None:
+    from chassis_sdk.cli import build_parser
+    from chassis_sdk.cli.profile import subparsers
+
+    # Said once for all in the text below the block: -h, -b/--baudrate and --config.
+    everywhere = {"help", "baudrate", "config"}
+    lines = synopsis((ROOT / "docs" / "cli.md").read_text())
+    for name, parser in subparsers(build_parser()).items():
+        assert name in lines, f"docs/cli.md's synopsis has no line for {name}"
+        for action in parser._actions:
+            skip = action.dest in everywhere or action.help == argparse.SUPPRESS
+            if skip or not action.option_strings:
+                continue
+            said = [
+                o for o in action.option_strings if re.search(rf"{re.escape(o)}\b", lines[name])
+            ]
+            assert said, (name, action.option_strings)
