@@ -1,5 +1,8 @@
-"""Issue 28's rough edges that are not a single command's: each row a test that runs
-what the new user ran and checks what they expected."""
+"""The ``monitor`` command: the real ``chassis-sdk`` in a subprocess against the
+simulators. A viewer writes nothing, not even a zero; it shows the charge of the
+profile's battery; its JSON is stamped in wall time; a board's monitor is a live view
+with units; each status bit is explained once, where it first shows. The rows named
+are those of issue 28, which asked for them."""
 
 from __future__ import annotations
 
