@@ -1,6 +1,7 @@
 """The command line's capture and simulator commands (``sim``, ``record``, ``replay``,
-``plot``): the real ``chassis-sdk`` in a subprocess against a simulator, a silent pty
-or a bad path, and replay's lines in the monitor's form.
+``plot``): the real ``chassis-sdk`` in a subprocess against a simulator on a pty or TCP,
+a silent pty or a bad path; the cable pulled during ``record``; ``replay --as-device``
+feeding an unmodified ``Chassis``; and replay's lines in the monitor's form.
 
 Each failure is one line on stderr with no traceback and an exit code that says so
 (2 for an argument refused while parsing); each success says what it did. The rows
@@ -10,9 +11,12 @@ named are those of issue 28, which asked for them.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import importlib.util
 import json
+import os
 import re
+import signal
 import socket
 from pathlib import Path
 from typing import Any
@@ -357,6 +361,94 @@ async def test_plot_without_output_writes_beside_the_input(
     assert png.read_bytes().startswith(b"\x89PNG")
     assert out.startswith(f"wrote {png} ("), out
     assert stray.exists() == before  # nothing in the current directory
+
+
+# --- the cable pulled during record, the wrong protocol, sim's port, replay as a device ---
+
+
+async def test_record_reports_an_unplug_and_a_replug_and_writes_them_down(tmp_path: Path) -> None:
+    path = tmp_path / "cap.jsonl"
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("record", sim.port, str(path), "--seconds", "3") as rec,
+    ):
+        await rec.wait_for_line(lambda line: re.search(r": [1-9][\d,]* bytes", line) is not None)
+        sim.unplug()
+        await rec.wait_for_line(lambda line: "LINK LOST" in line)
+        await sim.replug()
+        code, out, err = await rec.finish()
+    assert code == 0, err
+    assert "\r" not in out  # piped: plain lines, never a carriage return
+    assert "the link dropped 1 time(s)" in out
+    events = [json.loads(line).get("event") for line in path.read_text().splitlines()]
+    assert [e for e in events if e] == ["disconnected", "reconnected"]
+    code, out, err = await cli("replay", str(path))
+    assert code == 0, err
+    assert "Telemetry: " in out
+
+
+async def test_record_fails_when_the_link_is_not_restored(tmp_path: Path) -> None:
+    path = tmp_path / "cap.jsonl"
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("record", sim.port, str(path), "--seconds", "2") as rec,
+    ):
+        await rec.wait_for_line(lambda line: re.search(r": [1-9][\d,]* bytes", line) is not None)
+        sim.unplug()
+        code, _, err = await rec.finish()
+    assert code == 1
+    assert "was lost and not restored" in one_line(err)
+
+
+async def test_replay_with_the_wrong_protocol_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "board.jsonl"
+    async with BoardSimulator() as board:
+        code, _, err = await cli("record", board.port, str(path), "--seconds", "0.5")
+    assert code == 0, err
+    code, out, err = await cli("replay", str(path), "--protocol", "chassis")
+    assert code == 1
+    assert out == ""
+    assert "no chassis frames in" in one_line(err)
+    assert "it looks like a board capture; try --device board" in err
+
+
+async def test_sim_removes_its_port_link_on_sigterm() -> None:
+    async with running("sim", "chassis") as sim:
+        port = (await sim.wait_for_line(lambda line: True)).strip()
+        assert os.path.islink(port)
+        sim.proc.send_signal(signal.SIGTERM)
+        code, _, _ = await sim.finish()
+    assert code == 128 + signal.SIGTERM
+    assert not os.path.lexists(port)
+
+
+@pytest.mark.parametrize("suffix", [".jsonl", ".mcap"])
+async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path, suffix: str) -> None:
+    from chassis_sdk import Chassis, ConnectionLostError, Telemetry
+    from chassis_sdk.recording import capture
+
+    path = tmp_path / f"cap{suffix}"
+    async with ChassisSimulator() as sim:
+        await capture.record(sim.port, path, seconds=1.0)
+    recorded = [
+        m.seq for _, m in capture.decode_capture(path, "chassis") if isinstance(m, Telemetry)
+    ]
+    assert len(recorded) >= 40
+    async with running("replay", str(path), "--as-device", "--tcp", "0") as replay:
+        port = (await replay.wait_for_line(lambda line: True)).strip()
+        seen: list[int] = []
+        async with Chassis(port) as robot:
+            await robot.set_velocity(0.2, 0.0)  # written, counted, never acted on
+            with contextlib.suppress(ConnectionLostError):
+                async for t in robot.telemetry():
+                    seen.append(t.seq)
+        code, out, err = await replay.finish()
+    assert code == 0, err
+    # What the robot sent, with its own sequence numbers, in order.
+    assert len(seen) >= len(recorded) - 5
+    assert seen == recorded[len(recorded) - len(seen) :]
+    assert "the application wrote" in out
+    assert "DriveVelocity" in out
 
 
 # --- replay's lines: the monitor form, as first written ---------------------------------

@@ -1,9 +1,11 @@
 """The ``drive`` command: the real ``chassis-sdk`` in a subprocess against the
-simulators: a chassis whose motion is blocked is refused before a velocity is written,
-a velocity is required, the duration and the caps are checked while parsing and the
-caps are raised only explicitly, and Ctrl-C stops it with zero as the last frame. Each
-failure is one line on stderr with no traceback and the exit code docs/cli.md gives
-it. The rows named are those of issue 28, which asked for them.
+simulators on ptys and TCP, a silent pty and the other device's simulator. A chassis
+whose motion is blocked is refused before a velocity is written; a velocity is
+required, bad numbers, the duration and the caps are refused while parsing, and the caps
+are raised only explicitly; the link lost ends it at once; Ctrl-C and SIGTERM stop it
+with zero as the last frame. Each failure is one line on stderr with no traceback and
+the exit code docs/cli.md gives it. The rows named are those of issue 28, which asked
+for them.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ import pytest
 
 from chassis_sdk.devices.chassis.firmware import ChassisFirmware
 from chassis_sdk.protocol import ChassisStatus, DriverError, DriveVelocity
-from chassis_sdk.sim import ChassisSimulator
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
-from .support.cli import cli, one_line, running
+from .support.cli import cli, one_line, running, silent_pty
 from .support.helpers import drives
 
 # --- row 1: a chassis whose motion is blocked is refused at once --------------------------------
@@ -154,6 +156,73 @@ async def test_row17_ctrl_c_during_drive_says_interrupted_and_zero_is_the_last_f
         assert out.splitlines()[-1] == "interrupted; stopped"
         assert "Traceback" not in err
         assert err == ""
+        async with asyncio.timeout(5):
+            while not drives(sim) or drives(sim)[-1] != DriveVelocity(0, 0.0):
+                await asyncio.sleep(0.01)
+        assert any(d.linear_mm == 300 for d in drives(sim))
+
+
+# --- bad numbers, a silent port or the other device, the default caps, the link lost, SIGTERM
+
+
+async def test_drive_refuses_bad_numbers_before_opening_the_port() -> None:
+    for bad in ("nan", "inf", "x"):
+        code, out, err = await cli("drive", "/dev/ttyDOESNOTEXIST", "--linear", bad)
+        assert code == 2
+        assert "argument --linear" in err
+        assert "could not open" not in err
+        assert "driving" not in out
+
+
+async def test_drive_does_not_claim_success_on_a_silent_port_or_another_device() -> None:
+    with silent_pty() as quiet:
+        code, out, err = await cli("drive", quiet, "--linear", "0.2", "--timeout", "0.5")
+    assert code == 2
+    assert "driving" not in out
+    assert "no 0x81 chassis telemetry" in one_line(err)
+    async with BoardSimulator() as board:
+        code, out, err = await cli("drive", board.port, "--linear", "0.2", "--timeout", "0.5")
+        assert code == 1
+        assert "driving" not in out
+        assert "none is a chassis frame" in one_line(err)
+        assert board.firmware.received == type(board.firmware.received)()  # nothing written
+
+
+async def test_drive_clamps_to_the_default_limits_and_says_so() -> None:
+    async with ChassisSimulator() as sim:
+        code, out, err = await cli(
+            "drive", sim.port, "--linear", "2", "--angular", "-5", "--duration", "0.3"
+        )
+        assert code == 0, err
+        assert "linear 2 m/s clamped to 0.5 m/s (--max-linear)" in out
+        assert "angular -5 rad/s clamped to -1 rad/s (--max-angular)" in out
+        assert max(d.linear_mm for d in drives(sim)) == 500
+        assert min(d.angular for d in drives(sim)) == pytest.approx(-1.0)
+        assert drives(sim)[-1] == DriveVelocity(0, 0.0)
+
+
+async def test_drive_ends_at_once_when_the_link_is_lost() -> None:
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("drive", sim.port, "--linear", "0.2", "--duration", "20") as drive,
+    ):
+        await drive.wait_for_line(lambda line: line.startswith("driving"))
+        sim.unplug()
+        code, out, err = await drive.finish(timeout=5)
+    assert code == 1
+    assert "lost the link to" in one_line(err)
+    assert "stopped" not in out
+
+
+async def test_sigterm_during_drive_leaves_zero_as_the_last_frame() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        running("drive", sim.port, "--linear", "0.3", "--duration", "20") as drive,
+    ):
+        await drive.wait_for_line(lambda line: line.startswith("driving"))
+        drive.proc.send_signal(signal.SIGTERM)
+        code, _, _ = await drive.finish()
+        assert code == 128 + signal.SIGTERM
         async with asyncio.timeout(5):
             while not drives(sim) or drives(sim)[-1] != DriveVelocity(0, 0.0):
                 await asyncio.sleep(0.01)

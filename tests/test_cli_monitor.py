@@ -1,8 +1,11 @@
 """The ``monitor`` command: the real ``chassis-sdk`` in a subprocess against the
-simulators. A viewer writes nothing, not even a zero; it shows the charge of the
-profile's battery; its JSON is stamped in wall time; a board's monitor is a live view
-with units; each status bit is explained once, where it first shows. The rows named
-are those of issue 28, which asked for them."""
+simulators on ptys and TCP, a silent pty and the other device's simulator. A viewer
+writes nothing, not even a zero; it lives through an unplug and says so; a silent port
+or the other device is one line within seconds; its JSON is one object a line, stamped
+in wall time; it shows the charge of the profile's battery; a board's monitor is a live
+view with units, and any device gets one from its profile's streams; each status bit is
+explained once, where it first shows. The rows named are those of issue 28, which
+asked for them."""
 
 from __future__ import annotations
 
@@ -10,9 +13,11 @@ import json
 import time
 from pathlib import Path
 
-from chassis_sdk.sim import ChassisSimulator
+import pytest
 
-from .support.cli import ROOT, cli
+from chassis_sdk.sim import BoardSimulator, ChassisSimulator
+
+from .support.cli import ROOT, cli, one_line, running, silent_pty
 
 # --- row 16: a viewer never writes -------------------------------------------------------
 
@@ -114,3 +119,69 @@ async def test_monitor_explains_each_status_bit_once_where_it_first_shows() -> N
         code, out, err = await cli("monitor", sim.port, "--seconds", "1")
     assert code == 0, err
     assert out.count("(status REMOTE_OFFLINE: the remote control is off") == 1
+
+
+# --- an unplug, a silent port or the other device, JSON, any device from its profile ------
+
+
+async def test_monitor_lives_through_an_unplug_and_says_so() -> None:
+    async with (
+        ChassisSimulator(tcp_port=0) as sim,
+        running("monitor", sim.port, "--seconds", "6") as mon,
+    ):
+        await mon.wait_for_line(lambda line: "v=+0.000" in line)
+        sim.unplug()
+        await mon.wait_for_line(lambda line: line == "link: reconnecting\n")
+        await sim.replug()
+        await mon.wait_for_line(lambda line: line == "link: connected\n")
+        await mon.wait_for_line(lambda line: "v=+0.000" in line)
+        code, out, err = await mon.finish()
+    assert code == 0, err
+    assert "Traceback" not in err
+    assert "faults: none" in out
+
+
+async def test_monitor_on_a_silent_port_or_another_device_is_one_line_within_seconds() -> None:
+    with silent_pty() as quiet:
+        code, _, err = await cli("monitor", quiet, "--seconds", "30", timeout=10)
+    assert code == 2
+    assert "no 0x81 chassis telemetry from" in one_line(err)
+    async with BoardSimulator() as board:
+        code, _, err = await cli("monitor", board.port, "--seconds", "30", timeout=10)
+    assert code == 1
+    assert "none is a chassis frame: is it a board?" in one_line(err)
+
+
+async def test_monitor_json_is_one_object_per_line() -> None:
+    async with ChassisSimulator() as sim:
+        code, out, err = await cli("monitor", sim.port, "--seconds", "1", "--json")
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.splitlines()]
+    telemetry = [r for r in rows if r["type"] == "Telemetry"]
+    assert len(telemetry) >= 20
+    assert telemetry[0]["status"] == "REMOTE_OFFLINE"
+    assert {"type": "faults", "faults": []} in rows
+
+
+async def test_monitor_shows_any_device_from_its_profile_streams(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A device with no monitor of its own gets the generic one: the board's, taken away.
+    from chassis_sdk.cli import devices as device_commands
+    from chassis_sdk.cli.monitor_command import monitor
+    from chassis_sdk.devices import profile
+
+    monkeypatch.delitem(device_commands.BUILTIN, "board")
+    assert device_commands.commands("board").monitor is None
+    async with BoardSimulator() as board:
+        await monitor(profile("board"), board.port, 115200, 1.2, False)
+        out = capsys.readouterr().out
+        assert "imu: accel=" in out
+        assert "velocity: linear=" in out
+        lines = out.splitlines()
+        assert len([line for line in lines if line.startswith("imu:")]) <= 8  # 5/s at most
+        await monitor(profile("board"), board.port, 115200, 1.0, True)
+        out = capsys.readouterr().out
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert sum(r["type"] == "ImuSample" for r in rows) >= 50  # every sample at 100 Hz
+    assert {"VelocityFeedback", "BatteryReading"} <= {r["type"] for r in rows}
