@@ -387,7 +387,7 @@ async def test_measured_on_the_command_line_and_dry_run(tmp_path: Path) -> None:
     assert not (tmp_path / "x.toml").exists()
 
 
-async def test_a_robot_that_does_not_move_fails_inone_line(tmp_path: Path) -> None:
+async def test_a_robot_that_does_not_move_fails_in_one_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.set_hardware_estop(True)
         run = await Cli.start(
@@ -404,7 +404,7 @@ async def test_a_robot_that_does_not_move_fails_inone_line(tmp_path: Path) -> No
     assert drives[-1] == DriveVelocity(0, 0.0)  # and stopped
 
 
-async def test_no_telemetry_fails_inone_line(tmp_path: Path) -> None:
+async def test_no_telemetry_fails_in_one_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.telemetry_enabled = False
         run = await Cli.start(
