@@ -77,7 +77,7 @@ async def test_row1_released_the_chassis_drives_again() -> None:
         assert any(d.linear_mm == 200 for d in drives(sim))
 
 
-# --- row 17: a velocity required, a sane duration, conservative caps, Ctrl-C ------------------
+# --- row 17: a velocity required, a sane duration, conservative caps, Ctrl-C or SIGTERM ------
 
 
 @pytest.mark.parametrize(
@@ -99,6 +99,9 @@ async def test_row1_released_the_chassis_drives_again() -> None:
             "argument --max-angular: max_angular must be a finite number 0 to 4 rad/s",
             id="max-angular-9",
         ),
+        pytest.param(("--linear", "nan"), "argument --linear", id="linear-nan"),
+        pytest.param(("--linear", "inf"), "argument --linear", id="linear-inf"),
+        pytest.param(("--linear", "x"), "argument --linear", id="linear-not-a-number"),
     ],
 )  # fmt: skip
 async def test_row17_drive_arguments_are_refused_while_parsing(
@@ -144,15 +147,24 @@ async def test_row17_the_caps_are_raised_only_explicitly_and_the_clamp_says_so()
         assert any(d.angular == pytest.approx(0.5) for d in drives(sim))
 
 
-async def test_row17_ctrl_c_during_drive_says_interrupted_and_zero_is_the_last_frame() -> None:
+@pytest.mark.parametrize(
+    ("sent", "exit_code"),
+    [
+        pytest.param(signal.SIGINT, 130, id="ctrl-c"),
+        pytest.param(signal.SIGTERM, 128 + signal.SIGTERM, id="sigterm"),
+    ],
+)
+async def test_ctrl_c_or_sigterm_during_drive_says_interrupted_and_zero_is_the_last_frame(
+    sent: signal.Signals, exit_code: int
+) -> None:
     async with (
         ChassisSimulator() as sim,
         running("drive", sim.port, "--linear", "0.3", "--duration", "20") as drive,
     ):
         await drive.wait_for_line(lambda line: line.startswith("driving"))
-        drive.proc.send_signal(signal.SIGINT)
+        drive.proc.send_signal(sent)
         code, out, err = await drive.finish()
-        assert code == 130, err
+        assert code == exit_code, err
         assert out.splitlines()[-1] == "interrupted; stopped"
         assert "Traceback" not in err
         assert err == ""
@@ -162,16 +174,7 @@ async def test_row17_ctrl_c_during_drive_says_interrupted_and_zero_is_the_last_f
         assert any(d.linear_mm == 300 for d in drives(sim))
 
 
-# --- bad numbers, a silent port or the other device, the default caps, the link lost, SIGTERM
-
-
-async def test_drive_refuses_bad_numbers_before_opening_the_port() -> None:
-    for bad in ("nan", "inf", "x"):
-        code, out, err = await cli("drive", "/dev/ttyDOESNOTEXIST", "--linear", bad)
-        assert code == 2
-        assert "argument --linear" in err
-        assert "could not open" not in err
-        assert "driving" not in out
+# --- a silent port or the other device, the default caps, the link lost ---------------------
 
 
 async def test_drive_does_not_claim_success_on_a_silent_port_or_another_device() -> None:
@@ -212,18 +215,3 @@ async def test_drive_ends_at_once_when_the_link_is_lost() -> None:
     assert code == 1
     assert "lost the link to" in one_line(err)
     assert "stopped" not in out
-
-
-async def test_sigterm_during_drive_leaves_zero_as_the_last_frame() -> None:
-    async with (
-        ChassisSimulator() as sim,
-        running("drive", sim.port, "--linear", "0.3", "--duration", "20") as drive,
-    ):
-        await drive.wait_for_line(lambda line: line.startswith("driving"))
-        drive.proc.send_signal(signal.SIGTERM)
-        code, _, _ = await drive.finish()
-        assert code == 128 + signal.SIGTERM
-        async with asyncio.timeout(5):
-            while not drives(sim) or drives(sim)[-1] != DriveVelocity(0, 0.0):
-                await asyncio.sleep(0.01)
-        assert any(d.linear_mm == 300 for d in drives(sim))
