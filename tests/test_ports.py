@@ -38,7 +38,7 @@ from chassis_sdk.core.ports import (
 from chassis_sdk.sim import ChassisSimulator
 
 from .support.cli import CLI, ROOT, silent_pty
-from .support.helpers import open_fds_on, until
+from .support.helpers import next_state, open_fds_on, until
 
 S = ConnectionState
 
@@ -372,11 +372,6 @@ def sdk_log(text: str) -> Iterator[Seen]:
     finally:
         log.removeHandler(seen)
         log.setLevel(old)
-
-
-async def next_state(states: AsyncIterator[ConnectionState], timeout: float = 5.0) -> S:
-    async with asyncio.timeout(timeout):
-        return await anext(states)
 
 
 def move_link(link: Path, target: str) -> None:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import AsyncIterator
 
 import pytest
 
@@ -28,15 +27,11 @@ from chassis_sdk import (
 from chassis_sdk.protocol import Command, CommandId, DriveVelocity
 from chassis_sdk.sim import BoardSimulator, BoardSpec, ChassisSimulator, ChassisSpec, LineFaults
 
+from .support.helpers import next_state
 from .support.standin import ChassisStandIn, drive_frames
 
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 S = ConnectionState
-
-
-async def next_state(states: AsyncIterator[ConnectionState], timeout: float = 5.0) -> S:
-    async with asyncio.timeout(timeout):
-        return await anext(states)
 
 
 async def telemetry_after(robot: Chassis, since: float, timeout: float = 5.0) -> Telemetry:

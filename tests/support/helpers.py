@@ -1,8 +1,9 @@
 """Small helpers shared by the tests: the transports the failure tests run on, a
 heartbeat of the event loop, a wait on the SDK's own state (from a coroutine or a plain
-test), the velocity commands a simulated chassis read, the descriptors held on a port,
-a firmware stand-in on its own thread for tests that block or replace the loop, a
-program killed while it records, and the tasks an integration runs.
+test) and on a device's next connection state, the velocity commands a simulated
+chassis read, the descriptors held on a port, a firmware stand-in on its own thread for
+tests that block or replace the loop, a program killed while it records, and the tasks
+an integration runs.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import sys
 import threading
 import time
 import tty
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,6 +29,7 @@ from chassis_sdk.protocol import DriveVelocity
 from .standin import ChassisStandIn, Received, frame_a
 
 if TYPE_CHECKING:
+    from chassis_sdk import ConnectionState
     from chassis_sdk.sim import ChassisSimulator
 
 __all__ = [
@@ -36,6 +38,7 @@ __all__ = [
     "ThreadedPeer",
     "drives",
     "kill_while_recording",
+    "next_state",
     "open_fds_on",
     "tasks_of",
     "until",
@@ -90,6 +93,14 @@ def wait_until(condition: Callable[[], bool], timeout: float = 5.0) -> float:
             raise AssertionError(f"not within {timeout} s")
         time.sleep(0.005)
     return time.monotonic() - start
+
+
+async def next_state(
+    states: AsyncIterator[ConnectionState], timeout: float = 5.0
+) -> ConnectionState:
+    """The next state of ``connection_states()`` (TimeoutError after ``timeout``)."""
+    async with asyncio.timeout(timeout):
+        return await anext(states)
 
 
 def drives(sim: ChassisSimulator) -> list[DriveVelocity]:
