@@ -1,6 +1,7 @@
 """The event loop the tests run on: asyncio's own, or uvloop with
-``CHASSIS_SDK_TEST_LOOP=uvloop`` (CI runs the integration tests on it once); and the
-``netns`` marker's plugin."""
+``CHASSIS_SDK_TEST_LOOP=uvloop`` (CI runs the integration tests on it once); the
+markers' plugin (what each marker means, and the check that every test carries the
+ones it needs) and the ``netns`` marker's plugin."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ from collections.abc import Callable, Mapping
 
 import pytest
 
-# The `netns` marker: a test in a network namespace of its own, loopback only
-# (tests/support/netns.py).
-pytest_plugins = ("tests.support.netns",)
+# The markers (tests/support/markers.py), and `netns`: a test in a network namespace of
+# its own, loopback only (tests/support/netns.py).
+pytest_plugins = ("tests.support.markers", "tests.support.netns")
 
 if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":
     import asyncio

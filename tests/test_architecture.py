@@ -249,6 +249,7 @@ def _run(code: str, **env: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.integration
 def test_the_codecs_load_without_the_runtime() -> None:
     code = (
         "import sys, chassis_sdk.protocol\n"
@@ -262,6 +263,7 @@ def test_the_codecs_load_without_the_runtime() -> None:
     assert result.stdout.strip() == "[]"
 
 
+@pytest.mark.integration
 def test_import_chassis_sdk_loads_no_runtime() -> None:
     result = _run(
         "import sys, chassis_sdk; print(sorted(m for m in sys.modules"
@@ -271,6 +273,7 @@ def test_import_chassis_sdk_loads_no_runtime() -> None:
     assert result.stdout.strip() == "[]"
 
 
+@pytest.mark.integration
 def test_record_works_whichever_way_the_device_class_was_imported(tmp_path: Path) -> None:
     # The core names no recorder: it finds the one chassis_sdk.recording declares.
     code = (
@@ -284,6 +287,7 @@ def test_record_works_whichever_way_the_device_class_was_imported(tmp_path: Path
     assert result.stdout.strip() == "True True"
 
 
+@pytest.mark.integration
 def test_a_bogus_backend_fails_only_the_open_in_one_line() -> None:
     cli = [sys.executable, "-m", "chassis_sdk.cli"]
     env = {**os.environ, "CHASSIS_SDK_BACKEND": "bogus"}

@@ -90,6 +90,7 @@ def _valid_anyway(bad: Any, allows: str) -> bool:
     return bad == -1e308 and "negative" in allows
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("bad", BAD)
 async def test_every_bad_number_is_refused_before_a_byte_is_written(bad: Any) -> None:
     async with (
@@ -120,6 +121,7 @@ async def test_every_bad_number_is_refused_before_a_byte_is_written(bad: Any) ->
                 make(bad)
 
 
+@pytest.mark.integration
 async def test_row18_a_wrong_type_is_a_type_error_and_nothing_is_written() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         for linear in ("0.1", None, True):
@@ -131,6 +133,7 @@ async def test_row18_a_wrong_type_is_a_type_error_and_nothing_is_written() -> No
         assert drives(sim) == []
 
 
+@pytest.mark.integration
 async def test_row18_the_servo_range_is_enforced_before_a_byte_is_written() -> None:
     async with BoardSimulator() as sim, Board(sim.port) as board:
         assert board.servo_range == (0.0, 180.0)

@@ -465,6 +465,8 @@ def check_events(events: list[RobotEvent], model: BatteryModel) -> None:
     assert low.voltage is not None
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_estimate_follows_the_simulated_pack_with_power_telemetry_and_capacity() -> None:
     # A 7S Li-ion pack of 0.12 Ah: the ~18 A of the pattern empties it in half a minute
     # (time compressed about a hundredfold from a real pack), 80 % to 4 %. The model is
@@ -482,6 +484,8 @@ async def test_estimate_follows_the_simulated_pack_with_power_telemetry_and_capa
     check_events(events, model)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_estimate_from_voltage_alone_with_power_telemetry() -> None:
     # No capacity: the voltage (sag undone with the 0xB1 currents) is all there is;
     # the smoothing's lag behind a pack draining ~3 %/s is the larger part of the error.
@@ -506,6 +510,8 @@ def shifted(curve: Sequence[tuple[float, float]], volts: float) -> list[tuple[fl
     return [(v + volts, p) for v, p in curve]
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.parametrize("offset", [-0.03, 0.03], ids=["30mV-low", "30mV-high"])
 async def test_estimate_with_the_packs_curve_off_the_models(offset: float) -> None:
     # The pack's own curve is 30 mV per cell off the model's Li-ion curve (the figures
@@ -566,6 +572,7 @@ async def monitored(
     return captured
 
 
+@pytest.mark.integration
 async def test_monitor_shows_the_percentage_beside_the_voltage_and_the_level(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -589,6 +596,7 @@ async def test_monitor_shows_the_percentage_beside_the_voltage_and_the_level(
     assert re.fullmatch(r"event: battery low: \d+\.\d V, \d+ %", event), event
 
 
+@pytest.mark.integration
 async def test_monitor_json_carries_the_percentage_null_until_known_and_the_events(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -612,6 +620,7 @@ async def test_monitor_json_carries_the_percentage_null_until_known_and_the_even
     assert all(e["percentage"] < model.critical for e in events)
 
 
+@pytest.mark.integration
 async def test_monitor_without_a_model_shows_the_voltage_alone_and_null(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -625,6 +634,7 @@ async def test_monitor_without_a_model_shows_the_voltage_alone_and_null(
     assert first["battery_level"] is None
 
 
+@pytest.mark.integration
 async def test_monitor_of_a_board_shows_the_percentage_of_its_battery_stream(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -649,6 +659,7 @@ async def test_monitor_of_a_board_shows_the_percentage_of_its_battery_stream(
 # --- where it shows: a Foxglove/MCAP recording -----------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_an_mcap_recording_carries_the_charge_beside_the_voltage(tmp_path: Path) -> None:
     pytest.importorskip("foxglove", reason="the foxglove extra")
     from mcap.reader import make_reader
@@ -728,6 +739,7 @@ def proto_fields(data: bytes) -> dict[int, Any]:
     return fields
 
 
+@pytest.mark.integration
 async def test_the_monitor_command_takes_the_model_from_the_profile(tmp_path: Path) -> None:
     # The whole command in a subprocess: the profile's [battery] table is the model.
     profile_file = tmp_path / "chassis-sdk.toml"

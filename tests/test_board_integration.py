@@ -15,6 +15,8 @@ from chassis_sdk.sim import BoardSimulator
 
 from .support.standin import BoardStandIn, Received
 
+pytestmark = pytest.mark.integration
+
 
 def velocity_frames(frames: list[Received]) -> list[Received]:
     return [f for f in frames if f.kind == 0x22]
@@ -72,6 +74,7 @@ async def test_request_ids_skip_ids_still_in_flight() -> None:
     assert [f.payload[1] for f in dev.frames if f.kind in (1, 2)] == [254, 255, 0]
 
 
+@pytest.mark.timing
 async def test_request_timeout_for_silent_board() -> None:
     async with (
         BoardStandIn(silent=True) as dev,
@@ -124,6 +127,7 @@ async def test_bad_arguments_raise_before_anything_is_written(
         assert [f.kind for f in dev.frames] == [0x01]
 
 
+@pytest.mark.timing
 async def test_watchdog_and_deadman() -> None:
     async with (
         BoardStandIn(noise=False) as dev,

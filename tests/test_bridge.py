@@ -41,6 +41,8 @@ async def stand() -> AsyncIterator[tuple[Broker, ChassisSimulator, Chassis, Obse
         yield b, sim, robot, obs
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_connection_info_link_and_a_clean_stop(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -62,6 +64,9 @@ async def test_connection_info_link_and_a_clean_stop(
         assert late.on("robots/r1/info")[-1]["device"] == "chassis"
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
+@pytest.mark.timing
 async def test_telemetry_at_the_rate_and_events(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -85,6 +90,8 @@ async def test_telemetry_at_the_rate_and_events(
         assert hit["source"] == "front"
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_mqtt_telemetry_and_events_are_stamped_in_wall_time() -> None:
     async with (
         broker() as b,
@@ -103,6 +110,9 @@ async def test_mqtt_telemetry_and_events_are_stamped_in_wall_time() -> None:
         assert "monotonic" in body
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
+@pytest.mark.timing
 async def test_a_velocity_command_moves_the_robot_and_stops_when_commands_stop(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -128,6 +138,9 @@ async def test_a_velocity_command_moves_the_robot_and_stops_when_commands_stop(
         )
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
+@pytest.mark.timing
 async def test_losing_the_broker_stops_the_robot_at_once(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -154,6 +167,8 @@ async def test_losing_the_broker_stops_the_robot_at_once(
     joystick.cancel()
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_no_command_is_delivered_late_after_a_reconnect(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -173,6 +188,8 @@ async def test_no_command_is_delivered_late_after_a_reconnect(
     await obs.publish("robots/r1/cmd/velocity", b"", retain=True)  # clear the retained one
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 @pytest.mark.parametrize(
     ("topic", "payload", "why"),
     [
@@ -204,6 +221,8 @@ async def test_malformed_commands_are_rejected_and_never_written(
         assert robot.is_connected
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_read_only_never_takes_a_command_but_answers_requests(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -217,6 +236,8 @@ async def test_read_only_never_takes_a_command_but_answers_requests(
         assert obs.on("robots/r1/errors") == []
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_requests_and_responses_over_mqtt5(
     stand: tuple[Broker, ChassisSimulator, Chassis, Observer],
 ) -> None:
@@ -237,6 +258,8 @@ async def test_requests_and_responses_over_mqtt5(
         )
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_a_board_is_bridged_with_its_own_streams() -> None:
     async with (
         broker() as b,
@@ -254,6 +277,8 @@ async def test_a_board_is_bridged_with_its_own_streams() -> None:
         assert "a board has no e-stop; it was stopped" in obs.on("robots/b1/errors")[0]["error"]
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_events() -> None:
     # A pack at 5 %: null while the model warms up (3 s), then the charge, CRITICAL,
     # and battery_low then battery_critical on events with their percentage.
@@ -293,6 +318,8 @@ async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_e
         assert "battery_percentage" not in obs.on("robots/b1/telemetry/imu")[-1]
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_the_last_will_says_connectionbroken_when_the_bridge_vanishes() -> None:
     async with broker() as b, ChassisSimulator() as sim, Observer(b) as obs:
         proc = await asyncio.create_subprocess_exec(
@@ -313,6 +340,8 @@ async def test_the_last_will_says_connectionbroken_when_the_bridge_vanishes() ->
             await proc.wait()
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_the_fleet_console_lists_every_robot_and_stops_them_all() -> None:
     async with (
         broker() as b,
@@ -343,6 +372,7 @@ async def test_the_fleet_console_lists_every_robot_and_stops_them_all() -> None:
         assert robot.commanded_velocity is None
 
 
+@pytest.mark.integration
 async def test_the_fleet_console_without_a_broker_is_one_line() -> None:
     proc = await asyncio.create_subprocess_exec(
         sys.executable, str(ROOT / "examples" / "fleet_console.py"),
@@ -372,6 +402,8 @@ def tls_files(tmp_path: Path) -> Path:
     return tmp_path
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_the_bridge_command_logs_in_over_tls_and_says_when_it_cannot(
     tls_files: Path,
 ) -> None:
@@ -422,6 +454,8 @@ async def test_the_bridge_command_logs_in_over_tls_and_says_when_it_cannot(
         await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "OFFLINE")
 
 
+@pytest.mark.integration
+@pytest.mark.mqtt
 async def test_the_fleet_console_shows_an_offline_robots_link_as_unknown_as_the_docs_do() -> None:
     async with broker() as b, ChassisSimulator() as sim, Chassis(sim.port) as robot:
         async with Observer(b) as obs:

@@ -45,7 +45,7 @@ from .support.mqtt_broker import Broker, broker
 
 NODELAY = [(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)]
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.integration, pytest.mark.mqtt, pytest.mark.timeout(60)]
 
 DEEP = b"[" * 100_000 + b"]" * 100_000
 DEEP_SMALL = b"[" * 2_000 + b"]" * 2_000  # within the size limit: the parser's own depth
@@ -290,6 +290,7 @@ async def test_the_bridge_command_lives_through_hostile_messages() -> None:
 # --- 2. a flood: velocity is state, the deadman runs from the last one published ---------
 
 
+@pytest.mark.timing
 async def test_a_velocity_flood_stops_within_the_deadman_of_its_end() -> None:
     async with (
         broker() as b,
@@ -366,6 +367,7 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
     assert READ_BATCH >= 16
 
 
+@pytest.mark.timing
 async def test_an_estop_behind_a_junk_flood_reaches_the_wire_within_50_ms() -> None:
     async with (
         broker() as b,
@@ -773,6 +775,7 @@ async def test_a_take_over_that_is_not_retained_is_ignored_and_reported(
 # --- review: a command's age counts against its deadman ----------------------------------
 
 
+@pytest.mark.timing
 async def test_a_stamped_command_holds_only_until_its_stamp_plus_command_timeout() -> None:
     async with (
         broker() as b,
@@ -870,6 +873,7 @@ async def test_the_refusals_past_eight_reasons_are_published_as_unlisted(
 # --- review: the bridge command retries whatever ends the bridge, but a taken robot id ---
 
 
+@pytest.mark.slow
 async def test_the_bridge_command_retries_when_the_broker_never_echoes_its_claim(
     tmp_path: Path,
 ) -> None:

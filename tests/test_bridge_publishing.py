@@ -29,6 +29,8 @@ from .support.helpers import until
 from .support.mqtt import Observer, bridge_client
 from .support.mqtt_broker import Broker, broker
 
+pytestmark = [pytest.mark.integration, pytest.mark.mqtt]
+
 #: The most tasks one bridge may start, whatever the number of streams it publishes:
 #: commands, ownership, errors, publishing and two request workers.
 BRIDGE_TASKS = 6
@@ -149,6 +151,7 @@ async def test_a_device_lost_for_good_ends_the_bridge_with_its_last_will() -> No
         assert "link_lost" in [e["kind"] for e in obs.on("robots/r1/events")]
 
 
+@pytest.mark.slow
 async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None:
     # The broker stops reading (SIGSTOP) while the bridge publishes every stream at
     # 100 a second through a small send buffer: once the socket is full, the bridge
@@ -196,6 +199,8 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
                 await task
 
 
+@pytest.mark.slow
+@pytest.mark.timing
 async def test_a_broker_that_reads_nothing_for_the_timeout_ends_the_bridge() -> None:
     # As a publish waiting for the client's ``timeout`` did: once the socket is full
     # and the slots have been skipped for that long, the bridge ends ("broker lost";

@@ -136,6 +136,7 @@ def test_simulator_specs_refuse_nonsense_miscalibration() -> None:
 # --- odometry and wheel-mode commands through a real pty -----------------------------------
 
 
+@pytest.mark.integration
 async def test_odometry_is_the_telemetry_scaled_and_integrated() -> None:
     """Every odometry sample's velocities are the telemetry's times the factors, and
     the pose is those samples integrated."""
@@ -161,6 +162,7 @@ async def test_odometry_is_the_telemetry_scaled_and_integrated() -> None:
         assert pose.angular > 0.1  # it moved while compared
 
 
+@pytest.mark.integration
 async def test_wheel_mode_frames_are_divided_by_the_linear_scale() -> None:
     """On the wire (as the firmware decodes the frames), each wheel speed asked is
     divided by the linear scale; with the simulator's wheels that much bigger, the
@@ -193,6 +195,8 @@ async def test_wheel_mode_frames_are_divided_by_the_linear_scale() -> None:
         assert reported.heading == pytest.approx(heading, rel=0.01)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_miscalibrated_simulator_without_calibration_is_off_by_the_true_factors() -> None:
     """The simulators' miscalibration is what it says (so the tests below can fail):
     uncalibrated odometry falls short by 1 / 1.04 and over-turns by 1 / 0.832."""
@@ -295,6 +299,8 @@ class Cli:
         return self.proc.returncode, err.decode()
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_calibrate_recovers_the_chassis_factors(tmp_path: Path) -> None:
     """linear then angular, the operator answering with the simulator's truth; then
     linear again, which keeps the factor (it converges); then a fresh drive with the
@@ -343,6 +349,8 @@ async def test_calibrate_recovers_the_chassis_factors(tmp_path: Path) -> None:
     assert turned == pytest.approx(1.0, rel=0.01)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_calibrate_fits_the_board_from_its_gyro(tmp_path: Path) -> None:
     """A board's angular factor comes from its gyro (which does not slip), with no
     prompt; with it, the velocity odometry turns as the board truly did."""
@@ -370,6 +378,7 @@ async def test_calibrate_fits_the_board_from_its_gyro(tmp_path: Path) -> None:
     assert turned == pytest.approx(1.0, rel=0.01)
 
 
+@pytest.mark.integration
 async def test_measured_on_the_command_line_and_dry_run(tmp_path: Path) -> None:
     """--measured skips the prompt; --dry-run prints the factor and writes nothing."""
     async with ChassisSimulator() as sim:
@@ -387,6 +396,7 @@ async def test_measured_on_the_command_line_and_dry_run(tmp_path: Path) -> None:
     assert not (tmp_path / "x.toml").exists()
 
 
+@pytest.mark.integration
 async def test_a_robot_that_does_not_move_fails_in_one_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.set_hardware_estop(True)
@@ -404,6 +414,7 @@ async def test_a_robot_that_does_not_move_fails_in_one_line(tmp_path: Path) -> N
     assert drives[-1] == DriveVelocity(0, 0.0)  # and stopped
 
 
+@pytest.mark.integration
 async def test_no_telemetry_fails_in_one_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.telemetry_enabled = False
@@ -417,6 +428,7 @@ async def test_no_telemetry_fails_in_one_line(tmp_path: Path) -> None:
     assert not (tmp_path / "x.toml").exists()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("args", "answer", "message"),
     [
@@ -444,6 +456,7 @@ async def test_nonsense_fails_in_one_line_and_writes_nothing(
     assert not (tmp_path / "x.toml").exists()
 
 
+@pytest.mark.integration
 async def test_ctrl_c_stops_the_robot_and_writes_nothing(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         fw = sim.firmware
@@ -461,6 +474,7 @@ async def test_ctrl_c_stops_the_robot_and_writes_nothing(tmp_path: Path) -> None
     assert not (tmp_path / "x.toml").exists()
 
 
+@pytest.mark.integration
 async def test_calibrate_linear_on_a_board(tmp_path: Path) -> None:
     """A board's linear factor, the operator answering with the truth (20 Hz velocity
     feedback, not the chassis's 50 Hz telemetry)."""
@@ -483,6 +497,7 @@ async def test_calibrate_linear_on_a_board(tmp_path: Path) -> None:
     assert cal.angular_scale == 1.0
 
 
+@pytest.mark.integration
 async def test_calibrate_drives_within_the_profiles_ramp_and_deadman(tmp_path: Path) -> None:
     """The profile's [limits] acceleration and [deadman] reach calibrate's device (it
     built its own limits from the speed flags alone)."""

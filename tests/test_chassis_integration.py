@@ -39,6 +39,7 @@ def host_seqs(frames: list[Received]) -> list[int]:
     return [f.seq for f in frames if f.seq is not None]
 
 
+@pytest.mark.integration
 async def test_every_request_against_the_standin_with_noise() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         assert await robot.get_firmware_version() == 0x0103
@@ -63,6 +64,7 @@ async def test_every_request_against_the_standin_with_noise() -> None:
     assert seqs == list(range(len(seqs)))
 
 
+@pytest.mark.integration
 async def test_request_frames_are_exact() -> None:
     async with ChassisStandIn(noise=False) as dev, Chassis(dev.port) as robot:
         await robot.get_firmware_version()
@@ -71,6 +73,7 @@ async def test_request_frames_are_exact() -> None:
     assert dev.frames[1].raw == bytes.fromhex("ED DE 01 00 B0 0C 01 00 89 02 BD BC")
 
 
+@pytest.mark.integration
 async def test_concurrent_requests_resolve_in_order() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         results = await asyncio.gather(
@@ -86,6 +89,7 @@ async def test_concurrent_requests_resolve_in_order() -> None:
     assert robot.stats.unmatched_replies == 0
 
 
+@pytest.mark.integration
 async def test_telemetry_decodes_in_si_units_with_no_gaps_despite_noise() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         got: list[Telemetry] = []
@@ -105,6 +109,7 @@ async def test_telemetry_decodes_in_si_units_with_no_gaps_despite_noise() -> Non
     assert stats.bytes_dropped > 0  # noise was there, and skipped
 
 
+@pytest.mark.integration
 async def test_emergency_stop_sets_status_bit_and_writes_zero() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         await robot.set_velocity(0.3, 0.0)
@@ -125,6 +130,7 @@ async def test_emergency_stop_sets_status_bit_and_writes_zero() -> None:
     assert is_zero_drive(dev.frames[i + 1])
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("call", "args"),
     [
@@ -151,6 +157,8 @@ async def test_bad_arguments_raise_before_anything_is_written(
         assert host_seqs(dev.frames) == [0, 1]
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_watchdog_resends_at_the_configured_rate() -> None:
     async with (
         ChassisStandIn(noise=False) as dev,
@@ -173,6 +181,8 @@ async def test_watchdog_resends_at_the_configured_rate() -> None:
     assert seqs == list(range(first, first + 21))
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_deadman_writes_one_zero_and_stops_resending() -> None:
     async with (
         ChassisStandIn(noise=False) as dev,
@@ -193,6 +203,7 @@ async def test_deadman_writes_one_zero_and_stops_resending() -> None:
     assert all(not is_zero_drive(f) for f in frames[: zeros[0]])
 
 
+@pytest.mark.integration
 async def test_repeated_calls_keep_the_command_alive() -> None:
     async with (
         ChassisStandIn(noise=False) as dev,
@@ -206,6 +217,8 @@ async def test_repeated_calls_keep_the_command_alive() -> None:
         await dev.wait_for(lambda fs: any(is_zero_drive(f) for f in drive_frames(fs)))
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_duration_holds_exactly_that_long_then_zero() -> None:
     async with (
         ChassisStandIn(noise=False) as dev,
@@ -219,6 +232,7 @@ async def test_duration_holds_exactly_that_long_then_zero() -> None:
     assert 0.28 <= zero.time - first.time <= 0.4, zero.time - first.time
 
 
+@pytest.mark.integration
 async def test_wheel_mode_frames_are_exact() -> None:
     async with ChassisStandIn(noise=False) as dev, Chassis(dev.port) as robot:
         await robot.set_wheel_speeds(0.2, 0.193)
@@ -230,6 +244,8 @@ async def test_wheel_mode_frames_are_exact() -> None:
     assert is_zero_drive(zero)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_request_timeout_retries_then_raises_within_bound() -> None:
     async with (
         ChassisStandIn(silent_ids={0x07}) as dev,
@@ -246,6 +262,7 @@ async def test_request_timeout_retries_then_raises_within_bound() -> None:
         assert await robot.get_hardware_version() == "ZKWL-brush-motor-chassis"
 
 
+@pytest.mark.integration
 async def test_late_reply_is_counted_as_late_not_raised() -> None:
     async with (
         ChassisStandIn(reply_delay=0.3) as dev,
@@ -260,6 +277,7 @@ async def test_late_reply_is_counted_as_late_not_raised() -> None:
         assert robot.stats.unmatched_replies == 0
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("how", ["normal", "exception", "cancel"])
 async def test_zero_velocity_is_written_on_exit(how: str) -> None:
     async with ChassisStandIn(noise=False) as dev:
@@ -289,6 +307,7 @@ async def test_zero_velocity_is_written_on_exit(how: str) -> None:
     assert is_zero_drive(dev.frames[-1])
 
 
+@pytest.mark.integration
 async def test_two_subscribers_each_get_every_frame() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         a, b = robot.telemetry(), robot.telemetry()
@@ -306,6 +325,7 @@ async def test_two_subscribers_each_get_every_frame() -> None:
         assert sa == list(range(sa[0], sa[0] + 20))
 
 
+@pytest.mark.integration
 async def test_breaking_out_unsubscribes() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         async for _ in robot.telemetry():
@@ -318,6 +338,8 @@ async def test_breaking_out_unsubscribes() -> None:
         assert dev.frames == []  # subscribing and leaving are host-side: nothing is sent
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_unplug_fails_pending_request_and_iterator() -> None:
     async with ChassisStandIn(silent_ids={0x07}) as dev, Chassis(dev.port) as robot:
         req = asyncio.create_task(robot.get_firmware_version())
@@ -339,6 +361,7 @@ async def test_unplug_fails_pending_request_and_iterator() -> None:
 # --- against the simulator ------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_simulator_drives_reports_and_stops() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         info = await robot.get_chassis_info()
@@ -355,6 +378,7 @@ async def test_simulator_drives_reports_and_stops() -> None:
                 break
 
 
+@pytest.mark.integration
 async def test_simulator_firmware_timeout_stops_wheels_without_watchdog() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -369,6 +393,7 @@ async def test_simulator_firmware_timeout_stops_wheels_without_watchdog() -> Non
         assert moving
 
 
+@pytest.mark.integration
 async def test_simulator_faults_docking_and_power() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         sim.firmware.press_bumper(front=True)
@@ -405,6 +430,7 @@ async def test_simulator_faults_docking_and_power() -> None:
         await robot.enable_telemetry(True)
 
 
+@pytest.mark.integration
 async def test_simulator_over_tcp() -> None:
     async with ChassisSimulator(tcp_port=0) as sim, Chassis(sim.port) as robot:
         assert sim.port.startswith("socket://127.0.0.1:")

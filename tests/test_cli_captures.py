@@ -66,6 +66,7 @@ def captures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 # --- row 3: ports checked while parsing; a busy port, a missing directory: one line ------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("args", "words"),
     [
@@ -85,6 +86,7 @@ async def test_a_tcp_port_out_of_range_is_refused_while_parsing(
     assert not out
 
 
+@pytest.mark.integration
 async def test_sim_on_a_tcp_port_in_use_is_one_line() -> None:
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
@@ -97,6 +99,7 @@ async def test_sim_on_a_tcp_port_in_use_is_one_line() -> None:
     assert not out
 
 
+@pytest.mark.integration
 async def test_replay_as_device_on_a_tcp_port_in_use_is_one_line(
     captures: dict[str, Path],
 ) -> None:
@@ -111,6 +114,7 @@ async def test_replay_as_device_on_a_tcp_port_in_use_is_one_line(
     assert f"cannot serve on TCP port {port}: it is in use" in one_line(err)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("suffix", ["mcap", "jsonl"])
 async def test_record_into_a_missing_directory_is_one_line_before_the_port_opens(
     suffix: str,
@@ -124,6 +128,7 @@ async def test_record_into_a_missing_directory_is_one_line_before_the_port_opens
     assert "recording" not in out  # refused before the port opened
 
 
+@pytest.mark.integration
 async def test_record_into_a_directory_is_one_line(tmp_path: Path) -> None:
     folder = tmp_path / "x.jsonl"
     folder.mkdir()
@@ -140,6 +145,7 @@ def capture_bytes(path: Path) -> int:
     return sum(len(data) for _, data in capture.read_capture(path))
 
 
+@pytest.mark.integration
 async def test_replay_as_device_on_tcp_ends_cleanly_and_counts_the_capture_once(
     captures: dict[str, Path],
 ) -> None:
@@ -174,6 +180,7 @@ def test_a_capture_played_twice_counts_one_playback_and_waits_when_held(
 # --- row 6: a recording without a frame of its device warns, then fails ------------------
 
 
+@pytest.mark.integration
 async def test_record_of_the_board_named_chassis_warns_while_recording_and_fails(
     tmp_path: Path,
 ) -> None:
@@ -193,6 +200,7 @@ async def test_record_of_the_board_named_chassis_warns_while_recording_and_fails
     assert "recorded " in out
 
 
+@pytest.mark.integration
 async def test_a_recording_says_which_device_it_heard(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         heard = await capture.record(sim.port, tmp_path / "any.jsonl", seconds=0.5)
@@ -202,6 +210,7 @@ async def test_a_recording_says_which_device_it_heard(tmp_path: Path) -> None:
     assert named.bytes > 0
 
 
+@pytest.mark.integration
 async def test_record_of_a_silent_pty_to_jsonl_fails_in_one_line(tmp_path: Path) -> None:
     with silent_pty() as port:
         code, _out, err = await cli("record", port, str(tmp_path / "x.jsonl"), "--seconds", "1")
@@ -212,6 +221,7 @@ async def test_record_of_a_silent_pty_to_jsonl_fails_in_one_line(tmp_path: Path)
     )
 
 
+@pytest.mark.integration
 async def test_record_of_a_silent_pty_warns_after_three_seconds(tmp_path: Path) -> None:
     with silent_pty() as port:
         code, _out, err = await cli("record", port, str(tmp_path / "x.jsonl"), "--seconds", "3.6")
@@ -225,6 +235,7 @@ async def test_record_of_a_silent_pty_warns_after_three_seconds(tmp_path: Path) 
     assert lines[1].startswith("chassis-sdk: no frame"), err
 
 
+@pytest.mark.integration
 async def test_record_of_the_device_named_says_nothing_on_stderr(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await cli(
@@ -237,6 +248,7 @@ async def test_record_of_the_device_named_says_nothing_on_stderr(tmp_path: Path)
 # --- row 12: a missing file, a file of random bytes: plain words -------------------------
 
 
+@pytest.mark.integration
 async def test_replay_of_a_missing_file_says_no_such_file(tmp_path: Path) -> None:
     missing = tmp_path / "nope.mcap"
     code, _out, err = await cli("replay", str(missing))
@@ -251,6 +263,7 @@ needs_matplotlib = pytest.mark.skipif(
 )
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     "command",
     [("replay",), pytest.param(("plot",), marks=needs_matplotlib), ("export", "--csv", "out")],
@@ -270,6 +283,7 @@ async def test_a_file_of_random_bytes_is_not_a_capture(
 # --- row 13: replay prints what monitor does, --json for machines ------------------------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("suffix", ["mcap", "jsonl"])
 async def test_replay_prints_the_monitor_form_not_python_reprs(
     captures: dict[str, Path], suffix: str
@@ -289,6 +303,7 @@ async def test_replay_prints_the_monitor_form_not_python_reprs(
     assert all("linear=0.000" in line for line in telemetry)
 
 
+@pytest.mark.integration
 async def test_replay_json_is_one_object_per_line(captures: dict[str, Path]) -> None:
     code, out, err = await cli("replay", str(captures["jsonl"]), "--json")
     assert (code, err) == (0, ""), err
@@ -302,6 +317,7 @@ async def test_replay_json_is_one_object_per_line(captures: dict[str, Path]) -> 
 # --- row 15: an MCAP cut by a hard kill: the warning at default verbosity ----------------
 
 
+@pytest.mark.integration
 async def test_replay_of_a_cut_mcap_warns_in_one_line(
     captures: dict[str, Path], tmp_path: Path
 ) -> None:
@@ -325,6 +341,7 @@ async def test_replay_of_a_cut_mcap_warns_in_one_line(
 # --- row 19: options of --as-device without it ---------------------------------------------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("extra", "flags"),
     [
@@ -345,6 +362,7 @@ async def test_replay_options_of_as_device_without_it_are_refused(
 # --- row 20: plot beside the input ---------------------------------------------------------
 
 
+@pytest.mark.integration
 @needs_matplotlib
 async def test_plot_without_output_writes_beside_the_input(
     captures: dict[str, Path], tmp_path: Path
@@ -366,6 +384,7 @@ async def test_plot_without_output_writes_beside_the_input(
 # --- the cable pulled during record, the wrong protocol, sim's port, replay as a device ---
 
 
+@pytest.mark.integration
 async def test_record_reports_an_unplug_and_a_replug_and_writes_them_down(tmp_path: Path) -> None:
     path = tmp_path / "cap.jsonl"
     async with (
@@ -387,6 +406,7 @@ async def test_record_reports_an_unplug_and_a_replug_and_writes_them_down(tmp_pa
     assert "Telemetry: " in out
 
 
+@pytest.mark.integration
 async def test_record_fails_when_the_link_is_not_restored(tmp_path: Path) -> None:
     path = tmp_path / "cap.jsonl"
     async with (
@@ -400,6 +420,7 @@ async def test_record_fails_when_the_link_is_not_restored(tmp_path: Path) -> Non
     assert "was lost and not restored" in one_line(err)
 
 
+@pytest.mark.integration
 async def test_replay_with_the_wrong_protocol_says_so(tmp_path: Path) -> None:
     path = tmp_path / "board.jsonl"
     async with BoardSimulator() as board:
@@ -412,6 +433,7 @@ async def test_replay_with_the_wrong_protocol_says_so(tmp_path: Path) -> None:
     assert "it looks like a board capture; try --device board" in err
 
 
+@pytest.mark.integration
 async def test_sim_removes_its_port_link_on_sigterm() -> None:
     async with running("sim", "chassis") as sim:
         port = (await sim.wait_for_line(lambda line: True)).strip()
@@ -422,6 +444,7 @@ async def test_sim_removes_its_port_link_on_sigterm() -> None:
     assert not os.path.lexists(port)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("suffix", [".jsonl", ".mcap"])
 async def test_replay_as_a_device_feeds_an_unmodified_chassis(tmp_path: Path, suffix: str) -> None:
     from chassis_sdk import Chassis, ConnectionLostError, Telemetry

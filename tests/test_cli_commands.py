@@ -141,6 +141,7 @@ def test_row18_argument_types_refuse_a_type_error_too(
     assert "argument --n: n must be an integer, got 1.5" in capsys.readouterr().err
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("args", "says"),
     [
@@ -164,6 +165,7 @@ async def test_row11_bad_arguments_are_refused_while_parsing(
     assert out == ""  # nothing printed first ("bridging ... as robots/a/b#")
 
 
+@pytest.mark.integration
 async def test_row11_a_bad_broker_from_the_environment_is_refused_while_parsing() -> None:
     code, out, err = await cli(
         "bridge", "/dev/ttyX", "--robot-id", "r1", env={"CHASSIS_SDK_BROKER": "http://y"}

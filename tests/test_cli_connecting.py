@@ -24,6 +24,8 @@ from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import CLI, ROOT, cli, one_line, silent_pty
 
+pytestmark = pytest.mark.integration
+
 # --- finding the port ---------------------------------------------------------------------
 
 

@@ -27,6 +27,7 @@ from .support.helpers import drives
 # --- row 1: a chassis whose motion is blocked is refused at once --------------------------------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("block", "says"),
     [
@@ -63,6 +64,7 @@ async def test_row1_drive_refuses_a_blocked_chassis_before_writing_a_velocity(
         assert all(d == DriveVelocity(0, 0.0) for d in drives(sim))  # no velocity written
 
 
+@pytest.mark.integration
 async def test_row1_released_the_chassis_drives_again() -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.software_estop = True
@@ -80,6 +82,7 @@ async def test_row1_released_the_chassis_drives_again() -> None:
 # --- row 17: a velocity required, a sane duration, conservative caps, Ctrl-C or SIGTERM ------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("args", "says"),
     [
@@ -115,6 +118,7 @@ async def test_row17_drive_arguments_are_refused_while_parsing(
     assert out == ""
 
 
+@pytest.mark.integration
 async def test_row17_a_profile_cannot_raise_the_caps_past_the_ceiling(tmp_path: Path) -> None:
     config = tmp_path / "chassis-sdk.toml"
     config.write_text("[limits]\nmax_linear = 10\n")
@@ -123,6 +127,7 @@ async def test_row17_a_profile_cannot_raise_the_caps_past_the_ceiling(tmp_path: 
     assert "max_linear must be a finite number 0 to 2 m/s" in one_line(err)
 
 
+@pytest.mark.integration
 async def test_row17_the_caps_are_raised_only_explicitly_and_the_clamp_says_so() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await cli("drive", sim.port, "--linear", "5", "--duration", "0.2")
@@ -147,6 +152,7 @@ async def test_row17_the_caps_are_raised_only_explicitly_and_the_clamp_says_so()
         assert any(d.angular == pytest.approx(0.5) for d in drives(sim))
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("sent", "exit_code"),
     [
@@ -177,6 +183,7 @@ async def test_ctrl_c_or_sigterm_during_drive_says_interrupted_and_zero_is_the_l
 # --- a silent port or the other device, the default caps, the link lost ---------------------
 
 
+@pytest.mark.integration
 async def test_drive_does_not_claim_success_on_a_silent_port_or_another_device() -> None:
     with silent_pty() as quiet:
         code, out, err = await cli("drive", quiet, "--linear", "0.2", "--timeout", "0.5")
@@ -191,6 +198,7 @@ async def test_drive_does_not_claim_success_on_a_silent_port_or_another_device()
         assert board.firmware.received == type(board.firmware.received)()  # nothing written
 
 
+@pytest.mark.integration
 async def test_drive_clamps_to_the_default_limits_and_says_so() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await cli(
@@ -204,6 +212,7 @@ async def test_drive_clamps_to_the_default_limits_and_says_so() -> None:
         assert drives(sim)[-1] == DriveVelocity(0, 0.0)
 
 
+@pytest.mark.integration
 async def test_drive_ends_at_once_when_the_link_is_lost() -> None:
     async with (
         ChassisSimulator(tcp_port=0) as sim,

@@ -19,6 +19,8 @@ from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import ROOT, cli, one_line, running, silent_pty
 
+pytestmark = pytest.mark.integration
+
 # --- row 16: a viewer never writes -------------------------------------------------------
 
 
@@ -124,6 +126,7 @@ async def test_monitor_explains_each_status_bit_once_where_it_first_shows() -> N
 # --- an unplug, a silent port or the other device, JSON, any device from its profile ------
 
 
+@pytest.mark.slow
 async def test_monitor_lives_through_an_unplug_and_says_so() -> None:
     async with (
         ChassisSimulator(tcp_port=0) as sim,
@@ -141,6 +144,7 @@ async def test_monitor_lives_through_an_unplug_and_says_so() -> None:
     assert "faults: none" in out
 
 
+@pytest.mark.slow
 async def test_monitor_on_a_silent_port_or_another_device_is_one_line_within_seconds() -> None:
     with silent_pty() as quiet:
         code, _, err = await cli("monitor", quiet, "--seconds", "30", timeout=10)

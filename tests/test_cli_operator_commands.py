@@ -88,6 +88,7 @@ def test_verdict_exits_4_naming_the_faults_on_one_line(capsys: pytest.CaptureFix
 # --- estop and info ---------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_estop_shows_in_info_which_exits_4_until_released() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await cli("info", sim.port)
@@ -119,6 +120,7 @@ async def test_estop_shows_in_info_which_exits_4_until_released() -> None:
         assert code == 0, err
 
 
+@pytest.mark.integration
 async def test_a_release_says_what_else_still_stops_the_robot() -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.set_hardware_estop(True)
@@ -128,6 +130,7 @@ async def test_a_release_says_what_else_still_stops_the_robot() -> None:
         assert "emergency-stop button is pressed" in out
 
 
+@pytest.mark.integration
 async def test_info_prints_every_field_it_read_marks_the_one_it_did_not_and_exits_partial() -> None:
     from chassis_sdk.protocol import CommandId
 
@@ -145,6 +148,7 @@ async def test_info_prints_every_field_it_read_marks_the_one_it_did_not_and_exit
     assert "partial: no reply for geometry" in lines[0]
 
 
+@pytest.mark.integration
 async def test_info_on_a_silent_port_still_fails_at_the_first_request() -> None:
     with silent_pty() as quiet:
         started = time.monotonic()
@@ -157,6 +161,7 @@ async def test_info_on_a_silent_port_still_fails_at_the_first_request() -> None:
 # --- clear-faults -----------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_clear_faults_clears_all_three_without_a_flag() -> None:
     async with ChassisSimulator() as sim:
         fw = sim.firmware
@@ -169,6 +174,7 @@ async def test_clear_faults_clears_all_three_without_a_flag() -> None:
         assert fw.status == S.REMOTE_OFFLINE
 
 
+@pytest.mark.integration
 async def test_info_explains_a_driver_fault_and_is_healthy_once_it_is_cleared() -> None:
     async with ChassisSimulator() as sim:
         sim.firmware.set_driver_fault(1, DriverError.HALL_SENSOR | DriverError(1 << 15))
@@ -186,6 +192,7 @@ async def test_info_explains_a_driver_fault_and_is_healthy_once_it_is_cleared() 
         assert "driver" not in out.split("chassis on")[0]  # no flag line left of it
 
 
+@pytest.mark.integration
 async def test_clear_faults_clears_only_what_is_flagged() -> None:
     async with ChassisSimulator() as sim:
         fw = sim.firmware
@@ -198,6 +205,7 @@ async def test_clear_faults_clears_only_what_is_flagged() -> None:
         assert not fw.rear_bumper
 
 
+@pytest.mark.integration
 async def test_clear_faults_with_a_bumper_held_exits_3_naming_what_remains() -> None:
     async with ChassisSimulator() as sim:
         fw = sim.firmware
@@ -224,6 +232,7 @@ async def test_clear_faults_with_a_bumper_held_exits_3_naming_what_remains() -> 
 # --- dock -------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_dock_start_and_stop_are_confirmed() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await cli("dock", sim.port, "start")
@@ -240,6 +249,7 @@ async def test_dock_start_and_stop_are_confirmed() -> None:
 # --- a chassis that does not confirm, and the everyday failures -------------------------------
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("args", "ignored", "before", "says"),
     [
@@ -270,6 +280,7 @@ async def test_a_chassis_that_does_not_confirm_exits_3_in_one_line(
         assert any(getattr(c, "id", None) == ignored for _, c in fw.received)  # it was sent
 
 
+@pytest.mark.integration
 async def test_the_wrong_device_is_one_line_and_nothing_is_written() -> None:
     async with BoardSimulator() as board:
         for args in (("estop",), ("clear-faults",), ("dock", "start")):
@@ -284,6 +295,7 @@ async def test_the_wrong_device_is_one_line_and_nothing_is_written() -> None:
         assert len(board.firmware.received) == 0
 
 
+@pytest.mark.integration
 async def test_no_port_is_a_usage_error_and_a_silent_port_is_no_answer() -> None:
     for args in (("estop",), ("clear-faults", "--driver"), ("dock", "stop")):
         code, _, err = await cli(*args, env={"CHASSIS_SDK_PORT": ""})

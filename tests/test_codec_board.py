@@ -39,6 +39,8 @@ from chassis_sdk.protocol import (
     VelocityFeedback,
 )
 
+pytestmark = pytest.mark.codec
+
 
 def h(text: str) -> bytes:
     return bytes.fromhex(text.replace("0x", "").replace(",", " "))

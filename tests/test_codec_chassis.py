@@ -41,6 +41,8 @@ from chassis_sdk.protocol import (
     WheelSpeeds,
 )
 
+pytestmark = pytest.mark.codec
+
 
 def h(text: str) -> bytes:
     return bytes.fromhex(text)

@@ -21,6 +21,8 @@ from chassis_sdk.devices import DeviceProfile, profiles
 
 from .support.toy_device import PROFILE as TOY
 
+pytestmark = pytest.mark.codec
+
 
 @dataclass(frozen=True)
 class Codec:

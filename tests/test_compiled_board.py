@@ -40,6 +40,8 @@ from chassis_sdk.devices.board.protocol import (
     encode_frame,
 )
 
+pytestmark = pytest.mark.codec
+
 if protocol._compiled is None:
     pytest.skip(
         f"protocol B's compiled fast path is not active ({compiled.status()}): build it with "
@@ -549,6 +551,7 @@ def test_replaced_stats_are_counted_through_their_own_attributes() -> None:
     assert pair.fast.stats.sets == pair.pure.stats.sets == initial + 3  # received, dropped, frames
 
 
+@pytest.mark.integration
 def test_pure_env_gives_the_pure_path() -> None:
     code = (
         "from chassis_sdk.core import compiled\n"

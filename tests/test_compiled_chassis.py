@@ -42,6 +42,8 @@ from chassis_sdk.devices.chassis.protocol import (
     SequenceTracker,
 )
 
+pytestmark = pytest.mark.codec
+
 if protocol._compiled is None:
     pytest.skip(
         f"protocol A's compiled fast path is not active ({compiled.status()}): build it "
@@ -186,6 +188,7 @@ def test_the_module_s_decoders_run_compiled() -> None:
     assert vars(ChassisCommandDecoder)["feed"] is module.feed
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("make", "examples"), CODECS)
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
@@ -445,6 +448,7 @@ def test_a_replaced_tracker_is_called() -> None:
     assert dec.sequence.calls == [(0x81, 0), (0x81, 1), (0x81, 2)]
 
 
+@pytest.mark.integration
 def test_pure_env_gives_the_pure_path() -> None:
     code = (
         "from chassis_sdk.core import compiled\n"
@@ -465,6 +469,7 @@ def test_pure_env_gives_the_pure_path() -> None:
 # --- no reference leak -------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_no_reference_leak_over_a_million_frames() -> None:
     """Every path of the compiled code (0x81 in C, the other frames through their Python
     parsers, the tracker's usual case and its Python update, checksum errors, noise, a

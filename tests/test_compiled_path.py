@@ -40,6 +40,7 @@ def expected_path() -> str:
     return "compiled" if built() else "pure (not built)"
 
 
+@pytest.mark.integration
 def test_version_says_which_decoders_run() -> None:
     done = cli("--version")
     assert done.returncode == 0, done.stderr
@@ -48,6 +49,7 @@ def test_version_says_which_decoders_run() -> None:
     assert line.endswith(f"decoders: {expected_path()})"), line
 
 
+@pytest.mark.integration
 def test_chassis_sdk_pure_forces_the_pure_path() -> None:
     done = cli("--version", pure=True)
     assert done.returncode == 0, done.stderr
@@ -83,6 +85,7 @@ def test_when_built_the_module_decoders_use_it() -> None:
         assert cls.feed is not FrameDecoder.feed, cls
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("simulator", [ChassisSimulator, BoardSimulator])
 @pytest.mark.parametrize("pure", [False, True])
 async def test_info_names_the_decoders(

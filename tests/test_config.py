@@ -258,6 +258,7 @@ def test_the_docs_document_every_key_and_every_command_table() -> None:
 # --- the API and the commands use it -------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_open_robot_builds_the_device_the_profile_describes(home: Path) -> None:
     async with ChassisSimulator() as sim:
         write(
@@ -287,6 +288,7 @@ def test_open_robot_without_a_port_says_so(home: Path) -> None:
     assert open_robot(port="/dev/ttyUSB9").port == "/dev/ttyUSB9"
 
 
+@pytest.mark.integration
 async def test_drive_takes_port_and_limits_from_the_profile(home: Path) -> None:
     async with ChassisSimulator() as sim:
         write(
@@ -349,6 +351,7 @@ def test_a_table_refuses_actions_one_shot_inputs_and_loosening_flags(
     assert len(err.splitlines()) == 1
 
 
+@pytest.mark.integration
 async def test_estop_with_a_release_in_the_file_is_refused_and_nothing_is_released(
     home: Path,
 ) -> None:
@@ -407,6 +410,7 @@ def test_from_config_builds_one_class_and_refuses_a_profile_of_another_device(ho
         Chassis.from_config()
 
 
+@pytest.mark.integration
 def test_the_blocking_api_builds_from_the_profile_too(home: Path) -> None:
     from chassis_sdk import sync
 

@@ -58,6 +58,8 @@ def black_hole(port: int = 0) -> Iterator[int]:
         srv.close()
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_connect_to_a_host_that_never_answers_is_bounded_and_does_not_block() -> None:
     with black_hole() as port:
         async with Heartbeat() as beat:
@@ -71,6 +73,8 @@ async def test_connect_to_a_host_that_never_answers_is_bounded_and_does_not_bloc
     assert robot.connection_state is ConnectionState.DISCONNECTED
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_reconnect_attempts_never_stall_another_robot() -> None:
     async with (
         ChassisStandIn(noise=False, tcp=True) as lost,
@@ -95,6 +99,7 @@ async def test_reconnect_attempts_never_stall_another_robot() -> None:
 # --- close() during a connect or a reconnect leaves nothing open ---------------------------------
 
 
+@pytest.mark.integration
 async def test_close_during_a_reconnect_leaves_no_connection(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -129,6 +134,7 @@ async def test_close_during_a_reconnect_leaves_no_connection(
     assert leaked == [], f"connections left open after close() in trials {leaked}"
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("tcp", TRANSPORTS)
 async def test_close_during_connect_returns_only_once_nothing_is_open(tcp: bool) -> None:
     async with ChassisStandIn(noise=False, tcp=tcp) as dev:
@@ -150,6 +156,8 @@ async def test_close_during_connect_returns_only_once_nothing_is_open(tcp: bool)
 # --- the first telemetry after opening is fresh --------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_the_first_telemetry_after_opening_is_fresh_however_long_nobody_read() -> None:
     # A simulator (1 kHz telemetry) runs with nobody reading until its line is full and
     # it drops bytes, as a device left powered with no host does. Before: the first
@@ -163,6 +171,7 @@ async def test_the_first_telemetry_after_opening_is_fresh_however_long_nobody_re
 # --- exclusive ports -----------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_a_second_open_of_a_serial_port_fails_at_once_naming_the_holder() -> None:
     async with ChassisStandIn() as dev, Chassis(dev.port) as robot:
         second = Chassis(dev.port)
@@ -212,6 +221,7 @@ def test_a_long_command_line_is_cut_and_marked() -> None:
     assert shown.endswith("…")
 
 
+@pytest.mark.integration
 @pytest.mark.skipif(not SCRIPT.exists(), reason="needs the installed chassis-sdk script")
 async def test_info_on_a_port_monitor_holds_names_monitor_and_its_subcommand() -> None:
     async with ChassisSimulator() as sim:
@@ -241,6 +251,7 @@ async def test_info_on_a_port_monitor_holds_names_monitor_and_its_subcommand() -
 # --- the flush at open ----------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_a_frame_between_the_flush_and_a_queued_read_is_not_a_hang_up() -> None:
     # Opening flushes what the port received before; a frame that lands between that
     # flush and the transport's read callback already queued for it must not read as an

@@ -366,6 +366,7 @@ def test_a_velocity_command_is_checked_and_made_once() -> None:
 # --- what leaves the process: wall time, the monotonic reading named --------------------
 
 
+@pytest.mark.timing
 def test_outbound_json_carries_wall_time_and_names_the_monotonic_reading() -> None:
     from chassis_sdk.core.events import EventKind, RobotEvent
     from chassis_sdk.core.plain import outbound

@@ -24,6 +24,7 @@ def peer_binary() -> Path:
     return build_peer()
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(60)
 def test_build_peer_gives_a_working_binary() -> None:
     # Not in a namespace: in CI (and wherever Fast DDS is installed) this must build.
@@ -36,6 +37,7 @@ def test_build_peer_gives_a_working_binary() -> None:
     assert "usage: peer pub" in usage.stderr
 
 
+@pytest.mark.integration
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 def test_namespace_is_loopback_only() -> None:
@@ -83,18 +85,24 @@ def _check_talk(sub: Peer, pub: Peer) -> None:
     assert any(e["user_data"] == "enclave=/;" for e in sub.named("participant"))
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_two_peers_talk_with_multicast_discovery(peer_binary: Path) -> None:
     _check_talk(*await _talk())
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_two_peers_talk_unicast_only(peer_binary: Path) -> None:
     _check_talk(*await _talk("--unicast"))
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_best_effort_writer_does_not_match_a_reliable_reader(peer_binary: Path) -> None:
@@ -114,6 +122,8 @@ async def test_best_effort_writer_does_not_match_a_reliable_reader(peer_binary: 
         assert not sub.samples
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_stop_ends_a_peer_cleanly(peer_binary: Path) -> None:
@@ -138,6 +148,8 @@ def test_verdict_needs_exactly_one_passed_test(tmp_path: Path) -> None:
     assert netns._verdict(tmp_path / "missing.xml") is not None
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 async def test_wait_for_raises_with_the_peer_s_last_lines(peer_binary: Path) -> None:
     # A peer that exits at once (a usage error): wait_for says so without waiting it out.
     async with await start_peer("pub", "nonsense", TOPIC) as bad:

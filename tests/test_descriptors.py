@@ -24,6 +24,8 @@ from chassis_sdk import Chassis
 from chassis_sdk.core import transport
 from chassis_sdk.sim import ChassisSimulator
 
+pytestmark = pytest.mark.integration
+
 
 def open_fds() -> int:
     return len(os.listdir("/proc/self/fd"))

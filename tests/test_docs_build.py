@@ -22,6 +22,10 @@ from pathlib import Path
 
 import pytest
 
+# One worker builds the site for every test here (--dist loadgroup), once; the build
+# takes over 5 s.
+pytestmark = [pytest.mark.xdist_group("docs"), pytest.mark.slow]
+
 ROOT = Path(__file__).resolve().parent.parent
 
 #: What the issue found missing on Chassis's entry, and a few more of each base.

@@ -67,6 +67,7 @@ async def frames(robot: Chassis, n: int) -> None:
             await anext(sub)
 
 
+@pytest.mark.integration
 async def test_every_chassis_event_kind_once_per_edge() -> None:
     spec = ChassisSpec(docking_step=0.05)
     async with (
@@ -145,6 +146,7 @@ async def test_every_chassis_event_kind_once_per_edge() -> None:
     assert str(rec.events[0]) == "estop engaged (hardware)"
 
 
+@pytest.mark.integration
 async def test_board_battery_and_link_events() -> None:
     async with (
         BoardSimulator() as sim,
@@ -169,6 +171,7 @@ def test_bad_battery_threshold() -> None:
 # --- wait_for and confirm ------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_wait_for_returns_the_latest_at_once_and_times_out_otherwise() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         first = await anext(robot.telemetry())
@@ -180,6 +183,7 @@ async def test_wait_for_returns_the_latest_at_once_and_times_out_otherwise() -> 
             await robot.wait_for(lambda t: True, float("inf"))
 
 
+@pytest.mark.integration
 async def test_row2_every_public_waiter_raises_an_sdk_error_that_is_a_timeout() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         with pytest.raises(ChassisError) as waited:
@@ -199,6 +203,7 @@ async def test_row2_every_public_waiter_raises_an_sdk_error_that_is_a_timeout() 
         assert isinstance(connected.value, TimeoutError)
 
 
+@pytest.mark.integration
 async def test_confirm_times_out_when_the_device_does_not_show_the_effect() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port, link_timeout=None) as robot:
         await anext(robot.telemetry())
@@ -212,6 +217,7 @@ async def test_confirm_times_out_when_the_device_does_not_show_the_effect() -> N
 # --- diagnose ------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_diagnose_names_every_set_bit_per_wheel() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         await anext(robot.telemetry())
@@ -244,6 +250,7 @@ async def test_diagnose_names_every_set_bit_per_wheel() -> None:
     assert report.status is not None
 
 
+@pytest.mark.integration
 async def test_board_diagnose_and_a_closed_device() -> None:
     async with BoardSimulator() as sim, Board(sim.port) as board:
         await anext(board.imu())
@@ -255,6 +262,7 @@ async def test_board_diagnose_and_a_closed_device() -> None:
     assert "link disconnected" in closed.faults
 
 
+@pytest.mark.integration
 async def test_row1_motion_blocked_is_the_device_s_own_public_answer() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         await robot.wait_for(lambda t: True, timeout=2.0)

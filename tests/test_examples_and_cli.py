@@ -40,6 +40,8 @@ async def run(*args: str, timeout: float = 60.0) -> tuple[int, str, str]:
     return proc.returncode, out.decode(), err.decode()
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 async def test_every_example_runs_against_the_simulator() -> None:
     assert len(EXAMPLES) >= 6
@@ -49,6 +51,7 @@ async def test_every_example_runs_against_the_simulator() -> None:
         assert out.strip(), path.name
 
 
+@pytest.mark.integration
 @pytest.mark.timeout(120)
 async def test_every_example_on_the_other_devices_port_fails_in_one_line() -> None:
     async def on_wrong_port(path: Path) -> tuple[int, str, str]:
@@ -65,6 +68,8 @@ async def test_every_example_on_the_other_devices_port_fails_in_one_line() -> No
         assert "is it another device, or the wrong baud rate?" in lines[0]
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_examples_print_names_not_numbers_and_end_stopped() -> None:
     results = await asyncio.gather(
         *(run(str(ROOT / "examples" / name)) for name in
@@ -79,6 +84,7 @@ async def test_examples_print_names_not_numbers_and_end_stopped() -> None:
     assert "done: stopped (v=+0.00 m/s, w=+0.00 rad/s" in results[2][1]
 
 
+@pytest.mark.integration
 async def test_example_takes_a_port_argument() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await run(
@@ -95,6 +101,7 @@ def snippet_of_the_testing_page() -> str:
     return match.group(1)
 
 
+@pytest.mark.integration
 async def test_the_testing_page_snippet_survives_the_replug() -> None:
     snippet = snippet_of_the_testing_page()
     assert "await sim.replug()" in snippet
@@ -118,6 +125,8 @@ async def test_the_testing_page_snippet_survives_the_replug() -> None:
     assert result == {"state": "connected", "seen": 125}
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.parametrize("flag", [[], ["--board"]], ids=["chassis", "board"])
 async def test_demo_exits_zero_and_shows_what_it_does(flag: list[str]) -> None:
     code, out, err = await run("-m", "chassis_sdk.cli", "demo", *flag)
@@ -126,6 +135,8 @@ async def test_demo_exits_zero_and_shows_what_it_does(flag: list[str]) -> None:
     assert "v=" in out
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 async def test_the_demo_explains_the_status_where_it_first_shows_it() -> None:
     code, out, err = await cli("demo", timeout=60)
     assert code == 0, err
@@ -136,6 +147,7 @@ async def test_the_demo_explains_the_status_where_it_first_shows_it() -> None:
     assert "firmware     v1.0.3 (103)" in out
 
 
+@pytest.mark.integration
 async def test_info_against_a_running_simulator() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await run("-m", "chassis_sdk.cli", "info", sim.port)
@@ -144,6 +156,7 @@ async def test_info_against_a_running_simulator() -> None:
     assert "2024-01-02" in out
 
 
+@pytest.mark.integration
 async def test_missing_port_is_one_clear_line() -> None:
     code, _out, err = await run("-m", "chassis_sdk.cli", "info", "/dev/ttyDOESNOTEXIST")
     assert code == 1
@@ -152,6 +165,7 @@ async def test_missing_port_is_one_clear_line() -> None:
     assert "Traceback" not in err
 
 
+@pytest.mark.integration
 async def test_silent_port_says_what_was_expected() -> None:
     with silent_pty() as quiet:
         code, _out, err = await run("-m", "chassis_sdk.cli", "info", quiet, "--timeout", "0.2")
@@ -160,6 +174,7 @@ async def test_silent_port_says_what_was_expected() -> None:
     assert "Traceback" not in err
 
 
+@pytest.mark.integration
 async def test_bad_argument_is_refused_before_connecting() -> None:
     async with ChassisSimulator() as sim:
         code, _out, err = await run(
@@ -169,6 +184,7 @@ async def test_bad_argument_is_refused_before_connecting() -> None:
     assert "argument --linear: linear must be finite" in err
 
 
+@pytest.mark.integration
 async def test_record_replay_and_detect(tmp_path: Path) -> None:
     cap = tmp_path / "cap.jsonl"
     async with ChassisSimulator() as sim:
@@ -189,6 +205,7 @@ async def test_record_replay_and_detect(tmp_path: Path) -> None:
     assert isinstance(first["wheels"]["front_left"], float)
 
 
+@pytest.mark.integration
 async def test_replay_of_a_file_that_is_not_a_capture(tmp_path: Path) -> None:
     bogus = tmp_path / "x.txt"
     bogus.write_text("hello\n")
@@ -197,6 +214,7 @@ async def test_replay_of_a_file_that_is_not_a_capture(tmp_path: Path) -> None:
     assert "not a chassis-sdk capture" in err
 
 
+@pytest.mark.integration
 async def test_plot_writes_a_png(tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")  # the `plot` extra; CI installs it for this run
     cap, png = tmp_path / "cap.jsonl", tmp_path / "out.png"
@@ -210,6 +228,7 @@ async def test_plot_writes_a_png(tmp_path: Path) -> None:
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.integration
 async def test_wrong_protocol_on_the_port_is_named() -> None:
     async with BoardSimulator() as sim:
         code, _out, err = await run("-m", "chassis_sdk.cli", "info", sim.port, "--timeout", "0.2")
@@ -218,6 +237,7 @@ async def test_wrong_protocol_on_the_port_is_named() -> None:
     assert "Traceback" not in err
 
 
+@pytest.mark.integration
 async def test_sim_prints_its_port_and_info_reaches_it_from_another_process() -> None:
     sim = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "chassis_sdk.cli", "sim", "chassis",
@@ -246,6 +266,7 @@ async def test_sim_prints_its_port_and_info_reaches_it_from_another_process() ->
         await sim.wait()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     "command",
     ["", "demo", "ports", "sim", "info", "monitor", "drive", "record", "replay", "plot", "detect"],
@@ -265,6 +286,7 @@ def test_permission_denied_names_the_group_to_join() -> None:
     assert "dialout" in text
 
 
+@pytest.mark.integration
 async def test_the_cli_page_documents_every_command_and_no_other() -> None:
     page = (ROOT / "docs" / "cli.md").read_text()
     documented = set(re.findall(r"^chassis-sdk ([\w-]+)", page, re.M))

@@ -72,6 +72,7 @@ async def telemetry_frames(robot: Chassis, n: int) -> list[Telemetry]:
 # --- recording from the application ------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_an_application_recording_holds_both_directions_streams_and_metadata(
     tmp_path: Path,
 ) -> None:
@@ -147,6 +148,7 @@ async def test_an_application_recording_holds_both_directions_streams_and_metada
     assert 0.3 < span < 10
 
 
+@pytest.mark.integration
 async def test_a_board_recording_has_its_own_topics(tmp_path: Path) -> None:
     path = tmp_path / "board.mcap"
     async with BoardSimulator() as sim, Board(sim.port, record=path) as board:
@@ -162,6 +164,7 @@ async def test_a_board_recording_has_its_own_topics(tmp_path: Path) -> None:
     assert metadata["chassis_sdk"]["device"] == "board"
 
 
+@pytest.mark.integration
 async def test_a_jsonl_recording_holds_both_directions(tmp_path: Path) -> None:
     path = tmp_path / "run.jsonl"
     async with ChassisSimulator() as sim:
@@ -181,6 +184,7 @@ def test_a_bad_record_option_is_refused_before_anything_opens(tmp_path: Path) ->
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.integration
 async def test_a_hard_kill_leaves_a_file_readable_up_to_the_last_second(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     async with ChassisSimulator() as sim:
@@ -199,6 +203,7 @@ async def test_a_hard_kill_leaves_a_file_readable_up_to_the_last_second(tmp_path
 # --- the CLI: record .mcap, replay, export, plot ------------------------------------------
 
 
+@pytest.mark.integration
 async def test_cli_records_mcap_and_replays_and_exports_it(tmp_path: Path) -> None:
     path = tmp_path / "cli.mcap"
     async with ChassisSimulator() as sim:
@@ -225,6 +230,7 @@ async def test_cli_records_mcap_and_replays_and_exports_it(tmp_path: Path) -> No
         assert len(list(csv.DictReader(f))) == n
 
 
+@pytest.mark.integration
 async def test_export_writes_commands_of_an_application_recording(tmp_path: Path) -> None:
     from chassis_sdk.recording.export import export_csv
 
@@ -263,6 +269,8 @@ async def _moving(sim: ChassisSimulator, moving: bool, timeout: float) -> float:
     return await until(lambda: any(sim.firmware.target) == moving, timeout)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_foxglove_client_sees_streams_calls_services_and_drives(tmp_path: Path) -> None:
     async with (
         ChassisSimulator() as sim,
@@ -333,6 +341,7 @@ async def test_foxglove_client_sees_streams_calls_services_and_drives(tmp_path: 
     assert channels["/chassis/commands"][3] > 0
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     "payload",
     [
@@ -366,6 +375,7 @@ async def test_a_bad_velocity_message_is_rejected_and_reported_never_acted_on(
         assert not any(isinstance(c, DriveVelocity) for _, c in sim.firmware.received)
 
 
+@pytest.mark.integration
 async def test_read_only_takes_no_velocity_and_offers_only_stops() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -378,6 +388,7 @@ async def test_read_only_takes_no_velocity_and_offers_only_stops() -> None:
         assert set(client.services) == {"stop", "emergency_stop"}
 
 
+@pytest.mark.integration
 async def test_cli_serve_end_to_end_and_sigterm_stops_the_robot() -> None:
     async with ChassisSimulator() as sim:
         async with running("serve", sim.port, "--foxglove-port", "0") as serve:
@@ -401,6 +412,7 @@ async def test_cli_serve_end_to_end_and_sigterm_stops_the_robot() -> None:
         assert last == DriveVelocity(0, 0.0)
 
 
+@pytest.mark.integration
 async def test_cli_serve_says_when_the_port_is_taken() -> None:
     taken = await asyncio.start_server(lambda r, w: None, "127.0.0.1", 0)
     port = taken.sockets[0].getsockname()[1]
@@ -413,6 +425,7 @@ async def test_cli_serve_says_when_the_port_is_taken() -> None:
     assert err.strip().startswith("chassis-sdk: cannot serve on 127.0.0.1:"), err
 
 
+@pytest.mark.integration
 async def test_a_recording_goes_on_through_an_unplug(tmp_path: Path) -> None:
     from chassis_sdk import ConnectionState
 
@@ -434,6 +447,7 @@ async def test_a_recording_goes_on_through_an_unplug(tmp_path: Path) -> None:
     assert after[-1].seq in seqs
 
 
+@pytest.mark.integration
 async def test_a_recording_holds_the_loss_of_a_link_that_does_not_come_back(
     tmp_path: Path,
 ) -> None:
@@ -454,6 +468,7 @@ async def test_a_recording_holds_the_loss_of_a_link_that_does_not_come_back(
     assert "LINK_LOST" in events
 
 
+@pytest.mark.integration
 async def test_the_application_runs_before_the_recorder_logs_its_frame(tmp_path: Path) -> None:
     """The control path never waits for the recorder: when the application's task
     wakes for a frame, that frame's recording work is still queued."""

@@ -78,6 +78,8 @@ async def teleop(client: FoxgloveClient) -> None:
 # --- 9: who may connect -------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_page_of_another_origin_is_refused_at_the_handshake_and_never_drives(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -110,6 +112,7 @@ async def test_a_page_of_another_origin_is_refused_at_the_handshake_and_never_dr
         print(f"\n{n} refused handshakes in {took:.2f} s; {len(lines)} log lines")
 
 
+@pytest.mark.integration
 async def test_origins_let_in_native_clients_the_apps_and_allowed_pages() -> None:
     lichtblick = "http://lichtblick.lan:8080"
     async with served(allow_origins=[lichtblick, "app://desktop/"]) as (sim, _, server):
@@ -147,6 +150,7 @@ def test_bad_access_options_are_refused_before_anything_opens() -> None:
         FoxgloveServer(robot, host=host)
 
 
+@pytest.mark.integration
 async def test_a_token_is_required_when_given_and_never_shown(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -178,6 +182,7 @@ async def test_a_token_is_required_when_given_and_never_shown(
     assert not leaks, leaks
 
 
+@pytest.mark.integration
 async def test_a_client_that_reaches_the_private_port_cannot_drive_or_release() -> None:
     async with served() as (sim, robot, server):
         front = server._front
@@ -221,6 +226,7 @@ async def test_a_client_that_reaches_the_private_port_cannot_drive_or_release() 
         assert server.commands == 0
 
 
+@pytest.mark.integration
 async def test_the_private_port_lets_a_local_client_watch_and_stop_and_nothing_more() -> None:
     """What docs/foxglove.md says the private port exposes to a local user who finds it
     (no token, no Origin check there): every stream, ``stop`` and ``emergency_stop``."""
@@ -253,6 +259,8 @@ async def test_the_private_port_lets_a_local_client_watch_and_stop_and_nothing_m
         assert not any(sim.firmware.target)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_teleop_client_that_vanishes_stops_the_robot_at_once_through_the_front() -> None:
     async with served(command_timeout=2.0) as (sim, _, server):
         client = FoxgloveClient(server.url)
@@ -271,6 +279,7 @@ async def test_a_teleop_client_that_vanishes_stops_the_robot_at_once_through_the
 _DEEP = b'{"linear": ' + b"[" * 1500 + b"]" * 1500 + b"}"
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("payload", "why"),
     [
@@ -310,6 +319,8 @@ async def test_teleop_refuses_what_is_not_quite_a_twist_counts_and_reports_it(
         assert [d.linear_mm for d in drives(sim)] == [200]
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_flood_of_junk_is_counted_reported_summarised_and_a_stop_goes_through() -> None:
     n = 3000
     async with (
@@ -335,6 +346,8 @@ async def test_a_flood_of_junk_is_counted_reported_summarised_and_a_stop_goes_th
         print(f"\n{n} junk Twists in {took:.2f} s: {len(client.statuses)} statuses")
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_twist_channel_advertised_again_as_another_schema_stops_at_once() -> None:
     async with (
         served(command_timeout=2.0) as (sim, robot, server),
@@ -371,6 +384,7 @@ async def test_a_twist_channel_advertised_again_as_another_schema_stops_at_once(
         assert await moving(sim, False, 0.5) < 0.5
 
 
+@pytest.mark.integration
 async def test_what_a_client_names_is_shown_bounded_in_reports() -> None:
     async with served() as (_, _, server), FoxgloveClient(server.url) as client:
         await client.wait_for(lambda: bool(client.server_info))
@@ -381,6 +395,7 @@ async def test_what_a_client_names_is_shown_bounded_in_reports() -> None:
         assert server.rejected == 1
 
 
+@pytest.mark.integration
 async def test_an_error_in_a_callback_is_caught_counted_and_reported(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -402,6 +417,8 @@ async def test_an_error_in_a_callback_is_caught_counted_and_reported(
         await moving(sim, True, 2.0)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_flood_of_twists_is_state_not_a_queue() -> None:
     n = 5000
     async with (
@@ -432,6 +449,7 @@ def _url(line: str) -> str:
     return line.split(" at ")[1].split()[0]
 
 
+@pytest.mark.integration
 async def test_cli_serve_checks_origin_and_token_and_never_prints_the_token(
     tmp_path: Path,
 ) -> None:
@@ -464,6 +482,7 @@ async def test_cli_serve_checks_origin_and_token_and_never_prints_the_token(
     assert drives(sim)[-1] == DriveVelocity(0, 0.0)
 
 
+@pytest.mark.integration
 async def test_cli_serve_beyond_loopback_needs_a_token_before_the_device_opens(
     tmp_path: Path,
 ) -> None:
@@ -489,6 +508,7 @@ async def test_cli_serve_beyond_loopback_needs_a_token_before_the_device_opens(
         assert not sim.firmware.received  # the device never opened
 
 
+@pytest.mark.integration
 async def test_cli_serve_takes_the_token_from_the_environment(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -521,6 +541,8 @@ async def test_a_token_file_keeps_every_character_but_the_final_newline(tmp_path
 # --- the front's cost -----------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_the_front_adds_little_latency_to_what_the_server_sends() -> None:
     """Telemetry through the front and straight from foxglove-sdk's server, received
     side by side: the front's extra delay per message (median) is a fraction of a
@@ -582,6 +604,8 @@ class Heartbeat:
         self._beaten()  # a loop blocked until now counts too
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_leaving_the_server_stops_a_teleop_robot_at_once_and_never_blocks_the_loop() -> None:
     """A half-open connection (TCP, never a handshake) and a client that stops reading
     must not hold the server's exit: the robot a Teleop client drives gets its zero at
@@ -630,6 +654,8 @@ async def test_leaving_the_server_stops_a_teleop_robot_at_once_and_never_blocks_
             await driver.__aexit__(None, None, None)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_leaving_the_server_interrupted_still_stops_everything() -> None:
     """A second Ctrl-C (a cancel) while the front is closing: the robot has its zero,
     foxglove-sdk's server still stops (in a thread of its own) and the streams are
@@ -670,6 +696,8 @@ def _accepts(host: str, port: int) -> bool:
     return True
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_the_cli_stops_a_teleop_robot_at_once_on_sigterm_with_a_half_open_client() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -697,6 +725,7 @@ async def test_the_cli_stops_a_teleop_robot_at_once_on_sigterm_with_a_half_open_
     assert code == 128 + signal.SIGTERM, err
 
 
+@pytest.mark.integration
 async def test_a_service_call_that_timed_out_is_cancelled_not_done_later(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -724,6 +753,7 @@ async def test_a_service_call_that_timed_out_is_cancelled_not_done_later(
         assert cancelled == ["release"]
 
 
+@pytest.mark.integration
 async def test_a_new_run_forgets_the_last_ones_clients_and_secret() -> None:
     """foxglove-sdk's new server numbers its clients from 1 again: a client that reaches
     the new private port directly must not inherit "came through the front" (nor a
@@ -765,6 +795,7 @@ async def test_a_new_run_forgets_the_last_ones_clients_and_secret() -> None:
             await server.aclose()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("frame", "why"),
     [
@@ -792,6 +823,7 @@ async def test_the_front_refuses_text_frames_that_are_not_json_objects(
         await moving(sim, True, 2.0)
 
 
+@pytest.mark.integration
 async def test_the_front_keeps_a_bounded_record_of_a_connections_channels() -> None:
     import chassis_sdk.integrations.foxglove as live
 
@@ -823,6 +855,7 @@ async def test_the_front_keeps_a_bounded_record_of_a_connections_channels() -> N
         assert server.rejected == n - MAX_CLIENT_CHANNELS
 
 
+@pytest.mark.integration
 async def test_each_kind_of_warning_status_keeps_one_id_so_a_new_summary_replaces_the_old() -> None:
     async with served() as (_, _, server), FoxgloveClient(server.url) as client:
         await client.wait_for(lambda: bool(client.server_info))

@@ -10,6 +10,8 @@ import pytest
 
 from .support.fuzz import harness, mutate
 
+pytestmark = pytest.mark.codec
+
 
 @pytest.mark.parametrize("target", sorted(harness.targets()))
 def test_seeds_are_valid_frames(target: str) -> None:

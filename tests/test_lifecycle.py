@@ -15,6 +15,8 @@ from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.standin import BoardStandIn, ChassisStandIn, last_drive_is_zero
 
+pytestmark = pytest.mark.integration
+
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 
 

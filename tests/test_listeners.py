@@ -248,6 +248,7 @@ def test_a_partial_is_named_by_what_it_wraps() -> None:
 # --- through a Notifier, on a real link ------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_on_a_real_link_a_raising_callback_goes_and_the_device_goes_on(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -285,6 +286,7 @@ async def test_on_a_real_link_a_raising_callback_goes_and_the_device_goes_on(
     assert len(_records(caplog, logging.ERROR)) == 1
 
 
+@pytest.mark.integration
 async def test_on_a_real_link_a_slow_callback_is_warned_about_once(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

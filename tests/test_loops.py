@@ -91,6 +91,7 @@ def _loops() -> list[object]:
     ]
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("how", ["unplug", "peer reset"])
 @pytest.mark.parametrize("use_uvloop", _loops())
 def test_the_simulator_survives_writing_to_a_client_whose_transport_closed(
@@ -124,6 +125,7 @@ def test_the_simulator_survives_writing_to_a_client_whose_transport_closed(
     assert chassis_sdk.run(scenario(), uvloop=use_uvloop) > 0
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("use_uvloop", _loops())
 def test_the_simulator_holds_replies_back_at_least_the_delay_asked(use_uvloop: bool) -> None:
     """uvloop's timers fire up to a millisecond early (libuv's clock is whole
@@ -149,6 +151,7 @@ def test_the_simulator_holds_replies_back_at_least_the_delay_asked(use_uvloop: b
 # --- a device object works in any event loop it is connected in ----------------------------------
 
 
+@pytest.mark.integration
 def test_a_device_works_in_a_second_event_loop() -> None:
     peer = ThreadedPeer()
     robot = Chassis(peer.port, command_timeout=0.2)
@@ -196,6 +199,7 @@ def _script_line(err: str) -> str:
     return lines[0]
 
 
+@pytest.mark.integration
 async def test_row2_wait_for_times_out_with_an_sdk_error_on_one_line(tmp_path: Path) -> None:
     async with ChassisSimulator() as sim:
         proc, _ = await _script(
@@ -218,6 +222,7 @@ async def test_row2_wait_for_times_out_with_an_sdk_error_on_one_line(tmp_path: P
     assert "no telemetry satisfied the condition in 0.3 s" in _script_line(err.decode())
 
 
+@pytest.mark.integration
 async def test_row22_ctrl_c_in_a_script_is_quiet_exit_130_and_the_robot_stopped(
     tmp_path: Path,
 ) -> None:

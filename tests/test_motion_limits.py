@@ -76,6 +76,8 @@ def test_limits_must_be_motion_limits() -> None:
 # --- on the wire, against the independent stand-in ------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_ramp_up_holds_the_acceleration_and_stop_is_immediate() -> None:
     limits = MotionLimits(linear_acceleration=2.0, angular_acceleration=4.0)
     async with (
@@ -101,6 +103,7 @@ async def test_ramp_up_holds_the_acceleration_and_stop_is_immediate() -> None:
         assert robot.commanded_velocity is None
 
 
+@pytest.mark.integration
 async def test_a_lower_command_ramps_down_with_the_deceleration() -> None:
     limits = MotionLimits(linear_acceleration=10.0, linear_deceleration=2.0)
     async with (
@@ -118,6 +121,7 @@ async def test_a_lower_command_ramps_down_with_the_deceleration() -> None:
         assert len(down) >= 6  # 0.5 m/s at 2 m/s²: at least five steps after the top
 
 
+@pytest.mark.integration
 async def test_max_speeds_clamp_what_is_written_not_what_was_asked() -> None:
     limits = MotionLimits(max_linear=0.3, max_angular=0.5)
     async with (
@@ -134,6 +138,7 @@ async def test_max_speeds_clamp_what_is_written_not_what_was_asked() -> None:
         assert velocities(dev.frames)[-1] == pytest.approx((1.0, -2.0))
 
 
+@pytest.mark.integration
 async def test_deadman_and_duration_stop_at_once_despite_ramps() -> None:
     limits = MotionLimits(linear_acceleration=1.0, linear_deceleration=0.1)
     async with (
@@ -150,6 +155,7 @@ async def test_deadman_and_duration_stop_at_once_despite_ramps() -> None:
         assert robot.stats.command_expiries == 2
 
 
+@pytest.mark.integration
 async def test_wheel_mode_ramps_each_side_with_the_linear_limits() -> None:
     limits = MotionLimits(max_linear=0.4, linear_acceleration=2.0)
     async with (
@@ -163,6 +169,7 @@ async def test_wheel_mode_ramps_each_side_with_the_linear_limits() -> None:
         assert sides[-1] == (-400, 200)  # clamped to max_linear, each side ramped
 
 
+@pytest.mark.integration
 async def test_the_board_ramps_through_the_same_watchdog() -> None:
     from chassis_sdk import Board
 

@@ -60,6 +60,7 @@ def test_an_unknown_stream_is_a_clear_error() -> None:
         Notifier(Chassis("/dev/never-opened")).listen("imu", print)
 
 
+@pytest.mark.integration
 async def test_it_sees_both_directions_and_the_states_of_a_real_link() -> None:
     states: list[ConnectionState] = []
     tap = Recorder()
@@ -122,6 +123,7 @@ def test_a_device_class_with_the_old_kind_is_refused() -> None:
         Mower("/dev/never-opened")
 
 
+@pytest.mark.integration
 async def test_a_simulator_keeps_its_counts_after_it_stops() -> None:
     async with ChassisSimulator() as sim:
         async with Chassis(sim.port) as robot:

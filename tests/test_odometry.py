@@ -199,6 +199,8 @@ def test_a_device_defers_unheard_samples_within_the_limit_and_to_the_bit() -> No
 # --- against the simulators -------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.timeout(90)
 async def test_a_1_m_square_closes_and_odometry_matches_the_simulators_truth() -> None:
     """Stated tolerance: the square closes within 2 cm and 1 degree by odometry, and
@@ -214,6 +216,7 @@ async def test_a_1_m_square_closes_and_odometry_matches_the_simulators_truth() -
     assert robot.stats.sequence_gaps == 0
 
 
+@pytest.mark.integration
 async def test_chassis_wheel_odometry_with_track_from_0x89() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         await robot.configure_odometry("wheels")  # reads track_width from the chassis
@@ -231,6 +234,7 @@ async def test_chassis_wheel_odometry_with_track_from_0x89() -> None:
             await robot.configure_odometry("gps")
 
 
+@pytest.mark.integration
 async def test_board_odometry_with_imu_heading_matches_the_simulator() -> None:
     async with BoardSimulator() as sim, Board(sim.port) as board:
         await board.configure_odometry(heading="imu")

@@ -147,6 +147,7 @@ def node(sim: ChassisSimulator) -> str:
     return os.path.realpath(sim.port)
 
 
+@pytest.mark.integration
 async def test_resolution_against_the_attached_devices(
     two_sims: tuple[ChassisSimulator, ChassisSimulator], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -196,6 +197,7 @@ def test_twins_sharing_a_serial_are_told_to_use_another_name(
     assert [p.identity for p in list_serial_ports()] == ["usb:1A86:7523", "usb:1A86:7523"]
 
 
+@pytest.mark.integration
 async def test_the_listing_gives_each_device_its_identity_and_by_id_link(
     two_sims: tuple[ChassisSimulator, ChassisSimulator],
     monkeypatch: pytest.MonkeyPatch,
@@ -262,6 +264,7 @@ def test_constructing_looks_nothing_up(monkeypatch: pytest.MonkeyPatch) -> None:
     assert robot.port_node is None
 
 
+@pytest.mark.integration
 async def test_port_node_of_a_path_and_of_a_socket() -> None:
     async with ChassisSimulator() as pty, ChassisSimulator(tcp_port=0) as tcp:
         async with Chassis(pty.port) as robot:
@@ -273,6 +276,7 @@ async def test_port_node_of_a_path_and_of_a_socket() -> None:
             assert await robot.get_firmware_version() == 103
 
 
+@pytest.mark.integration
 async def test_an_identity_not_attached_is_a_one_line_port_error(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -289,6 +293,7 @@ async def test_an_identity_not_attached_is_a_one_line_port_error(
     assert robot.port_node is None
 
 
+@pytest.mark.integration
 async def test_an_identity_that_moves_while_its_node_opens_is_not_kept(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -309,6 +314,7 @@ async def test_an_identity_that_moves_while_its_node_opens_is_not_kept(
         await until(lambda: open_fds_on(first) == held)  # closed, not kept
 
 
+@pytest.mark.integration
 async def test_busy_hint_names_the_holder_of_the_node_an_identity_reached(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
@@ -411,6 +417,7 @@ async def renumbered(
     assert b.firmware.received  # B heard the host
 
 
+@pytest.mark.integration
 async def test_a_moved_symlink_is_followed_on_reconnect(
     two_sims: tuple[ChassisSimulator, ChassisSimulator], tmp_path: Path
 ) -> None:
@@ -428,6 +435,7 @@ async def test_a_moved_symlink_is_followed_on_reconnect(
     assert "no such device" in failures[0]
 
 
+@pytest.mark.integration
 async def test_a_usb_identity_is_looked_up_again_on_reconnect(
     two_sims: tuple[ChassisSimulator, ChassisSimulator], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -469,6 +477,7 @@ async def test_a_usb_identity_is_looked_up_again_on_reconnect(
 # --- the CLI -------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_cli_info_by_identity_reaches_the_device(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -485,6 +494,7 @@ def test_cli_info_by_identity_reaches_the_device(
     assert "103" in text  # the simulator's firmware version: it answered
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("port", "expected"),
     [

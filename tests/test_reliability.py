@@ -30,6 +30,8 @@ from chassis_sdk.sim import BoardSimulator, BoardSpec, ChassisSimulator, Chassis
 from .support.helpers import next_state
 from .support.standin import ChassisStandIn, drive_frames
 
+pytestmark = pytest.mark.integration
+
 TRANSPORTS = [pytest.param(None, id="pty"), pytest.param(0, id="tcp")]
 S = ConnectionState
 
@@ -46,6 +48,7 @@ async def telemetry_after(robot: Chassis, since: float, timeout: float = 5.0) ->
 # --- acceptance, against the independent TCP stand-in ----------------------------------------
 
 
+@pytest.mark.timing
 async def test_tcp_drop_fails_pending_request_and_iterator_within_a_second() -> None:
     async with (
         ChassisStandIn(tcp=True, silent_ids={0x07}) as dev,
@@ -73,6 +76,7 @@ async def test_tcp_drop_fails_pending_request_and_iterator_within_a_second() -> 
             await anext(robot.telemetry())
 
 
+@pytest.mark.timing
 async def test_tcp_reconnect_fails_fast_resumes_telemetry_and_never_resumes_motion() -> None:
     async with (
         ChassisStandIn(tcp=True) as dev,
@@ -146,6 +150,7 @@ async def test_slow_consumer_with_queue_size_8_gets_the_newest_frames() -> None:
 # --- link health ------------------------------------------------------------------------------
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("tcp", [False, True], ids=["pty", "tcp"])
 async def test_silence_marks_the_link_stale_once_and_a_frame_restores_it(
     tcp: bool, caplog: pytest.LogCaptureFixture
@@ -263,6 +268,7 @@ async def test_delayed_replies(tcp_port: int | None) -> None:
         assert sim.fault_counts.delayed_replies == 2
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("tcp_port", TRANSPORTS)
 async def test_missing_replies_are_retried_then_time_out(tcp_port: int | None) -> None:
     async with (

@@ -18,6 +18,8 @@ from .support.helpers import TRANSPORTS, until
 from .support.stalls import NumberedReplies, own_answers
 from .support.standin import BoardStandIn, Received, frame_b
 
+pytestmark = pytest.mark.integration
+
 # --- a late reply never answers a later call -----------------------------------------------------
 
 

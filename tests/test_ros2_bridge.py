@@ -180,6 +180,9 @@ def test_discovery_follows_ros2s_variables() -> None:
 # --- on DDS ------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
+@pytest.mark.timing
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_cmd_vel_drives_and_the_deadman_stops_a_silent_writer() -> None:
@@ -198,6 +201,9 @@ async def test_cmd_vel_drives_and_the_deadman_stops_a_silent_writer() -> None:
         assert b.writer_gone_stops == 0
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
+@pytest.mark.timing
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_the_last_writer_leaving_stops_the_robot_at_once() -> None:
@@ -218,6 +224,8 @@ async def test_the_last_writer_leaving_stops_the_robot_at_once() -> None:
         assert b.writer_gone_stops == 1
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_bad_samples_are_refused_and_never_written() -> None:
@@ -239,6 +247,8 @@ async def test_bad_samples_are_refused_and_never_written() -> None:
         assert b.refused >= 2  # NaN and inf (1e300 is clamped like 5.0)
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_stale_stamped_commands_are_refused() -> None:
@@ -259,6 +269,8 @@ async def test_stale_stamped_commands_are_refused() -> None:
         assert not any(c.linear_mm == 300 for _, c in drives(sim))
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_emergency_stop_engages_refuses_velocity_and_releases() -> None:
@@ -279,6 +291,8 @@ async def test_emergency_stop_engages_refuses_velocity_and_releases() -> None:
         assert not any(c.linear_mm == 300 for _, c in drives(sim))
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_read_only_subscribes_to_nothing_and_writes_nothing() -> None:
@@ -294,6 +308,9 @@ async def test_read_only_subscribes_to_nothing_and_writes_nothing() -> None:
         assert len(sim.firmware.received) == 0
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
+@pytest.mark.timing
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_odometry_tf_battery_and_diagnostics_from_a_chassis() -> None:
@@ -335,6 +352,8 @@ async def test_odometry_tf_battery_and_diagnostics_from_a_chassis() -> None:
         assert status.name == "chassis_sdk: chassis"
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_battery_state_percentage_is_the_models_charge_once_known() -> None:
@@ -362,6 +381,8 @@ async def test_battery_state_percentage_is_the_models_charge_once_known() -> Non
     assert latest.power_supply_technology == m.BATTERY_TECHNOLOGY["lifepo4"]
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_a_board_publishes_imu_and_a_latched_tf_static_for_late_joiners() -> None:
@@ -393,6 +414,8 @@ async def test_a_board_publishes_imu_and_a_latched_tf_static_for_late_joiners() 
         assert (transform.header.frame_id, transform.child_frame_id) == ("base_link", "imu_link")
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_the_bridge_ending_stops_the_robot_and_leaves_the_graph() -> None:
@@ -429,6 +452,8 @@ async def test_the_bridge_ending_stops_the_robot_and_leaves_the_graph() -> None:
         assert kept is not None
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_a_static_peer_that_does_not_resolve_is_left_out_not_fatal() -> None:
@@ -465,6 +490,8 @@ def test_static_peers_cyclone_would_crash_on_are_refused(peers: Any) -> None:
         Discovery(static_peers=peers)
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_two_bridges_in_one_process_share_a_domain_and_a_different_one_is_refused() -> None:
@@ -551,6 +578,8 @@ def raw_pty() -> Iterator[tuple[int, str]]:
         os.close(slave)
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("board", [False, True], ids=["chassis", "board"])
@@ -580,6 +609,8 @@ async def test_the_ros2_bridge_has_no_task_per_stream_and_odometry_comes_in_orde
     assert bridge.dropped_readings == 0
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_a_link_lost_for_good_ends_the_bridge_with_connection_lost() -> None:
@@ -605,6 +636,8 @@ async def test_a_link_lost_for_good_ends_the_bridge_with_connection_lost() -> No
         assert all(sim.port in str(error) for error in ended)
 
 
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_a_burst_keeps_the_newest_queue_size_readings_and_counts_the_rest() -> None:

@@ -32,7 +32,7 @@ from .support.dds_peer import start_peer
 from .support.helpers import Heartbeat
 from .support.ros2 import bridged, drives, until
 
-pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
+pytestmark = [pytest.mark.integration, pytest.mark.ros2, pytest.mark.netns, pytest.mark.timeout(90)]
 
 DOMAIN = 0
 
@@ -129,6 +129,7 @@ class ForeignPython:
         self._thread.join()
 
 
+@pytest.mark.timing
 async def test_a_flood_of_refused_samples_neither_stalls_the_loop_nor_delays_the_e_stop() -> None:
     # A NaN flood (100 000-180 000 samples in 3 s from another process) on cmd_vel, and
     # the e-stop engaged and released through it. A data listener entered Python on
@@ -182,6 +183,7 @@ async def test_a_flood_of_refused_samples_neither_stalls_the_loop_nor_delays_the
         assert not any(c.linear_mm for _, c in drives(sim))  # not one NaN written
 
 
+@pytest.mark.timing
 async def test_a_flood_of_valid_commands_reaches_the_line_at_most_once_per_20_ms() -> None:
     async with (
         ChassisSimulator() as sim,

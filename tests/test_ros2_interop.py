@@ -33,7 +33,7 @@ from .support.dds_peer import Event, start_peer
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
 
-pytestmark = [pytest.mark.netns, pytest.mark.timeout(90)]
+pytestmark = [pytest.mark.integration, pytest.mark.netns, pytest.mark.timeout(90)]
 
 #: How long one command holds (the bridge's default, diff_drive_controller's).
 TIMEOUT = 0.5
@@ -50,6 +50,8 @@ def _sample(e: Event) -> bool:
     return e.get("event") == "sample"
 
 
+@pytest.mark.ros2
+@pytest.mark.timing
 async def test_teleop_moves_the_robot_at_once_and_a_silent_writer_stops_it() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -81,6 +83,8 @@ async def test_teleop_moves_the_robot_at_once_and_a_silent_writer_stops_it() -> 
         assert bridge.refused == 0
 
 
+@pytest.mark.ros2
+@pytest.mark.timing
 async def test_the_robot_stops_within_200_ms_of_the_publisher_leaving() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -98,6 +102,8 @@ async def test_the_robot_stops_within_200_ms_of_the_publisher_leaving() -> None:
         assert bridge.writer_gone_stops == 1
 
 
+@pytest.mark.ros2
+@pytest.mark.timing
 async def test_twist_stamped_with_stamped() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -111,6 +117,9 @@ async def test_twist_stamped_with_stamped() -> None:
         assert bridge.refused == 0
 
 
+@pytest.mark.ros2
+@pytest.mark.slow
+@pytest.mark.timing
 async def test_nav2_gets_odometry_at_the_telemetry_rate_with_frames_stamps_and_covariance() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -149,6 +158,7 @@ async def test_nav2_gets_odometry_at_the_telemetry_rate_with_frames_stamps_and_c
             assert (transform["frame_id"], transform["child_frame_id"]) == ("odom", "base_link")
 
 
+@pytest.mark.ros2
 async def test_tf_static_reaches_a_late_joiner_and_imu_and_battery_flow() -> None:
     async with BoardSimulator() as sim, Board(sim.port) as board, bridged(board) as _bridge:
         async with await start_peer("sub", "imu", "rt/imu/data_raw", "--count", "5") as imu:
@@ -170,6 +180,8 @@ async def test_tf_static_reaches_a_late_joiner_and_imu_and_battery_flow() -> Non
             assert (transform["frame_id"], transform["child_frame_id"]) == ("base_link", "imu_link")
 
 
+@pytest.mark.slow
+@pytest.mark.ros2
 async def test_qos_that_must_not_match_does_not() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot, bridged(robot) as _bridge:
         # A BEST_EFFORT writer cannot feed the RELIABLE emergency_stop reader.
@@ -185,6 +197,7 @@ async def test_qos_that_must_not_match_does_not() -> None:
         assert not sim.firmware.software_estop
 
 
+@pytest.mark.ros2
 async def test_unicast_only_discovery_with_static_peers() -> None:
     # No multicast at all in this namespace: discovery only by unicast.
     await anyio.run_process(["ip", "route", "del", "224.0.0.0/4", "dev", "lo"])
@@ -205,6 +218,7 @@ async def test_unicast_only_discovery_with_static_peers() -> None:
             await until(lambda: any(c.linear_mm == 150 for _, c in drives(sim)), 3.0)
 
 
+@pytest.mark.ros2
 async def test_a_non_finite_command_from_the_peer_is_refused() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot, bridged(robot) as bridge:
         args = ("pub", "twist", "rt/cmd_vel", "--rate", "20", "--count", "3", "--linear", "nan")
@@ -214,6 +228,8 @@ async def test_a_non_finite_command_from_the_peer_is_refused() -> None:
         assert all(c.linear_mm == 0 for _, c in drives(sim))
 
 
+@pytest.mark.ros2
+@pytest.mark.slow
 async def test_chassis_sdk_ros2_puts_a_simulated_chassis_on_the_graph_and_stops_it_at_the_end() -> (
     None
 ):
@@ -263,6 +279,8 @@ async def test_chassis_sdk_ros2_refuses_bad_options_in_one_line_before_the_port_
     assert "domain_id=300 is out of range" in err
 
 
+@pytest.mark.ros2
+@pytest.mark.slow
 async def test_chassis_sdk_ros2_read_only_writes_nothing_to_the_device() -> None:
     async with ChassisSimulator() as sim:
         args = ("ros2", sim.port, "--read-only", "--seconds", "4")

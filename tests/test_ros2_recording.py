@@ -135,6 +135,7 @@ async def drive(robot: Chassis, frames: int) -> list[Telemetry]:
 # --- a chassis, recorded as a rosbag2 file and as a Foxglove file at once --------------------
 
 
+@pytest.mark.integration
 async def test_a_chassis_session_is_a_rosbag2_file_both_readers_open(tmp_path: Path) -> None:
     bag, fox = tmp_path / "run.mcap", tmp_path / "fox.mcap"
     async with ChassisSimulator() as sim:
@@ -240,6 +241,7 @@ async def test_a_chassis_session_is_a_rosbag2_file_both_readers_open(tmp_path: P
     assert int(out_bytes) == sum(len(d) for _, d in capture.read_capture(fox))
 
 
+@pytest.mark.integration
 async def test_a_battery_model_gives_the_recorded_battery_state_its_percentage(
     tmp_path: Path,
 ) -> None:
@@ -265,6 +267,7 @@ async def test_a_battery_model_gives_the_recorded_battery_state_its_percentage(
 # --- a board: its IMU, and the static transform to it -------------------------------------
 
 
+@pytest.mark.integration
 async def test_a_board_session_has_imu_and_a_latched_static_transform(tmp_path: Path) -> None:
     bag = tmp_path / "board.mcap"
     started = time.time()
@@ -309,6 +312,7 @@ async def test_a_board_session_has_imu_and_a_latched_static_transform(tmp_path: 
     assert capture.mcap_metadata(bag)["device"] == "board"
 
 
+@pytest.mark.integration
 async def test_the_options_name_the_frames_and_the_static_transforms(tmp_path: Path) -> None:
     bag = tmp_path / "options.mcap"
     laser = StaticTransform("chassis", "laser", x=0.1, z=0.2, yaw=math.pi)
@@ -381,6 +385,7 @@ def test_a_bad_choice_is_refused_before_anything_opens(tmp_path: Path) -> None:
 # --- the CLI ------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_cli_records_a_rosbag2_file_passively(tmp_path: Path) -> None:
     bag = tmp_path / "cli.mcap"
     async with ChassisSimulator() as sim:
@@ -410,6 +415,7 @@ async def test_cli_records_a_rosbag2_file_passively(tmp_path: Path) -> None:
     assert "Telemetry: " in out
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("args", "says"),
     [
@@ -431,6 +437,7 @@ async def test_cli_refuses_a_bad_ros2_choice_in_one_line_before_the_port_opens(
 # --- a hard kill loses at most the flush interval ------------------------------------------
 
 
+@pytest.mark.integration
 async def test_a_hard_kill_leaves_a_bag_readable_up_to_the_last_second(tmp_path: Path) -> None:
     bag = tmp_path / "killed.mcap"
     async with ChassisSimulator() as sim:
@@ -444,6 +451,7 @@ async def test_a_hard_kill_leaves_a_bag_readable_up_to_the_last_second(tmp_path:
     assert "Telemetry: " in out
 
 
+@pytest.mark.integration
 async def test_record_takes_any_target_that_opens_its_own_recorder(tmp_path: Path) -> None:
     """The core knows no format: a ``record`` target is a path that opens its recorder."""
 

@@ -268,6 +268,7 @@ def test_the_translator_reads_the_model_for_each_battery_state() -> None:
         r.Translator(options, ["battery"], battery=50.0)  # type: ignore[arg-type]
 
 
+@pytest.mark.integration
 async def test_battery_state_of_a_chassis_on_the_simulated_pack() -> None:
     # Through a real pty: the chassis's 0x81 voltage at 1 Hz, the percentage its model
     # makes of it, against the pack's true charge.
@@ -506,6 +507,7 @@ def test_stamp_splits_seconds_and_nanoseconds(epoch: float, expected: tuple[int,
     assert (decoded.sec, decoded.nanosec) == expected
 
 
+@pytest.mark.timing
 def test_wall_time_of_a_monotonic_reading() -> None:
     ago = time.monotonic() - 2.0
     assert r.wall_time(ago, now=1000.0) == pytest.approx(998.0, abs=0.05)

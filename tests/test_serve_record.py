@@ -23,7 +23,7 @@ from mcap.stream_reader import StreamReader
 from chassis_sdk.recording.mcap import FLUSH_INTERVAL
 from chassis_sdk.sim import ChassisSimulator
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
 #: What a hard kill may lose beyond the flush interval: the time between two messages
 #: (the flush comes with a message), the kill's own latency, a loaded test machine.
@@ -67,6 +67,7 @@ async def wait_for_telemetry(path: Path, proc: asyncio.subprocess.Process, err: 
     pytest.fail(f"no telemetry in {path.name} within 20 s (size {size}): {err.read_text()}")
 
 
+@pytest.mark.timing
 async def test_a_hard_kill_of_serve_loses_at_most_the_flush_interval(tmp_path: Path) -> None:
     path = tmp_path / "live.mcap"
     err = tmp_path / "serve.err"

@@ -39,6 +39,8 @@ from .support.standin import (
     last_drive_is_zero,
 )
 
+pytestmark = pytest.mark.integration
+
 
 def velocity(rec: Received) -> tuple[int, float]:
     """(vx mm/s, wz rad/s) of a mode-0 drive frame."""
@@ -73,6 +75,7 @@ def unstick_after(dev: ChassisStandIn, seconds: float) -> Iterator[None]:
 # --- a device that stops reading, or reads slowly when close() comes -----------------------------
 
 
+@pytest.mark.timing
 async def test_stuck_device_never_freezes_the_loop_and_close_sends_nothing_stale() -> None:
     async with ChassisStandIn(noise=False) as dev:
         robot = Chassis(dev.port, command_timeout=None)
@@ -121,6 +124,8 @@ async def test_stuck_device_gets_only_the_newest_velocity_when_it_reads_again(
         assert all(velocity(f)[0] in (0, 300) for f in drive_frames(dev.frames))
 
 
+@pytest.mark.slow
+@pytest.mark.timing
 @pytest.mark.parametrize("tcp", TRANSPORTS)
 @pytest.mark.parametrize("stall", [0.4, 6.0])
 async def test_a_device_slow_to_read_at_close_gets_the_zero_as_its_last_frame(
@@ -169,6 +174,7 @@ async def test_a_recording_does_not_cost_a_stalled_device_its_zero(
     assert [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR] == []
 
 
+@pytest.mark.timing
 async def test_past_close_linger_the_port_is_released_and_nothing_more_is_sent() -> None:
     # A socket's kernel buffer cannot be flushed: when the bound passes, the connection
     # is reset, so the kernel sends nothing more, the port is free to open again, and
@@ -189,6 +195,7 @@ async def test_past_close_linger_the_port_is_released_and_nothing_more_is_sent()
         assert zeros in ([], [len(drives) - 1]), "a frame came after the zero"
 
 
+@pytest.mark.timing
 async def test_run_waits_for_the_final_zero_of_a_device_slow_to_read() -> None:
     # Under chassis_sdk.run the program ends only once a lingering zero has left (or
     # its bound passed): here the device reads again 0.5 s after main() returned.
@@ -280,6 +287,7 @@ async def test_calls_racing_close_get_not_connected_error() -> None:
 # --- after the loop was blocked past the deadman, the first frame out is zero --------------------
 
 
+@pytest.mark.timing
 def test_after_a_blocked_loop_the_first_velocity_frame_out_is_zero() -> None:
     peer = ThreadedPeer()
     try:

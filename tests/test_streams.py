@@ -15,6 +15,8 @@ from chassis_sdk.sim import ChassisSimulator, ChassisSpec
 from .support.helpers import until
 from .support.standin import ChassisStandIn
 
+pytestmark = pytest.mark.integration
+
 # --- leaving a loop unsubscribes at once ---------------------------------------------------------
 
 

@@ -69,6 +69,7 @@ def sync_threads() -> list[threading.Thread]:
 # --- blocking calls --------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_blocking_calls_return_what_the_device_answers(sim: sync.Simulator) -> None:
     with sync.Chassis(sim.port) as robot:
         robot.verify()
@@ -86,6 +87,7 @@ def test_blocking_calls_return_what_the_device_answers(sim: sync.Simulator) -> N
     assert sync_threads() == []  # the loop thread is gone
 
 
+@pytest.mark.integration
 def test_board_requests_and_streams(board_sim: sync.Simulator) -> None:
     with sync.Board(board_sim.port) as board:
         assert board.set_led(True) is True
@@ -98,6 +100,7 @@ def test_board_requests_and_streams(board_sim: sync.Simulator) -> None:
         assert battery.voltage > 0
 
 
+@pytest.mark.integration
 def test_set_velocity_moves_the_robot_and_stop_writes_zero(sim: sync.Simulator) -> None:
     with sync.Chassis(sim.port) as robot:
         robot.set_velocity(0.3, 0.0, duration=5.0)
@@ -108,6 +111,8 @@ def test_set_velocity_moves_the_robot_and_stop_writes_zero(sim: sync.Simulator) 
         assert robot.commanded_velocity is None
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 def test_deadman_stops_while_the_caller_blocks(sim: sync.Simulator) -> None:
     with sync.Chassis(sim.port, command_timeout=0.3) as robot:
         robot.set_velocity(0.3, 0.0)
@@ -119,6 +124,7 @@ def test_deadman_stops_while_the_caller_blocks(sim: sync.Simulator) -> None:
         assert robot.commanded_velocity is None
 
 
+@pytest.mark.integration
 def test_open_and_close_without_with_and_again(sim: sync.Simulator) -> None:
     robot = sync.Chassis(sim.port).open()
     try:
@@ -134,6 +140,7 @@ def test_open_and_close_without_with_and_again(sim: sync.Simulator) -> None:
     robot.close()
 
 
+@pytest.mark.integration
 def test_open_by_name_and_by_class(sim: sync.Simulator) -> None:
     assert sync.blocking_class("chassis") is sync.Chassis
     assert sync.blocking_class(Board) is sync.Board
@@ -154,6 +161,7 @@ def subscribers(robot: sync.Chassis) -> int:
     return robot.portal.call(lambda: len(robot.device._telemetry))
 
 
+@pytest.mark.integration
 def test_breaking_out_of_a_loop_unsubscribes_in_the_loop(sim: sync.Simulator) -> None:
     with sync.Chassis(sim.port) as robot:
         seqs = []
@@ -176,6 +184,7 @@ def test_breaking_out_of_a_loop_unsubscribes_in_the_loop(sim: sync.Simulator) ->
         assert subscribers(robot) == 0
 
 
+@pytest.mark.integration
 def test_an_iterator_ends_when_its_device_closes(sim: sync.Simulator) -> None:
     robot = sync.Chassis(sim.port).open()
     it = robot.telemetry()
@@ -187,6 +196,8 @@ def test_an_iterator_ends_when_its_device_closes(sim: sync.Simulator) -> None:
 # --- timeouts -----------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 def test_a_call_that_cannot_complete_times_out_in_time() -> None:
     with silent_pty() as port, sync.Chassis(port, request_timeout=5.0, link_timeout=None) as robot:
         start = time.monotonic()
@@ -202,6 +213,8 @@ def test_a_call_that_cannot_complete_times_out_in_time() -> None:
         assert robot.is_connected  # a timeout leaves the device usable
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 def test_the_default_bound_is_the_requests_own() -> None:
     with silent_pty() as port, sync.Chassis(port, request_timeout=0.1, retries=1) as robot:
         start = time.monotonic()
@@ -213,6 +226,7 @@ def test_the_default_bound_is_the_requests_own() -> None:
 # --- wrong arguments ------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_wrong_arguments_raise_before_any_byte(sim: sync.Simulator) -> None:
     threads = threading.active_count()
     with pytest.raises(ValueError, match="command_timeout"):
@@ -311,6 +325,7 @@ def test_every_public_member_has_a_blocking_twin(async_cls: type, sync_cls: type
 # --- a Jupyter-like running loop --------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_calls_from_inside_a_running_event_loop(sim: sync.Simulator) -> None:
     """A notebook cell runs in a thread whose loop is running: the blocking API works
     there (it blocks that loop while it waits, as the caller chose)."""
@@ -346,6 +361,7 @@ def test_calls_from_inside_a_running_event_loop(sim: sync.Simulator) -> None:
 # --- the link lost, garbage collection --------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_the_link_lost_raises_in_the_iterator_and_the_call(sim: sync.Simulator) -> None:
     with sync.Chassis(sim.port) as robot:
         it = robot.telemetry(timeout=3.0)
@@ -358,6 +374,7 @@ def test_the_link_lost_raises_in_the_iterator_and_the_call(sim: sync.Simulator) 
             robot.get_firmware_version()
 
 
+@pytest.mark.integration
 def test_dropping_an_open_device_stops_the_robot(sim: sync.Simulator) -> None:
     robot = sync.Chassis(sim.port).open()
     robot.set_velocity(0.3, 0.0, duration=30.0)
@@ -454,6 +471,8 @@ def still(sim: ChassisSimulator) -> bool:
     return all(abs(w) < 1e-3 for w in sim.firmware.wheels)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_script_that_sleeps_past_the_deadman_stops_the_robot() -> None:
     async with ChassisSimulator() as sim, script(SLEEPING, sim.port) as proc:
         assert await line(proc) == "sent"
@@ -483,6 +502,7 @@ except KeyboardInterrupt:
 """
 
 
+@pytest.mark.integration
 async def test_ctrl_c_in_a_property_read_stops_the_robot_too() -> None:
     async with ChassisSimulator() as sim, script(READING, sim.port) as proc:
         assert await line(proc) == "reading"
@@ -494,6 +514,8 @@ async def test_ctrl_c_in_a_property_read_stops_the_robot_too() -> None:
         await until(lambda: still(sim), timeout=3.0)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_ctrl_c_in_a_blocking_call_stops_the_robot_and_raises() -> None:
     async with ChassisSimulator() as sim, script(INTERRUPTED, sim.port) as proc:
         assert await line(proc) == "waiting"
@@ -517,6 +539,8 @@ async def test_ctrl_c_in_a_blocking_call_stops_the_robot_and_raises() -> None:
         await until(lambda: still(sim), timeout=3.0)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_sigterm_stops_the_robot_and_exits_143() -> None:
     async with ChassisSimulator() as sim, script(DRIVING, sim.port) as proc:
         assert await line(proc) == "driving"
@@ -534,6 +558,8 @@ async def test_sigterm_stops_the_robot_and_exits_143() -> None:
         await until(lambda: still(sim), timeout=3.0)
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_sigkill_leaves_it_to_the_firmware_timeout() -> None:
     """Nothing can run after SIGKILL: no zero is written; the chassis firmware's own
     command timeout (0.5 s without a 0x02, modelled by the simulator) stops the wheels."""
@@ -551,6 +577,7 @@ async def test_sigkill_leaves_it_to_the_firmware_timeout() -> None:
         assert took <= 0.5 + 1.0, took  # the firmware's 0.5 s, then its braking ramp
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("how", ["exit", "exception"])
 async def test_interpreter_exit_writes_zero(how: str) -> None:
     async with ChassisSimulator() as sim, script(EXITING, sim.port, how) as proc:

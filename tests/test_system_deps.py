@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.integration
+
 SCRIPT = Path(__file__).resolve().parents[1] / "tools" / "system-deps.sh"
 TOOLS = ("sh", "grep", "env", "cat")
 

@@ -34,7 +34,7 @@ from tests.support.standin import (
 )
 
 needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
-pytestmark = pytest.mark.timeout(90)
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
 
 #: Slack for a pty, two processes and the loop between a deadline and the zero frame
 #: (a busy shared CI machine).
@@ -170,6 +170,7 @@ def report(what: str, seconds: float) -> None:
     print(f"\nteleop {what}: {seconds * 1000:.0f} ms", flush=True)
 
 
+@pytest.mark.timing
 @needs_tmux
 async def test_hold_drives_and_release_stops_within_the_stated_bound(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
@@ -225,6 +226,7 @@ async def test_hold_drives_and_release_stops_within_the_stated_bound(tmp_path: P
     assert re.search(r"(?<!-)echo\b", screen), screen
 
 
+@pytest.mark.timing
 @needs_tmux
 async def test_space_stops_at_once_and_e_engages_the_estop(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
@@ -261,6 +263,7 @@ async def test_space_stops_at_once_and_e_engages_the_estop(tmp_path: Path) -> No
     assert last_drive_is_zero(dev.frames)
 
 
+@pytest.mark.timing
 @needs_tmux
 async def test_sighup_while_driving_writes_zero_at_once(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
@@ -279,6 +282,7 @@ async def test_sighup_while_driving_writes_zero_at_once(tmp_path: Path) -> None:
     assert re.search(r"(?<!-)icanon", screen), screen  # the terminal restored
 
 
+@pytest.mark.timing
 @needs_tmux
 async def test_losing_the_terminal_while_driving_writes_zero_at_once(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):

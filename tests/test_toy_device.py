@@ -45,6 +45,7 @@ def drives(firmware: ToyFirmware) -> list[Drive]:
     return [c for _, c in firmware.received if isinstance(c, Drive)]
 
 
+@pytest.mark.integration
 @pytest.mark.usefixtures("toy")
 @pytest.mark.parametrize("tcp_port", TRANSPORTS)
 async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | None) -> None:
@@ -74,6 +75,7 @@ async def test_lifetime_streams_requests_events_and_odometry(tcp_port: int | Non
             await robot.ping()
 
 
+@pytest.mark.integration
 @pytest.mark.usefixtures("toy")
 async def test_watchdog_resends_and_the_deadman_writes_one_zero() -> None:
     async with ToySimulator() as sim, Toy(sim.port, command_timeout=0.3) as robot:
@@ -92,6 +94,7 @@ async def test_watchdog_resends_and_the_deadman_writes_one_zero() -> None:
         assert drives(sim.firmware)[-1] == Drive(0, 0)
 
 
+@pytest.mark.integration
 @pytest.mark.usefixtures("toy")
 @pytest.mark.parametrize("tcp_port", TRANSPORTS)
 async def test_leaving_the_block_writes_zero_last(tcp_port: int | None) -> None:
@@ -102,6 +105,7 @@ async def test_leaving_the_block_writes_zero_last(tcp_port: int | None) -> None:
         assert drives(sim.firmware)[0] == Drive(500, 200)
 
 
+@pytest.mark.integration
 @pytest.mark.usefixtures("toy")
 async def test_requests_retry_time_out_and_drop_late_replies() -> None:
     booted_after = time.monotonic()
@@ -121,6 +125,7 @@ async def test_requests_retry_time_out_and_drop_late_replies() -> None:
         assert 0 <= uptime <= time.monotonic() - booted_after
 
 
+@pytest.mark.integration
 @pytest.mark.usefixtures("toy")
 async def test_a_bad_velocity_is_a_value_error_before_a_byte_is_written() -> None:
     async with ToySimulator() as sim, Toy(sim.port) as robot:
@@ -133,6 +138,7 @@ async def test_a_bad_velocity_is_a_value_error_before_a_byte_is_written() -> Non
         assert drives(sim.firmware) == []
 
 
+@pytest.mark.integration
 @pytest.mark.usefixtures("toy")
 async def test_detect_record_replay_and_plot(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -197,6 +203,7 @@ def test_a_broken_entry_point_is_reported_and_skipped(
     assert "device entry point toy = tests.no_such_module:PROFILE failed" in caplog.text
 
 
+@pytest.mark.integration
 async def test_sim_detect_and_drive_from_the_command_line(tmp_path: Path) -> None:
     _install_entry_point(tmp_path, "tests.support.toy_device:PROFILE")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path), str(ROOT)))}

@@ -121,6 +121,8 @@ async def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, dic
 # --- what it serves ------------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_the_page_its_assets_and_live_state_of_a_chassis() -> None:
     async with (
         served(command_timeout=0.3) as (_sim, robot, web),
@@ -157,6 +159,7 @@ async def test_the_page_its_assets_and_live_state_of_a_chassis() -> None:
             assert 0.7 < time.monotonic() - t0 < 1.6
 
 
+@pytest.mark.integration
 async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
     async with (
         served(board=True) as (_sim, robot, web),
@@ -173,6 +176,7 @@ async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
         await p.wait(lambda: any("has no e-stop" in n.get("done", "") for n in p.notes))
 
 
+@pytest.mark.integration
 async def test_the_state_of_charge_null_until_known_then_the_percentage_and_level() -> None:
     # A pack at 15 %: the model warms up for a second (null), then knows it: LOW.
     pack = PackSpec("li-ion", cells=7, charge=15.0)
@@ -201,6 +205,7 @@ async def test_the_state_of_charge_null_until_known_then_the_percentage_and_leve
         assert p.states[-1]["battery"] is None
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("board", [False, True], ids=["chassis", "board"])
 async def test_the_dashboard_has_no_task_per_stream_and_pages_get_states_in_order(
     board: bool,
@@ -245,6 +250,8 @@ async def test_the_dashboard_has_no_task_per_stream_and_pages_get_states_in_orde
 # --- driving -------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_drive_messages_move_the_robot_and_the_deadman_stops_it() -> None:
     async with (
         served(command_timeout=0.3) as (sim, robot, web),
@@ -268,6 +275,8 @@ async def test_drive_messages_move_the_robot_and_the_deadman_stops_it() -> None:
         assert web.refused == 0
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_a_socket_that_closes_while_driving_stops_the_robot_at_once() -> None:
     async with (
         served(command_timeout=2.0) as (sim, _robot, web),
@@ -286,6 +295,7 @@ async def test_a_socket_that_closes_while_driving_stops_the_robot_at_once() -> N
             assert moving(sim)
 
 
+@pytest.mark.integration
 async def test_closing_the_dashboard_while_pages_drive_leaves_zero_the_last_frame() -> None:
     """Pages still sending while the dashboard closes them must not move the robot
     after its zero (reviewer's finding: 3 runs in 5 ended with a velocity after it)."""
@@ -326,6 +336,7 @@ async def stack_page(web: WebDashboard) -> Page:
     return p
 
 
+@pytest.mark.integration
 async def test_a_link_lost_for_good_neither_ends_the_dashboard_nor_the_application() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:  # no reconnect
         async with WebDashboard(robot, port=0) as web, page(web) as p:
@@ -340,6 +351,7 @@ async def test_a_link_lost_for_good_neither_ends_the_dashboard_nor_the_applicati
         assert web.errors == 0
 
 
+@pytest.mark.integration
 async def test_a_request_without_a_host_header_is_refused() -> None:
     async with (
         served() as (_sim, _robot, web),
@@ -352,6 +364,8 @@ async def test_a_request_without_a_host_header_is_refused() -> None:
         assert status.split()[1] == b"400"
 
 
+@pytest.mark.integration
+@pytest.mark.timing
 async def test_only_the_newest_command_counts_and_a_stop_wins() -> None:
     async with (
         served(command_timeout=0.5) as (sim, robot, web),
@@ -373,6 +387,7 @@ async def test_only_the_newest_command_counts_and_a_stop_wins() -> None:
             assert not moving(sim)
 
 
+@pytest.mark.integration
 async def test_a_held_up_command_is_refused() -> None:
     async with (
         served(command_timeout=0.3) as (_sim, _robot, web),
@@ -390,6 +405,7 @@ async def test_a_held_up_command_is_refused() -> None:
         assert web.refused == 2
 
 
+@pytest.mark.integration
 async def test_estop_engages_and_refuses_velocity_until_released() -> None:
     async with (
         served() as (sim, _robot, web),
@@ -432,6 +448,7 @@ BAD = [
 ]
 
 
+@pytest.mark.integration
 async def test_malformed_messages_are_refused_counted_shown_and_move_nothing() -> None:
     async with (
         served(limits=MotionLimits(max_linear=0.5, max_angular=1.0)) as (sim, robot, web),
@@ -457,6 +474,7 @@ async def test_malformed_messages_are_refused_counted_shown_and_move_nothing() -
             await until(lambda: moving(sim), 2.0)
 
 
+@pytest.mark.integration
 async def test_read_only_takes_only_stop_and_estop() -> None:
     async with (
         served(web={"read_only": True}) as (sim, _robot, web),
@@ -477,6 +495,7 @@ async def test_read_only_takes_only_stop_and_estop() -> None:
 # --- who may connect -----------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_a_foreign_origin_or_host_is_refused() -> None:
     async with (
         served(web={"allow_origins": ["https://ops.example.com"]}) as (_sim, _robot, web),
@@ -497,6 +516,7 @@ async def test_a_foreign_origin_or_host_is_refused() -> None:
         assert web.refused_connections == 4
 
 
+@pytest.mark.integration
 async def test_a_token_is_required_everywhere_but_the_static_files() -> None:
     async with (
         served(web={"token": TOKEN}) as (_sim, _robot, web),
@@ -524,6 +544,7 @@ async def test_a_token_is_required_everywhere_but_the_static_files() -> None:
                 assert p.hello["type"] == "hello"
 
 
+@pytest.mark.integration
 async def test_too_many_pages_are_refused() -> None:
     async with (
         served(web={"max_clients": 2}) as (_sim, _robot, web),
@@ -536,6 +557,7 @@ async def test_too_many_pages_are_refused() -> None:
         assert refused.value.response.status_code == 503
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("options", "why"),
     [
@@ -566,6 +588,7 @@ def test_a_bad_gamepad_mapping_is_refused(field: str, value: float) -> None:
         GamepadMapping(**options)
 
 
+@pytest.mark.integration
 async def test_beyond_loopback_a_random_token_is_made() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
         web = WebDashboard(robot, host="0.0.0.0", port=0)  # not started: never bound
@@ -578,6 +601,7 @@ async def test_beyond_loopback_a_random_token_is_made() -> None:
 # --- the command ---------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_cli_web_serves_drives_and_sigterm_stops_the_robot() -> None:
     async with (
         ChassisSimulator() as sim,
@@ -596,6 +620,7 @@ async def test_cli_web_serves_drives_and_sigterm_stops_the_robot() -> None:
         assert await asyncio.wait_for(cli_web.proc.wait(), 10) == 143
 
 
+@pytest.mark.integration
 async def test_cli_web_refuses_a_taken_port_in_one_line() -> None:
     async with (
         served() as (_sim, _robot, web),

@@ -58,6 +58,8 @@ async def opened(browser: Any, url: str, init_script: str | None = None) -> Asyn
         await context.close()
 
 
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_the_page_shows_live_telemetry_and_is_not_blank(tmp_path: Path) -> None:
     async with (
         served() as (_sim, robot, web),
@@ -81,6 +83,9 @@ async def test_the_page_shows_live_telemetry_and_is_not_blank(tmp_path: Path) ->
         assert not is_blank(png)
 
 
+@pytest.mark.integration
+@pytest.mark.browser
+@pytest.mark.slow
 async def test_the_battery_readout_shows_the_charge_coloured_by_level() -> None:
     # A pack at 15 %, a model that warms up for 3 s: "—" first, then "NN % LOW" with a
     # bar in the warning colour. The browser is up before the device opens.
@@ -120,6 +125,10 @@ def test_the_screenshot_in_the_docs_is_not_blank() -> None:
     assert not is_blank(png)
 
 
+@pytest.mark.integration
+@pytest.mark.browser
+@pytest.mark.slow
+@pytest.mark.timing
 async def test_a_held_key_drives_and_letting_go_stops_at_once() -> None:
     async with (
         served(command_timeout=0.5) as (sim, robot, web),
@@ -150,6 +159,9 @@ async def test_a_held_key_drives_and_letting_go_stops_at_once() -> None:
         await page.keyboard.up("KeyW")
 
 
+@pytest.mark.integration
+@pytest.mark.browser
+@pytest.mark.timing
 async def test_a_dragged_joystick_drives_and_letting_go_stops_at_once() -> None:
     async with (
         served() as (sim, robot, web),
@@ -174,6 +186,10 @@ async def test_a_dragged_joystick_drives_and_letting_go_stops_at_once() -> None:
         assert released < RELEASE_BOUND
 
 
+@pytest.mark.integration
+@pytest.mark.browser
+@pytest.mark.slow
+@pytest.mark.timing
 async def test_a_frozen_tab_stops_the_robot_within_the_deadman() -> None:
     async with (
         served(command_timeout=0.4) as (sim, robot, web),
@@ -209,6 +225,9 @@ async def test_a_frozen_tab_stops_the_robot_within_the_deadman() -> None:
         await page.keyboard.up("KeyW")
 
 
+@pytest.mark.integration
+@pytest.mark.browser
+@pytest.mark.timing
 async def test_closing_the_page_stops_the_robot_at_once() -> None:
     async with (
         served(command_timeout=2.0) as (sim, _robot, web),
@@ -225,6 +244,8 @@ async def test_closing_the_page_stops_the_robot_at_once() -> None:
         assert closed < 0.2
 
 
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_estop_engages_the_simulators_estop_and_release_lets_it_go() -> None:
     async with (
         served() as (sim, _robot, web),
@@ -259,6 +280,10 @@ _GAMEPAD = """
 """
 
 
+@pytest.mark.integration
+@pytest.mark.browser
+@pytest.mark.slow
+@pytest.mark.timing
 async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
     async with (
         served() as (sim, robot, web),
@@ -312,6 +337,8 @@ async def test_a_gamepad_drives_only_while_its_enable_button_is_held() -> None:
         assert not moving(sim)
 
 
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_junk_sent_from_a_page_moves_nothing_and_is_shown() -> None:
     async with (
         served() as (sim, robot, web),
@@ -341,6 +368,8 @@ async def test_junk_sent_from_a_page_moves_nothing_and_is_shown() -> None:
         assert not moving(sim)
 
 
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_read_only_offers_only_stop_and_estop() -> None:
     async with (
         served(web={"read_only": True}) as (sim, _robot, web),
@@ -363,6 +392,8 @@ async def test_read_only_offers_only_stop_and_estop() -> None:
         await until(lambda: sim.firmware.software_estop, 2.0)
 
 
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_a_board_page_shows_the_imu_and_switches_the_led() -> None:
     async with (
         served(board=True) as (sim, _robot, web),
@@ -377,6 +408,8 @@ async def test_a_board_page_shows_the_imu_and_switches_the_led() -> None:
         assert web.refused == 0
 
 
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_the_token_in_the_address_becomes_a_cookie() -> None:
     async with (
         served(web={"token": TOKEN}) as (_sim, _robot, web),

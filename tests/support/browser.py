@@ -11,6 +11,8 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+from .watch import needs
+
 #: Where Debian puts it; ``CHASSIS_SDK_CHROMIUM`` names another.
 CHROMIUM = os.environ.get("CHASSIS_SDK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
 FLAGS = [
@@ -30,6 +32,7 @@ async def chromium() -> AsyncIterator[Any]:
     installs it: ``sh tools/system-deps.sh``), it does not skip it."""
     from playwright.async_api import async_playwright
 
+    needs("browser", "launches Chromium")
     assert os.path.exists(CHROMIUM), (
         f"no Chromium at {CHROMIUM}: run `sh tools/system-deps.sh` (Debian's chromium)"
     )

@@ -35,6 +35,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from .watch import needs
+
 __all__ = ["SOURCES", "Event", "Peer", "build_peer", "peer_cache_dir", "start_peer"]
 
 SOURCES = Path(__file__).resolve().parent.parent / "ros2_peer"
@@ -345,6 +347,7 @@ async def start_peer(*args: str, binary: Path | None = None) -> Peer:
     Its output is read as it comes; use the result as an async context manager (or call
     ``stop()``) so that it never outlives the test.
     """
+    needs("ros2", "starts the Fast DDS peer")
     exe = binary if binary is not None else await asyncio.to_thread(build_peer)
     process = await asyncio.create_subprocess_exec(
         str(exe),

@@ -17,6 +17,8 @@ import tempfile
 from collections.abc import AsyncIterator
 from pathlib import Path
 
+from .watch import needs
+
 __all__ = ["Broker", "Mosquitto", "broker", "find_mosquitto"]
 
 
@@ -71,6 +73,7 @@ class Mosquitto:
 
     async def start(self) -> None:
         """Start it and wait until it accepts connections."""
+        needs("mqtt", "starts mosquitto")
         self.proc = subprocess.Popen(  # noqa: ASYNC220 (a daemon: started, not waited on)
             [self.exe, "-c", str(self.conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )

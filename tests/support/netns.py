@@ -35,6 +35,8 @@ from pathlib import Path
 
 import pytest
 
+from .markers import exempt
+
 __all__ = ["IN_NETNS", "interfaces", "netns_setup"]
 
 IN_NETNS = "CHASSIS_SDK_IN_NETNS"
@@ -149,17 +151,19 @@ def _run_in_namespace(item: pytest.Function) -> None:
         env[PARENT_MNT] = str(_ns_inode("mnt"))
         timeout, child_timeout = _timeouts(item)
         env[CHILD_TIMEOUT] = str(child_timeout)
-        # A session of its own, so that a timeout stops the child's own children too.
-        proc = subprocess.Popen(
-            cmd,
-            cwd=rootdir,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            start_new_session=True,
-        )
+        # A session of its own, so that a timeout stops the child's own children too. The
+        # child checks the test's markers itself.
+        with exempt():
+            proc = subprocess.Popen(
+                cmd,
+                cwd=rootdir,
+                env=env,
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+                start_new_session=True,
+            )
         timed_out = False
         try:
             output, _ = proc.communicate(timeout=timeout)
@@ -197,9 +201,10 @@ def _kill_group(proc: subprocess.Popen[str]) -> None:
 
 def interfaces() -> set[str]:
     """The network interfaces this process sees (netlink, so this namespace's)."""
-    out = subprocess.run(
-        [_tool("ip"), "-o", "link", "show"], capture_output=True, text=True, check=True
-    ).stdout
+    with exempt():
+        out = subprocess.run(
+            [_tool("ip"), "-o", "link", "show"], capture_output=True, text=True, check=True
+        ).stdout
     return {line.split(":")[1].strip().split("@")[0] for line in out.splitlines() if ":" in line}
 
 
