@@ -1,7 +1,7 @@
 """Decoder throughput for both protocols, on both decoding paths, against pymavlink in
 the same process (about 1 minute; --quick: about 10 s).
 
-    pip install ".[bench]"     # pymavlink, for the comparison
+    pip install . --group bench     # pymavlink, for the comparison
     python benchmarks/decoder_throughput.py [--quick] [--json FILE]
 
 ChassisDecoder on 0x81 telemetry (28 bytes, protocol A) and BoardDecoder on 0x11 IMU
@@ -257,7 +257,7 @@ def main() -> None:
     pure = report["pure"] = run_path(True, args.quick)
     print_path("pure", pure)
     if "pymavlink / 4 KiB" not in pure["frames_per_s"]:
-        print("pymavlink is not installed (pip install '.[bench]'): no comparison")
+        print("pymavlink is not installed (pip install --group bench): no comparison")
     for key, today in REFERENCE["vs_pymavlink"].items():
         if key in pure["vs_pymavlink"]:
             now = pure["vs_pymavlink"][key]

@@ -2,7 +2,7 @@
 both event loops and both deliveries, beside the raw-reader floor (about 15 minutes;
 --quick: about 2).
 
-    pip install ".[bench,fast,serialx,uvloop]"
+    pip install ".[all,fast,serialx,uvloop]" --group bench
     python benchmarks/scaling.py [--quick] [--plot docs/img/scaling.svg]
 
 N chassis stream 50 Hz telemetry from another process (``_writer.py``: precomputed

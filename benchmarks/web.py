@@ -1,7 +1,7 @@
 """What the web dashboard costs and how fast it drives and stops (about a minute;
 --quick: 25 s).
 
-    pip install ".[bench,test]" && sh tools/system-deps.sh   # aiohttp, Playwright, Chromium
+    pip install ".[web]" --group bench && sh tools/system-deps.sh   # aiohttp, Playwright, Chromium
     python benchmarks/web.py [--quick] [--json FILE]
 
 1. **Cost at 50 Hz**: a simulated chassis (telemetry at 50 Hz) and its ``Chassis`` in a

@@ -1,6 +1,6 @@
 """Coverage-guided fuzzing of every device's decoders with atheris.
 
-Usage (after ``pip install -e ".[fuzz]"``)::
+Usage (after ``pip install -e . --group fuzz``; ``nox -s nightly`` runs every target long)::
 
     python fuzz/run.py chassis -atheris_runs=200000
     python fuzz/run.py board -max_total_time=60 my-corpus/

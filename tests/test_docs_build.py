@@ -6,8 +6,8 @@ The class a user imports carries every public method on its own page (``Chassis`
 (no Sphinx role printed literally: mkdocstrings does not read ``:meth:``), and the
 examples are code blocks, not a flattened ``>>>`` paragraph.
 
-Needs mkdocs-material and mkdocstrings, which the ``test`` extra installs (README's test
-command). Without mkdocs the test fails and says so; it does not skip.
+Needs mkdocs-material and mkdocstrings, which the ``test`` group installs (through
+``docs``; README's test command). This is CI's docs build: it is not built again. Without mkdocs the test fails and says so; it does not skip.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ BOARD_METHODS = ("set_velocity", "stop", "events", "verify", "connect", "imu", "
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert importlib.util.find_spec("mkdocs") is not None, (
-        "the docs build needs the docs extra: pip install '.[docs]'"
+        "the docs build needs the docs group: pip install --group docs"
     )
     out = tmp_path_factory.mktemp("site")
     built = subprocess.run(
