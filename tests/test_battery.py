@@ -661,7 +661,6 @@ async def test_monitor_of_a_board_shows_the_percentage_of_its_battery_stream(
 
 @pytest.mark.integration
 async def test_an_mcap_recording_carries_the_charge_beside_the_voltage(tmp_path: Path) -> None:
-    pytest.importorskip("foxglove", reason="the foxglove extra")
     from mcap.reader import make_reader
 
     from chassis_sdk.recording import McapRecording

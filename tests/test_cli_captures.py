@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib.util
 import json
 import os
 import re
@@ -256,17 +255,10 @@ async def test_replay_of_a_missing_file_says_no_such_file(tmp_path: Path) -> Non
     assert one_line(err) == f"chassis-sdk: no such file: {missing}"
 
 
-#: plot draws with matplotlib, the ``plot`` extra (not in ``test``: CI installs it with
-#: the fast transport, where this file runs again).
-needs_matplotlib = pytest.mark.skipif(
-    importlib.util.find_spec("matplotlib") is None, reason="plot needs the plot extra"
-)
-
-
 @pytest.mark.integration
 @pytest.mark.parametrize(
     "command",
-    [("replay",), pytest.param(("plot",), marks=needs_matplotlib), ("export", "--csv", "out")],
+    [("replay",), ("plot",), ("export", "--csv", "out")],
 )
 async def test_a_file_of_random_bytes_is_not_a_capture(
     tmp_path: Path, command: tuple[str, ...]
@@ -363,7 +355,6 @@ async def test_replay_options_of_as_device_without_it_are_refused(
 
 
 @pytest.mark.integration
-@needs_matplotlib
 async def test_plot_without_output_writes_beside_the_input(
     captures: dict[str, Path], tmp_path: Path
 ) -> None:

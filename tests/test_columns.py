@@ -12,6 +12,7 @@ import operator
 from pathlib import Path
 from typing import Any
 
+import numpy as np  # the `columns` extra (in `all`): missing, these tests fail
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -20,9 +21,7 @@ from chassis_sdk.cli.devices import checked, commands
 from chassis_sdk.core.framing import Column, FrameDecoder
 from chassis_sdk.devices import DeviceProfile, profile
 from chassis_sdk.recording.capture import capture_columns
-
-np = pytest.importorskip("numpy")
-from chassis_sdk.recording.columns import Columns, decode_columns, decode_joined  # noqa: E402
+from chassis_sdk.recording.columns import Columns, decode_columns, decode_joined
 
 PROTOCOLS = ["chassis", "board"]
 
@@ -255,8 +254,6 @@ def test_capture_columns_reads_a_jsonl_capture_both_ways(tmp_path: Path) -> None
 
 
 def test_capture_columns_reads_an_mcap_recording(tmp_path: Path) -> None:
-    pytest.importorskip("foxglove")
-    pytest.importorskip("mcap")
     from chassis_sdk import Chassis
     from chassis_sdk.recording import open_recording
 

@@ -216,7 +216,6 @@ async def test_replay_of_a_file_that_is_not_a_capture(tmp_path: Path) -> None:
 
 @pytest.mark.integration
 async def test_plot_writes_a_png(tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")  # the `plot` extra; CI installs it for this run
     cap, png = tmp_path / "cap.jsonl", tmp_path / "out.png"
     async with BoardSimulator() as sim:
         code, _, err = await run(

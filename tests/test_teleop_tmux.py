@@ -14,7 +14,6 @@ import itertools
 import os
 import re
 import shlex
-import shutil
 import signal
 import struct
 import time
@@ -33,7 +32,6 @@ from tests.support.standin import (
     last_drive_is_zero,
 )
 
-needs_tmux = pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
 
 #: Slack for a pty, two processes and the loop between a deadline and the zero frame
@@ -171,7 +169,6 @@ def report(what: str, seconds: float) -> None:
 
 
 @pytest.mark.timing
-@needs_tmux
 async def test_hold_drives_and_release_stops_within_the_stated_bound(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
         # A tap: no autorepeat ever comes, so the key timeout (0.75 s) from the press.
@@ -227,7 +224,6 @@ async def test_hold_drives_and_release_stops_within_the_stated_bound(tmp_path: P
 
 
 @pytest.mark.timing
-@needs_tmux
 async def test_space_stops_at_once_and_e_engages_the_estop(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
         for _ in range(3):  # space while driving: zero at once
@@ -264,7 +260,6 @@ async def test_space_stops_at_once_and_e_engages_the_estop(tmp_path: Path) -> No
 
 
 @pytest.mark.timing
-@needs_tmux
 async def test_sighup_while_driving_writes_zero_at_once(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
         pid = await pane.teleop_pid()
@@ -283,7 +278,6 @@ async def test_sighup_while_driving_writes_zero_at_once(tmp_path: Path) -> None:
 
 
 @pytest.mark.timing
-@needs_tmux
 async def test_losing_the_terminal_while_driving_writes_zero_at_once(tmp_path: Path) -> None:
     async with teleop(tmp_path) as (dev, pane):
         pid = await pane.teleop_pid()

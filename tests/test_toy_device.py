@@ -155,7 +155,6 @@ async def test_detect_record_replay_and_plot(
     rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert rows[0]["type"] == "ToyTelemetry"
     assert rows[0]["battery"] == pytest.approx(12.6)
-    pytest.importorskip("matplotlib")
     png = tmp_path / "toy.png"
     assert cli_main(["plot", str(path), "-o", str(png)]) == 0  # the generic plot
     assert png.stat().st_size > 1000

@@ -17,9 +17,6 @@ from contextlib import asynccontextmanager
 from typing import Any
 
 import pytest
-
-pytest.importorskip("aiohttp", reason="the dashboard's extra: pip install '.[web]'")
-
 import websockets
 from websockets.typing import Origin
 

@@ -14,12 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
-pytest.importorskip("aiohttp", reason="the dashboard's extra: pip install '.[web]'")
-pytest.importorskip(
-    "playwright", reason="the browser tests need playwright (pip install --group test)"
-)
-
 from playwright.async_api import expect
 
 from chassis_sdk import BatteryModel, Chassis
