@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from .support.watch import exempt
+
 # One worker builds the site for every test here (--dist loadgroup), once; the build
 # takes over 5 s.
 pytestmark = [pytest.mark.xdist_group("docs"), pytest.mark.slow]
@@ -52,14 +54,15 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "the docs build needs the docs group: pip install --group docs"
     )
     out = tmp_path_factory.mktemp("site")
-    built = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
-    )
+    with exempt():  # a build, not a port: these tests are not `integration`
+        built = subprocess.run(
+            [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=300,
+            env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
+        )
     assert built.returncode == 0, built.stderr[-4000:]
     return out
 

@@ -30,6 +30,7 @@ async def _loop_module() -> str:
     return type(asyncio.get_running_loop()).__module__
 
 
+@pytest.mark.uvloop
 def test_run_uses_uvloop_when_it_is_installed(monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("uvloop")
     monkeypatch.delenv("CHASSIS_SDK_LOOP", raising=False)
@@ -47,6 +48,8 @@ def test_run_without_uvloop(monkeypatch: pytest.MonkeyPatch) -> None:
         chassis_sdk.run(_loop_module(), uvloop=True)
 
 
+@pytest.mark.uvloop
+@pytest.mark.integration
 def test_a_chassis_drives_and_stops_on_uvloop() -> None:
     pytest.importorskip("uvloop")
 
@@ -71,6 +74,7 @@ def test_a_chassis_drives_and_stops_on_uvloop() -> None:
     assert drives[-1] == DriveVelocity(0, 0.0)
 
 
+@pytest.mark.uvloop
 async def test_the_tests_run_on_the_loop_asked_for() -> None:
     import os
 

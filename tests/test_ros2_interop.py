@@ -198,6 +198,7 @@ async def test_qos_that_must_not_match_does_not() -> None:
 
 
 @pytest.mark.ros2
+@pytest.mark.timing
 async def test_unicast_only_discovery_with_static_peers() -> None:
     # No multicast at all in this namespace: discovery only by unicast.
     await anyio.run_process(["ip", "route", "del", "224.0.0.0/4", "dev", "lo"])

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
+import chassis_sdk.integrations
 from chassis_sdk.protocol import DriveVelocity
 
 from .standin import ChassisStandIn, Received, frame_a
@@ -46,7 +47,8 @@ __all__ = [
 ]
 
 TRANSPORTS = [pytest.param(False, id="pty"), pytest.param(True, id="tcp")]
-INTEGRATIONS = Path(__file__).resolve().parents[2] / "chassis_sdk" / "integrations"
+# Where the package that runs is (an installed one, in CI's other CPythons), not the tree.
+INTEGRATIONS = Path(chassis_sdk.integrations.__file__).resolve().parent
 
 
 class Heartbeat:

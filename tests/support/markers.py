@@ -15,9 +15,11 @@ did and the marker to add) when it:
   do these call :func:`needs` (``tests/support/watch.py``, free of pytest, since the
   benchmarks use those modules too).
 
-Session-scoped fixtures (a peer binary built once, the netns plugin's setup) are set up
-before the check is armed, and the netns plugin's own child processes are
-:func:`exempt`: what a ``netns`` test does is checked in the child that runs it.
+The check is armed before the test's fixtures are set up, so a module- or
+session-scoped fixture counts for the first test that needs it. The test machinery's own
+processes are :func:`exempt`: the netns plugin's child pytest (what a ``netns`` test
+does is checked in the child that runs it) and its namespace's setup, and the docs'
+build (``mkdocs``, not a port).
 
 ``timing`` cannot be detected: a test that asserts on wall-clock time carries it by
 hand. Under pytest-xdist such tests are deselected (parallel load would make them lie);
@@ -49,6 +51,7 @@ MARKERS = {
     "timing": "asserts on wall-clock time: run serially (pytest -m timing), never under xdist",
     "slow": "takes more than about 5 s on its own",
     "codec": "sans-IO codecs: vectors, round trips, the contract, compiled vs pure",
+    "uvloop": "about uvloop itself: CI's uvloop stage runs it (skips where uvloop is absent)",
 }
 
 #: A test that takes longer than this on its own should carry ``slow``.
@@ -133,10 +136,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         items[:] = [item for item in items if item.get_closest_marker("timing") is None]
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
+    """Arms the check before any fixture of the test is set up: a module- or
+    session-scoped one that it is the first to need is its doing too."""
+    watch.arm(item.get_closest_marker)
+    yield
+
+
 @pytest.fixture(autouse=True)
-def _markers_kept(request: pytest.FixtureRequest) -> Iterator[None]:
-    """Arms the check for this test's function-scoped fixtures and body."""
-    watch.arm(request.node.get_closest_marker)
+def _markers_kept() -> Iterator[None]:
+    """Disarms the check after the test's function-scoped fixtures are torn down (it is
+    set up first, so it is torn down last), and fails the test if it did something
+    that its markers do not say."""
     try:
         yield
     finally:

@@ -37,6 +37,28 @@ def free_port() -> int:
         return port
 
 
+def _listens(pid: int, port: int) -> bool:
+    """Whether process ``pid`` has a TCP socket listening on ``port`` (Linux /proc)."""
+    inodes = set()
+    with contextlib.suppress(OSError):
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                target = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if target.startswith("socket:["):
+                    inodes.add(target[8:-1])
+    try:
+        with open(f"/proc/{pid}/net/tcp") as table:
+            lines = table.readlines()[1:]
+    except OSError:  # it has exited
+        return False
+    for line in lines:
+        fields = line.split()
+        local, state, inode = fields[1], fields[3], fields[9]
+        if state == "0A" and int(local.split(":")[1], 16) == port and inode in inodes:
+            return True
+    return False
+
+
 class Mosquitto:
     """``mosquitto`` on ``127.0.0.1:port``, anonymous, without persistence.
 
@@ -62,28 +84,46 @@ class Mosquitto:
         # Settings after the listener line are that listener's (TLS files, ...).
         # As root, mosquitto drops to the user "mosquitto", who cannot read a test's
         # files (key, passwords) in a private temporary directory: stay root there.
-        user = "user root\n" if os.geteuid() == 0 else ""
-        self.conf.write_text(
-            f"{user}listener {self.port} 127.0.0.1\npersistence false\n"
-            "max_queued_messages 10000\n"
+        self._settings = (
+            ("user root\n" if os.geteuid() == 0 else "")
+            + "persistence false\nmax_queued_messages 10000\n"
             + ("set_tcp_nodelay true\n" if nodelay else "")
-            + (extra or "allow_anonymous true\n")
         )
+        self._extra = extra or "allow_anonymous true\n"
+        self._write_conf()
         self.proc: subprocess.Popen[bytes] | None = None
+        self._started = False
+
+    def _write_conf(self) -> None:
+        self.conf.write_text(f"listener {self.port} 127.0.0.1\n{self._settings}{self._extra}")
 
     async def start(self) -> None:
-        """Start it and wait until it accepts connections."""
+        """Start it and wait until it listens.
+
+        Ready means *this* mosquitto listens on the port, not that something accepts
+        there: between :func:`free_port` and mosquitto's bind another process (another
+        test's broker, under pytest-xdist) may take the port, and a test would then talk
+        to that broker. On its first start it then moves to a new port; a restart keeps
+        the port (clients reconnect to it) and fails if it cannot have it.
+        """
         needs("mqtt", "starts mosquitto")
-        self.proc = subprocess.Popen(  # noqa: ASYNC220 (a daemon: started, not waited on)
-            [self.exe, "-c", str(self.conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-        )
-        async with asyncio.timeout(10):
-            while True:
-                with contextlib.suppress(OSError):
-                    _, writer = await asyncio.open_connection("127.0.0.1", self.port)
-                    writer.close()
-                    return
-                await asyncio.sleep(0.02)
+        for _ in range(1 if self._started else 5):
+            self.proc = subprocess.Popen(  # noqa: ASYNC220 (a daemon: started, not waited on)
+                [self.exe, "-c", str(self.conf)],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            async with asyncio.timeout(10):
+                while self.proc.poll() is None and not _listens(self.proc.pid, self.port):
+                    await asyncio.sleep(0.02)
+            if self.proc.poll() is None:
+                self._started = True
+                return
+            if self._started:
+                break
+            self.port = free_port()
+            self._write_conf()
+        raise RuntimeError(f"mosquitto could not listen on 127.0.0.1:{self.port}")
 
     def kill(self) -> None:
         """Kill it (a broker that vanishes)."""
