@@ -160,6 +160,7 @@ async def test_replay_as_device_on_tcp_ends_cleanly_and_counts_the_capture_once(
     assert f"replayed {total:,} of the capture's {total:,} bytes" in out, out
 
 
+@pytest.mark.integration  # the recordings (`captures`) are of a real pty session
 def test_a_capture_played_twice_counts_one_playback_and_waits_when_held(
     captures: dict[str, Path],
 ) -> None:
@@ -505,6 +506,7 @@ def test_brief_prints_what_its_first_form_printed(fields: dict[str, Any]) -> Non
     assert brief(fields) == _brief_reference(fields)
 
 
+@pytest.mark.integration  # the recordings (`captures`) are of a real pty session
 def test_replay_lines_of_every_message_kind_match_the_first_form(
     captures: dict[str, Path],
 ) -> None:

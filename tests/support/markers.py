@@ -118,10 +118,10 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     ptys, sockets, processes and timers, not on the CPU (on 2 cores, all but the timing
     tests: 176 s with 4 workers, 296 s with 2). ``PYTEST_XDIST_AUTO_NUM_WORKERS`` still
     sets the number."""
-    forced = os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS")
-    if forced:
+    forced = os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS", "")
+    if forced.isdigit():
         return int(forced)
-    return min(2 * (os.cpu_count() or 1), 8)
+    return min(2 * len(os.sched_getaffinity(0)), 8)  # the cores this process may use
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
