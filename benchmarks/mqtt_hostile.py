@@ -53,13 +53,20 @@ from chassis_sdk.protocol import CommandId, DriveVelocity  # noqa: E402
 from chassis_sdk.sim import ChassisSimulator  # noqa: E402
 
 
-def _load(name: str) -> Any:  # the tests' helpers of this checkout, whatever PYTHONPATH says
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tests" / "support" / f"{name}.py")
-    assert spec is not None
-    assert spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def _load(name: str) -> Any:
+    """tests/support/NAME.py of this checkout, whatever PYTHONPATH says, as a module of
+    the package ``_tests`` (tests/support), so that its relative imports work."""
+    if "_tests" not in sys.modules:
+        support = ROOT / "tests" / "support"
+        spec = importlib.util.spec_from_file_location(
+            "_tests", support / "__init__.py", submodule_search_locations=[str(support)]
+        )
+        assert spec is not None
+        assert spec.loader is not None
+        package = importlib.util.module_from_spec(spec)
+        sys.modules["_tests"] = package
+        spec.loader.exec_module(package)
+    return importlib.import_module(f"_tests.{name}")
 
 
 Mosquitto = _load("mqtt_broker").Mosquitto

@@ -20,6 +20,15 @@ if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":
 
     uvloop = importlib.import_module("uvloop")  # installed for this run only
 
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_configure(config: pytest.Config) -> None:
+        # pytest-timeout's default method (SIGALRM) never fires while uvloop's loop waits
+        # in C with nothing to do: the Python handler runs only when bytecode does, so a
+        # hung test hung CI. A thread times it out instead (ending the process: xdist
+        # reports the test and starts another worker).
+        if config.getvalue("timeout_method") is None:
+            config.option.timeout_method = "thread"
+
     def pytest_asyncio_loop_factories(
         config: pytest.Config, item: pytest.Item
     ) -> Mapping[str, Callable[[], asyncio.AbstractEventLoop]]:

@@ -16,6 +16,7 @@ import re
 import shlex
 import signal
 import struct
+import subprocess
 import time
 import uuid
 from collections.abc import AsyncIterator, Callable
@@ -60,14 +61,20 @@ class Pane:
         )
 
     async def tmux(self, *args: str) -> str:
+        # subprocess.run in a thread, not the loop's subprocesses: on uvloop the tmux
+        # server that `new-session` forks keeps the client's pipes open, so reading them
+        # to their end never ends (asyncio's own loop spawns with close_fds, as this does).
         env = {k: v for k, v in os.environ.items() if k != "TMUX"}
-        proc = await asyncio.create_subprocess_exec(
-            "tmux", "-L", self.socket, "-f", str(self.conf), *args,
-            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, env=env,
-        )  # fmt: skip
-        out, err = await proc.communicate()
-        assert proc.returncode == 0, err.decode()
-        return out.decode()
+        done = await asyncio.to_thread(
+            subprocess.run,
+            ["tmux", "-L", self.socket, "-f", str(self.conf), *args],
+            capture_output=True,
+            env=env,
+            timeout=10,
+            check=False,
+        )
+        assert done.returncode == 0, done.stderr.decode()
+        return done.stdout.decode()
 
     async def start(self) -> None:
         await self.tmux(

@@ -11,12 +11,14 @@
 #                    Playwright, which downloads no browser of its own
 #   fonts-dejavu-core  text for Chromium to render (the docs' screenshot, the pages)
 #   tmux             the terminal teleop's tests type into a real terminal
+#   python3-venv, python3-dev  Debian's Python: `python3 -m venv` (README's commands), and
+#                    the headers the compiled fast path builds against
 # Idempotent: does nothing (and never touches apt) when all are present; uses sudo only
 # when not root, and only when something is missing.
 set -eu
 
 packages="mosquitto fastddsgen libfastrtps-dev libfastcdr-dev g++ iproute2 util-linux
-    chromium fonts-dejavu-core tmux"
+    chromium fonts-dejavu-core tmux python3-venv python3-dev"
 
 installed() {
     dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"
