@@ -9,6 +9,13 @@ import os
 from collections.abc import Callable, Mapping
 
 import pytest
+from hypothesis import settings
+
+# Hypothesis's deadline (200 ms an example by default) is a wall-clock assertion: under
+# pytest-xdist's load it fails for the machine, not the code (how fast the code is, the
+# benchmarks measure). Off for every property test.
+settings.register_profile("chassis_sdk", deadline=None)
+settings.load_profile("chassis_sdk")
 
 # The markers (tests/support/markers.py), and `netns`: a test in a network namespace of
 # its own, loopback only (tests/support/netns.py).
