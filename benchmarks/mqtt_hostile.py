@@ -48,28 +48,13 @@ from paho.mqtt.properties import Properties
 ROOT = Path(__file__).resolve().parent.parent
 if importlib.util.find_spec("chassis_sdk") is None:
     sys.path.append(str(ROOT))  # after PYTHONPATH: another checkout there wins
+from _support import support  # noqa: E402
+
 import chassis_sdk  # noqa: E402
 from chassis_sdk.protocol import CommandId, DriveVelocity  # noqa: E402
 from chassis_sdk.sim import ChassisSimulator  # noqa: E402
 
-
-def _load(name: str) -> Any:
-    """tests/support/NAME.py of this checkout, whatever PYTHONPATH says, as a module of
-    the package ``_tests`` (tests/support), so that its relative imports work."""
-    if "_tests" not in sys.modules:
-        support = ROOT / "tests" / "support"
-        spec = importlib.util.spec_from_file_location(
-            "_tests", support / "__init__.py", submodule_search_locations=[str(support)]
-        )
-        assert spec is not None
-        assert spec.loader is not None
-        package = importlib.util.module_from_spec(spec)
-        sys.modules["_tests"] = package
-        spec.loader.exec_module(package)
-    return importlib.import_module(f"_tests.{name}")
-
-
-Mosquitto = _load("mqtt_broker").Mosquitto
+Mosquitto = support("mqtt_broker").Mosquitto  # this checkout's tests/support
 FLOOD = ROOT / "tests" / "support" / "mqtt_flood.py"
 DEADMAN = 0.5
 #: The checkout this process imported: the bridge runs the same one.

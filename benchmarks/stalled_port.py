@@ -44,6 +44,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from _support import support
+
 ROOT = Path(__file__).resolve().parent.parent
 BACKENDS = {
     "pyserial-asyncio": "serial_asyncio",
@@ -54,19 +56,8 @@ TIMEOUT = 0.3
 
 
 def _scenarios() -> Any:
-    """tests/support/stalls.py (and the stand-ins it uses) from this checkout, as the
-    package ``_tests``: an older checkout on ``PYTHONPATH`` has its own ``tests``."""
-    if "_tests.stalls" not in sys.modules:
-        support = ROOT / "tests" / "support"
-        spec = importlib.util.spec_from_file_location(
-            "_tests", support / "__init__.py", submodule_search_locations=[str(support)]
-        )
-        assert spec is not None
-        assert spec.loader is not None
-        package = importlib.util.module_from_spec(spec)
-        sys.modules["_tests"] = package
-        spec.loader.exec_module(package)
-    return importlib.import_module("_tests.stalls")
+    """tests/support/stalls.py (and the stand-ins it uses) from this checkout."""
+    return support("stalls")
 
 
 async def _replies(factor: float, tcp: bool) -> dict[str, Any]:
