@@ -47,6 +47,7 @@ async def main(port: str | None, path: Path) -> None:
 
 if __name__ == "__main__":
     port = sys.argv[1] if len(sys.argv) > 1 else None
-    default = Path(tempfile.gettempdir()) / "chassis-drive.mcap"
+    # A directory of this run's own: two runs never write one file, nor a file of another user.
+    default = Path(tempfile.mkdtemp(prefix="chassis-drive-")) / "drive.mcap"
     path = Path(sys.argv[2]) if len(sys.argv) > 2 else default
     chassis_sdk.run(main(port, path), one_line_errors=True)

@@ -492,8 +492,8 @@ from chassis_sdk import sync
 robot = sync.Chassis(sys.argv[1]).open()  # a notebook's way: no `with`
 robot.set_velocity(0.3, 0.0, duration=30.0)
 robot.wait_for(lambda t: t.linear > 0.2, timeout=5.0)
-print("reading", flush=True)
-try:
+try:  # "reading" inside: a Ctrl-C as soon as it is out is still this one's
+    print("reading", flush=True)
     while True:
         robot.latest_odometry  # nearly all of the time is in this blocking read
 except KeyboardInterrupt:
