@@ -71,7 +71,7 @@ def full(session: nox.Session) -> None:
 @nox.parametrize("backend", ["pyserial-asyncio-fast", "serialx", "uvloop"])
 def transports(session: nox.Session, backend: str) -> None:
     """The integration tests on another transport, or on uvloop (with uvloop's own tests).
-    CI runs the fast fork's on the pure decoders and uvloop's on serialx."""
+    (CI runs the fast fork with uvloop on the pure decoders, and serialx on asyncio's loop.)"""
     extra = {"pyserial-asyncio-fast": "fast", "serialx": "serialx", "uvloop": "uvloop"}[backend]
     _install(session, f"all,{extra}", "test")
     if backend == "uvloop":
