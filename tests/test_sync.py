@@ -487,13 +487,36 @@ async def test_a_script_that_sleeps_past_the_deadman_stops_the_robot() -> None:
 
 
 READING = """
-import sys
+import signal, sys, threading, time
 from chassis_sdk import sync
 robot = sync.Chassis(sys.argv[1]).open()  # a notebook's way: no `with`
 robot.set_velocity(0.3, 0.0, duration=30.0)
 robot.wait_for(lambda t: t.linear > 0.2, timeout=5.0)
-try:  # "reading" inside: a Ctrl-C as soon as it is out is still this one's
-    print("reading", flush=True)
+main = threading.main_thread().ident
+arrived = threading.Event()
+
+def ctrl_c(signum, frame):  # Python's own, which also says it arrived
+    arrived.set()
+    raise KeyboardInterrupt
+
+def in_the_read():
+    frame = sys._current_frames().get(main)
+    while frame is not None:
+        if frame.f_code.co_name == "_read":
+            return True
+        frame = frame.f_back
+    return False
+
+def hold(t):  # in the loop thread: the main thread's read waits on it meanwhile
+    while not in_the_read():
+        time.sleep(0.001)
+    print("reading", flush=True)  # the Ctrl-C now lands in the read, not between two
+    arrived.wait(30.0)
+    return True
+
+signal.signal(signal.SIGINT, ctrl_c)
+threading.Thread(target=robot.wait_for, args=(hold,), kwargs={"timeout": 60.0}, daemon=True).start()
+try:
     while True:
         robot.latest_odometry  # nearly all of the time is in this blocking read
 except KeyboardInterrupt:
@@ -504,6 +527,9 @@ except KeyboardInterrupt:
 
 @pytest.mark.integration
 async def test_ctrl_c_in_a_property_read_stops_the_robot_too() -> None:
+    # The script holds its loop thread until its main thread is inside a read, so the
+    # Ctrl-C is sent while the read waits (sent at random, it can land between two reads:
+    # a KeyboardInterrupt in the script's own code, which no library sees).
     async with ChassisSimulator() as sim, script(READING, sim.port) as proc:
         assert await line(proc) == "reading"
         assert moving(sim)
