@@ -42,6 +42,7 @@ from ._version import __version__
 from .errors import (
     ChassisError,
     ConnectionLostError,
+    MotionBlockedError,
     NotConnectedError,
     PortOpenError,
     ProtocolError,
@@ -54,12 +55,12 @@ if TYPE_CHECKING:
     from .core.diagnosis import Diagnosis
     from .core.dispatch import Listener, ListenerStats, Subscription
     from .core.events import EventKind, RobotEvent
+    from .core.motion import MotionLimits
     from .core.notifier import Notifier
     from .core.odometry import Odometry
     from .core.run import run
     from .core.stats import LinkStats
     from .core.supervisor import ConnectionState
-    from .core.watchdog import MotionLimits
     from .devices.board.device import Board
     from .devices.board.messages import (
         BatteryReading,
@@ -102,7 +103,7 @@ _LAZY = {
     "RobotEvent": ".core.events",
     "Odometry": ".core.odometry",
     "run": ".core.run",
-    "MotionLimits": ".core.watchdog",
+    "MotionLimits": ".core.motion",
     "Board": ".devices.board.device",
     "Profile": ".devices.config",
     "ProfileError": ".devices.config",
@@ -155,6 +156,7 @@ __all__ = [
     "LinkStats",
     "Listener",
     "ListenerStats",
+    "MotionBlockedError",
     "MotionLimits",
     "Motor",
     "MotorStatus",

@@ -16,6 +16,7 @@ from __future__ import annotations
 __all__ = [
     "ChassisError",
     "ConnectionLostError",
+    "MotionBlockedError",
     "NotConnectedError",
     "PortOpenError",
     "ProtocolError",
@@ -39,6 +40,22 @@ class ConnectionLostError(ChassisError, ConnectionError):
 
 class NotConnectedError(ChassisError):
     """The device is not connected: never opened, closed, or reconnecting."""
+
+
+class MotionBlockedError(ChassisError):
+    """A velocity was refused and nothing was written: an e-stop (of any origin), a
+    latched bumper, a driver fault or a lost link blocks motion, or another source
+    drives under a lease of higher priority.
+
+    Attributes:
+        reasons: What refused it: the blocks by their flag names (``("HARDWARE_ESTOP",)``,
+            ``("SOFTWARE_ESTOP", "FRONT_BUMPER")``, ``("LINK_LOST",)``), or
+            ``("DRIVEN",)`` when another source holds the lease (the message names it).
+    """
+
+    def __init__(self, message: str, reasons: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.reasons = reasons
 
 
 class PortOpenError(ChassisError, ConnectionError):

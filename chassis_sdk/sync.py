@@ -96,10 +96,10 @@ if TYPE_CHECKING:
 
     from .core.diagnosis import Diagnosis
     from .core.events import RobotEvent
+    from .core.motion import MotionLimits
     from .core.odometry import Odometry
     from .core.stats import LinkStats
     from .core.supervisor import ConnectionState
-    from .core.watchdog import MotionLimits
     from .devices.board.messages import BatteryReading, ImuSample, VelocityFeedback
     from .devices.chassis.health import ChassisDiagnosis
     from .devices.chassis.messages import ChassisInfo, DriverStatus, PowerTelemetry, Telemetry

@@ -20,7 +20,7 @@ from chassis_sdk.cli import build_parser, main, parse
 from chassis_sdk.cli.profile import subparsers
 from chassis_sdk.core.battery import BatteryModel
 from chassis_sdk.core.calibration import Calibration
-from chassis_sdk.core.watchdog import MotionLimits
+from chassis_sdk.core.motion import MotionLimits
 from chassis_sdk.devices.config import (
     COMMAND_TABLES,
     DEVICE_TABLES,

@@ -10,7 +10,7 @@ import struct
 import pytest
 
 from chassis_sdk import Chassis, MotionLimits
-from chassis_sdk.core.watchdog import _ramp
+from chassis_sdk.core.motion.watchdog import _ramp
 
 from .support.standin import ChassisStandIn, Received, drive_frames
 

@@ -13,7 +13,7 @@ import math
 
 import pytest
 
-from chassis_sdk.core.watchdog import MotionLimits, VelocityWatchdog
+from chassis_sdk.core.motion import MotionLimits, VelocityWatchdog
 from chassis_sdk.errors import NotConnectedError
 
 INTERVAL = 0.125

@@ -31,7 +31,7 @@ from typing import Any
 from ..core.run import run
 from ..devices import profiles
 from ..devices.config import ProfileError, load_profile
-from ..errors import ChassisError, RequestTimeoutError
+from ..errors import ChassisError, MotionBlockedError, RequestTimeoutError
 from . import (
     bridge_args,
     calibrate_command,
@@ -56,6 +56,8 @@ from . import (
     web_args,
 )
 from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, Command, UsageError, device_from_env
+from .common import blocked_line
+from .info_command import EXIT_FAULT
 from .profile import apply, config_argument, config_from_argv
 
 __all__ = ["ENV_BROKER", "ENV_DEVICE", "ENV_PORT", "build_parser", "main", "parse"]
@@ -212,6 +214,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         hint = f"is the device powered, and is it a {device or 'device'}?"
         print(f"chassis-sdk: {exc} ({hint})", file=sys.stderr)
         return 2
+    except MotionBlockedError as exc:  # what blocks it, and what to do
+        why = str(exc)
+        if exc.reasons and exc.reasons != ("DRIVEN",):
+            why = blocked_line(
+                device or "device", getattr(args, "port", None) or "PORT", exc.reasons
+            )
+        print(f"chassis-sdk: {why}", file=sys.stderr)
+        return EXIT_FAULT
     except (ChassisError, ValueError) as exc:
         print(f"chassis-sdk: {exc}", file=sys.stderr)
         return 1

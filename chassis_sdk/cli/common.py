@@ -8,7 +8,7 @@ import logging
 import stat
 import sys
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -30,6 +30,7 @@ D = TypeVar("D", bound=Device[Any, Any])
 __all__ = [
     "DEMO_PATTERN",
     "WrongProtocolError",
+    "blocked_line",
     "drive_for",
     "driven",
     "explain_silence",
@@ -50,6 +51,41 @@ DEMO_PATTERN: list[tuple[str, float, float, float]] = [
     ("backward", -0.3, 0.0, 1.0),
     ("spin right", 0.0, -1.0, 1.0),
 ]
+
+
+#: A flag of ``motion_blocked()`` -> (what the device is, what to do; ``{port}`` is filled).
+_BLOCKED: dict[str, tuple[str, str]] = {
+    "SOFTWARE_ESTOP": (
+        "e-stopped (software)",
+        "release it with `chassis-sdk estop {port} --release`",
+    ),
+    "HARDWARE_ESTOP": ("e-stopped (hardware button)", "release the button"),
+    "REMOTE_ESTOP": ("e-stopped (remote control)", "release it on the remote control"),
+    "FRONT_BUMPER": (
+        "stopped by its front bumper",
+        "free it, then `chassis-sdk clear-faults {port} --front-bumper`",
+    ),
+    "REAR_BUMPER": (
+        "stopped by its rear bumper",
+        "free it, then `chassis-sdk clear-faults {port} --rear-bumper`",
+    ),
+    "FRONT_DRIVER_OFFLINE": ("without its front motor driver", "check its power and cable"),
+    "REAR_DRIVER_OFFLINE": ("without its rear motor driver", "check its power and cable"),
+}
+for _wheel in ("FRONT_LEFT", "FRONT_RIGHT", "REAR_LEFT", "REAR_RIGHT"):
+    _BLOCKED[f"{_wheel}_DRIVER_ERROR"] = (
+        f"stopped by a {_wheel.lower().replace('_', '-')} motor driver error",
+        "clear it with `chassis-sdk clear-faults {port} --driver`",
+    )
+
+
+def blocked_line(device: str, port: str, flags: Sequence[str]) -> str:
+    """The one line that refuses to drive ``device`` whose ``motion_blocked()`` gave
+    ``flags``: what it is and what to do, for each."""
+    known = [_BLOCKED.get(f, (f"blocked ({f})", "see `chassis-sdk info {port}`")) for f in flags]
+    whats = " and ".join(what for what, _ in known)
+    todo = "; ".join(dict.fromkeys(fix.format(port=port) for _, fix in known))
+    return f"the {device} is {whats}; {todo}"
 
 
 class WrongProtocolError(ChassisError):

@@ -30,14 +30,14 @@ from .arguments import (
     positive,
     require_port,
 )
-from .common import first_frame, out
+from .common import blocked_line, first_frame, out
 from .info_command import EXIT_FAULT
 from .profile import device_options
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
 
-__all__ = ["MAX_DURATION", "add_parser", "blocked_line", "drive"]
+__all__ = ["MAX_DURATION", "add_parser", "drive"]
 
 #: The longest ``--duration`` (s): ten minutes; a longer run is a job for teleop or a
 #: program, not one command line (``1e9`` was 31 years).
@@ -45,31 +45,6 @@ MAX_DURATION = 600.0
 DURATION = arg_type(
     float, lambda v: check_real(v, "duration", low=0, low_open=True, high=MAX_DURATION, unit="s")
 )
-
-#: A flag of ``motion_blocked()`` -> (what the device is, what to do; ``{port}`` is filled).
-_BLOCKED: dict[str, tuple[str, str]] = {
-    "SOFTWARE_ESTOP": (
-        "e-stopped (software)",
-        "release it with `chassis-sdk estop {port} --release`",
-    ),
-    "HARDWARE_ESTOP": ("e-stopped (hardware button)", "release the button"),
-    "REMOTE_ESTOP": ("e-stopped (remote control)", "release it on the remote control"),
-    "FRONT_BUMPER": (
-        "stopped by its front bumper",
-        "free it, then `chassis-sdk clear-faults {port} --front-bumper`",
-    ),
-    "REAR_BUMPER": (
-        "stopped by its rear bumper",
-        "free it, then `chassis-sdk clear-faults {port} --rear-bumper`",
-    ),
-    "FRONT_DRIVER_OFFLINE": ("without its front motor driver", "check its power and cable"),
-    "REAR_DRIVER_OFFLINE": ("without its rear motor driver", "check its power and cable"),
-}
-for _wheel in ("FRONT_LEFT", "FRONT_RIGHT", "REAR_LEFT", "REAR_RIGHT"):
-    _BLOCKED[f"{_wheel}_DRIVER_ERROR"] = (
-        f"stopped by a {_wheel.lower().replace('_', '-')} motor driver error",
-        "clear it with `chassis-sdk clear-faults {port} --driver`",
-    )
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
@@ -115,15 +90,6 @@ def _clamp(name: str, value: float, limit: float, flag: str, unit: str, ceiling:
     more = f"; {flag} raises it, up to {ceiling:g} {unit}" if limit < ceiling else ""
     out(f"{name} {value:g} {unit} clamped to {clamped:g} {unit} ({flag}){more}")
     return clamped
-
-
-def blocked_line(device: str, port: str, flags: Sequence[str]) -> str:
-    """The one line that refuses to drive ``device`` whose ``motion_blocked()`` gave
-    ``flags``: what it is and what to do, for each."""
-    known = [_BLOCKED.get(f, (f"blocked ({f})", "see `chassis-sdk info {port}`")) for f in flags]
-    whats = " and ".join(what for what, _ in known)
-    todo = "; ".join(dict.fromkeys(fix.format(port=port) for _, fix in known))
-    return f"the {device} is {whats}; {todo}"
 
 
 async def drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:

@@ -331,7 +331,7 @@ def device_options(args: argparse.Namespace, **command: Any) -> dict[str, Any]:
     ``--command-timeout``, which already hold the file's values when not typed)."""
     import dataclasses
 
-    from ..core.watchdog import MotionLimits
+    from ..core.motion import MotionLimits
 
     profile: Profile = getattr(args, "profile", None) or Profile()
     options = {**command, **profile.device_options()}

@@ -47,10 +47,10 @@ if TYPE_CHECKING:
     from .events import EdgeDetector, EventKind, RobotEvent
     from .firmware import Firmware, FirmwareModel, next_slot
     from .framing import INVALID, NEED_DATA, DecoderStats, FrameDecoder, FrameTable
+    from .motion import FrameBuilder, MotionLimits
     from .notifier import Notifier
     from .stats import LinkStats
     from .supervisor import ConnectionState
-    from .watchdog import FrameBuilder, MotionLimits
 
 _LAZY = {
     "DecoderStats": ".framing",
@@ -74,8 +74,8 @@ _LAZY = {
     "LinkStats": ".stats",
     "Notifier": ".notifier",
     "ConnectionState": ".supervisor",
-    "FrameBuilder": ".watchdog",
-    "MotionLimits": ".watchdog",
+    "FrameBuilder": ".motion",
+    "MotionLimits": ".motion",
 }
 
 __all__ = [

@@ -33,14 +33,13 @@ from .calibration import Calibration
 from .diagnosis import Diagnosis, Findings
 from .dispatch import Subscription
 from .events import EventKind, RobotEvent
-from .motion import Motion
+from .motion import Axes, FrameBuilder, Motion, MotionLimits
 from .observation import Reports
 from .odometry import Odometry
 from .session import Recorder, Session, set_recorder
 from .stats import LinkStats
 from .supervisor import ConnectionState
 from .validation import check_duration, check_int, check_optional, check_real
-from .watchdog import Axes, FrameBuilder, MotionLimits
 
 __all__ = ["ConnectionState", "Device", "LinkStats", "Recorder", "set_recorder"]
 
@@ -50,6 +49,8 @@ D = TypeVar("D", bound=Diagnosis)
 
 _POSITIVE: dict[str, Any] = {"low": 0, "low_open": True}
 _CONNECTING = ConnectionState.CONNECTING
+#: States in which the link is gone: motion is blocked (``LINK_LOST``) until it is back.
+_LINK_DOWN = frozenset({ConnectionState.RECONNECTING, ConnectionState.LOST})
 #: State -> the event entering it makes (CONNECTED only when coming back).
 _LINK_EVENTS = {
     ConnectionState.STALE: EventKind.LINK_STALE,
@@ -119,6 +120,7 @@ class Device(Session[M, K]):
             self._write_velocity,
             self._ensure_connected,
             self._zero_frame,
+            self._velocity_builder,
             interval=resend_interval,
             command_timeout=command_timeout,
             logger=log,
@@ -172,9 +174,14 @@ class Device(Session[M, K]):
         return 0
 
     def _on_fenced(self) -> None:
+        self._motion.arbiter.stop()
         self._watchdog.clear()
 
     def _on_state(self, old: ConnectionState, new: ConnectionState) -> None:
+        if new in _LINK_DOWN:
+            self._motion.set_blocks("link", ("LINK_LOST",))
+        elif new is ConnectionState.CONNECTED:
+            self._motion.set_blocks("link", ())
         kind = _LINK_EVENTS.get(new)
         if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
             self._emit(RobotEvent(kind, "", time.monotonic()))
@@ -186,20 +193,30 @@ class Device(Session[M, K]):
     ) -> None:
         """Drive with a linear (m/s) and angular (rad/s) velocity.
 
-        The frame is written at once and re-sent every ``resend_interval``. Without
-        ``duration`` it stays active until ``command_timeout`` after the *last* call
-        (keep calling, as with ROS ``cmd_vel``); with ``duration`` it holds exactly that
-        long. Then one zero frame is written. With `limits`, what is written is
-        clamped and ramped towards the command; stopping is always immediate.
+        The frame is written at once (or, if a velocity frame left less than 20 ms
+        ago, when that period is over: at most 50 a second reach the device) and
+        re-sent every ``resend_interval``. Without ``duration`` it stays active until
+        ``command_timeout`` after the *last* call (keep calling, as with ROS
+        ``cmd_vel``); with ``duration`` it holds exactly that long. Then one zero frame
+        is written. With `limits`, what is written is clamped and ramped towards the
+        command; stopping is always immediate.
+
+        The call is the application's source in the motion core (`motion`): it is
+        refused while motion is blocked, and while a source of higher priority (a
+        dashboard page, teleop) drives. A block ends the command, and clearing it
+        restarts nothing: call again.
 
         Raises:
             ValueError: NaN, infinity, a value that overflows the wire field, or a bad
                 ``duration``; nothing is written.
+            MotionBlockedError: An e-stop, a latched bumper, a driver fault or a lost
+                link blocks motion (``reasons`` names them), or another source drives;
+                nothing is written.
             NotConnectedError: The port is not open.
         """
         build = self._velocity_builder(linear, angular)
         duration = check_duration(duration)
-        self._drive((linear, angular), build, duration, f"({linear}, {angular})", "velocity")
+        self._drive((linear, angular), build, duration, "velocity")
         await anyio.lowlevel.checkpoint()
 
     def _drive(
@@ -207,10 +224,16 @@ class Device(Session[M, K]):
         target: tuple[float, float],
         build: FrameBuilder,
         duration: float | None,
-        description: str,
         axes: Axes,
     ) -> None:
-        self._motion.drive(target, build, duration, description, axes)
+        self._motion.drive(target[0], target[1], build, duration, axes)
+
+    @property
+    def motion(self) -> Motion:
+        """The motion core: make a source to drive through (``robot.motion.source("my
+        teleop", kind="teleop")``), set the priorities, see what blocks motion
+        (``robot.motion.blocks``) and who drives (``robot.motion.driver``)."""
+        return self._motion
 
     async def stop(self) -> None:
         """Write zero velocity now and end the active command.

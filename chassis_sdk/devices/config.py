@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any, Literal, Self, TypeAlias, get_args, get_o
 
 from ..core.battery import BatteryModel
 from ..core.calibration import Calibration
-from ..core.watchdog import MotionLimits
+from ..core.motion import MotionLimits
 
 if TYPE_CHECKING:
     from ..core.device import Device

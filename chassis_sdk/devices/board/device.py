@@ -10,9 +10,8 @@ import anyio.lowlevel
 from ...core.device import Device
 from ...core.diagnosis import Diagnosis
 from ...core.dispatch import Broadcast, Subscription
-from ...core.motion import frame_builder
+from ...core.motion import FrameBuilder, frame_builder
 from ...core.validation import check_real
-from ...core.watchdog import FrameBuilder
 from ...errors import ChassisError, RequestTimeoutError
 from ..config import FromConfig
 from .messages import (

@@ -15,12 +15,16 @@ from .protocol import ChassisEncoder
 
 __all__ = ["ChassisCommands"]
 
+#: How long a release of the software e-stop may take to show in telemetry (s).
+_RELEASE_GRACE = 0.5
+
 
 class ChassisCommands(Device[Any, ReplyId]):
     """E-stop, fault clearing, docking and stream switches of `Chassis`."""
 
     _encoder: ChassisEncoder
     _telemetry: Broadcast[Telemetry]
+    _releasing: float
 
     async def emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
         """Engage the software emergency stop (0x03) and end any velocity command.
@@ -35,20 +39,31 @@ class ChassisCommands(Device[Any, ReplyId]):
             RequestTimeoutError: ``confirm`` and the bit did not show in time.
         """
         self._ensure_connected()
-        self._watchdog.clear()
+        self._releasing = 0.0
+        self._motion.set_blocks("software", ("SOFTWARE_ESTOP",))  # ends the command
         self._link.writer.write(self._encoder.emergency_stop(True))
         await self.stop()
         if confirm:
             await self._confirm_bit(ChassisStatus.SOFTWARE_ESTOP, True, timeout)
 
     async def release_emergency_stop(self, *, confirm: bool = False, timeout: float = 1.0) -> None:
-        """Release the software emergency stop (0x03, 0). The robot does not move until
-        the next velocity command.
+        """Release the software emergency stop (0x03, 0). Nothing moves until a new
+        velocity command: the e-stop ended the command that was in force, and a
+        streaming source (a dashboard page, a ``cmd_vel`` writer) must send a neutral
+        first.
 
         Args:
             confirm: Return only once telemetry shows ``SOFTWARE_ESTOP`` cleared.
             timeout: Seconds to wait for that (with ``confirm``).
         """
+        self._ensure_connected()
+        self._motion.set_blocks("software", ())
+        latest = self._telemetry.latest
+        if latest is not None and ChassisStatus.SOFTWARE_ESTOP in latest.status:
+            self._releasing = time.monotonic() + _RELEASE_GRACE
+            self._motion.set_blocks(
+                "device", tuple(f for f in self.motion_blocked() if f != "SOFTWARE_ESTOP")
+            )
         await self._send_confirmed(
             self._encoder.emergency_stop(False),
             ChassisStatus.SOFTWARE_ESTOP,

@@ -10,9 +10,8 @@ import anyio
 import anyio.lowlevel
 
 from ...core.dispatch import Broadcast, Subscription
-from ...core.motion import frame_builder
+from ...core.motion import FrameBuilder, frame_builder
 from ...core.validation import check_duration, check_real
-from ...core.watchdog import FrameBuilder
 from ...errors import ProtocolError, RequestTimeoutError
 from ..config import FromConfig
 from .commands import ChassisCommands
@@ -150,6 +149,9 @@ class Chassis(ChassisCommands, FromConfig):
         self._edges = StatusEdges()
         self._wheel_track: float | None = None  # effective track, when odometry uses wheels
         self._power_at = -float("inf")  # when the last 0xB1 arrived
+        #: Until when (telemetry time) a SOFTWARE_ESTOP still shown after a release is
+        #: taken for a frame sent before it; 0: no release pending.
+        self._releasing = 0.0
         self._handlers = {
             Telemetry: self._on_telemetry,
             PowerTelemetry: self._on_power,
@@ -185,6 +187,8 @@ class Chassis(ChassisCommands, FromConfig):
         self._telemetry.publish(t)
         ts = t.timestamp
         edges = self._edges
+        if t.status != edges.bits or self._releasing:
+            self._on_status(t)
         if t.status != edges.bits or t.docking is not edges.state:
             for event in edges.update(t.status, t.docking, ts):
                 self._emit(event)
@@ -201,6 +205,21 @@ class Chassis(ChassisCommands, FromConfig):
             w = t.wheels
             left, right = (w.front_left + w.rear_left) / 2, (w.front_right + w.rear_right) / 2
             self._integrate((left + right) / 2, (right - left) / self._wheel_track, ts)
+
+    def _on_status(self, t: Telemetry) -> None:
+        """Tell the motion core what the chassis reports blocks motion. Just after
+        `release_emergency_stop`, a frame may still show ``SOFTWARE_ESTOP`` (sent before
+        the release arrived): it is not a block until a frame shows it clear, or until
+        the release has had ``_RELEASE_GRACE`` s to take effect."""
+        flags = self.motion_blocked()
+        if self._releasing:
+            if "SOFTWARE_ESTOP" not in flags:
+                self._releasing = 0.0
+            elif t.timestamp < self._releasing:
+                flags = tuple(f for f in flags if f != "SOFTWARE_ESTOP")
+            else:
+                self._releasing = 0.0
+        self._motion.set_blocks("device", flags)
 
     def _on_power(self, p: PowerTelemetry) -> None:
         self._power.publish(p)
@@ -284,13 +303,7 @@ class Chassis(ChassisCommands, FromConfig):
                 return wheel_speeds_command(left / scale, right / scale)
 
         build = frame_builder(make, self._encoder.encode, left, right)
-        self._drive(
-            (left, right),
-            build,
-            check_duration(duration),
-            f"wheels ({left}, {right})",
-            "wheels",
-        )
+        self._drive((left, right), build, check_duration(duration), "wheels")
         await anyio.lowlevel.checkpoint()
 
     # --- requests -------------------------------------------------------------------------------

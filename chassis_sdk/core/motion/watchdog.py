@@ -8,7 +8,11 @@ the robot driving. So while a command is active the host has to keep re-sending 
 it must stop re-sending when the application stops asking, or a hung application would
 drive forever. This class does the two:
 
-* ``command()`` writes a frame at once and makes it the active command;
+* ``command()`` makes a command the active one and writes its frame at once, or, if a
+  velocity frame left less than `WRITE_PERIOD` ago, when that period is over (the newest
+  command then: at most one velocity write per period, however fast commands come; a
+  frame may come `WRITE_JITTER` early when the rate holds, so a control loop at the
+  telemetry's 50 Hz is not delayed by its jitter);
 * ``run()`` (a background task) re-writes the active command every ``interval`` on an
   absolute schedule (no drift), and when the command expires (``command_timeout`` after
   the last call, or exactly ``duration`` after it) writes one zero frame and goes idle.
@@ -36,9 +40,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Literal
 
-from ..errors import NotConnectedError
-from .alarm import Alarm
-from .validation import check_real
+from ...errors import NotConnectedError
+from ..alarm import Alarm
+from ..validation import check_real
+from .arbiter import WRITE_JITTER, WRITE_PERIOD
 
 __all__ = ["MotionCommand", "MotionLimits", "VelocityWatchdog"]
 
@@ -164,12 +169,19 @@ class VelocityWatchdog:
         #: The last values written for the active command (zero when idle).
         self.written: tuple[float, float] = (0.0, 0.0)
         self._last_write: float | None = None
+        #: When the next velocity frame is due by the write period (GCRA's theoretical
+        #: arrival time: every frame, a zero included, moves it one period on).
+        self._slot = -math.inf
+        #: The active command's first frame waits for the write period.
+        self._deferred = False
         self._next = 0.0
         self._alarm = Alarm()
         #: Frames re-sent by the background task (not counting the first write).
         self.resends = 0
         #: Commands that ran out (deadman or duration) and were zeroed.
         self.expiries = 0
+        #: Commands whose first frame waited for the write period (a faster caller).
+        self.deferred = 0
 
     @property
     def active(self) -> MotionCommand | None:
@@ -184,8 +196,11 @@ class VelocityWatchdog:
         duration: float | None,
         description: str,
         axes: Axes = "velocity",
-    ) -> None:
-        """Write towards ``target`` now and hold it until it expires.
+        *,
+        age: float = 0.0,
+    ) -> float:
+        """Write towards ``target`` now (or at the end of the write period) and hold it
+        until it expires.
 
         Args:
             target: The values asked for: (linear, angular) or (left, right).
@@ -194,32 +209,60 @@ class VelocityWatchdog:
             duration: Hold exactly this long (s); ``None`` for the deadman timeout.
             description: For log messages.
             axes: What ``target`` holds, for the limits.
+            age: How old the command already is (s): its deadline is that much sooner.
+
+        Returns:
+            The command's deadline (``clock()`` time; ``math.inf`` for none).
         """
         now = self._clock()
-        if duration is not None:
-            deadline = now + duration
-        elif self.command_timeout is not None:
-            deadline = now + self.command_timeout
-        else:
-            deadline = math.inf
+        deadline = self.deadline(duration, age, now)
         cmd = MotionCommand(target, build, zero, deadline, description, axes)
+        earliest = self._slot - WRITE_JITTER
+        if now < earliest:
+            # Too soon after the last frame: this one (or a newer) goes at its slot.
+            self._active = cmd
+            if not self._deferred:
+                self.deferred += 1
+            self._deferred = True
+            self._next = earliest
+            self._alarm.wake()
+            return deadline
         values = self._step(cmd, now)
         # Raises before any state changes if not connected.
         self._write(build(*values), deadline)
         self.written = values
         self._last_write = now
+        self._sent(now)
         self._active = cmd
+        self._deferred = False
         self._next = now + self.interval
         self._alarm.wake()
+        return deadline
+
+    def deadline(self, duration: float | None, age: float, now: float) -> float:
+        """When a command given ``age`` s before ``now`` expires: after ``duration``,
+        else after the deadman, else never (``math.inf``)."""
+        if duration is not None:
+            return now - age + duration
+        if self.command_timeout is not None:
+            return now - age + self.command_timeout
+        return math.inf
 
     def stop(self, zero: FrameFactory) -> None:
         """Drop the active command and write a zero frame now (never ramped)."""
         self.clear()
         self._write(zero(), math.inf)
+        self._sent(self._clock())
+
+    def _sent(self, now: float) -> None:
+        """A velocity frame was written at ``now``: the next is due one period on (a
+        frame may come up to `WRITE_JITTER` early, as long as the rate holds)."""
+        self._slot = max(self._slot, now) + WRITE_PERIOD
 
     def clear(self) -> None:
         """Drop the active command without writing anything (the link is gone)."""
         self._active = None
+        self._deferred = False
         self.written = (0.0, 0.0)
         self._last_write = None
         self._alarm.wake()
@@ -261,7 +304,10 @@ class VelocityWatchdog:
         self._next += self.interval
         if self._next <= now:  # the loop was blocked: skip the missed slots
             self._next = now + self.interval
-        self.resends += 1
+        if self._deferred:  # the command's first frame, held for the write period
+            self._deferred = False
+        else:
+            self.resends += 1
         values = self._step(active, now)
         if self._write_quietly(functools.partial(active.build, *values), active.deadline):
             self.written = values
@@ -285,6 +331,7 @@ class VelocityWatchdog:
     def _write_quietly(self, frame: FrameFactory, expires: float) -> bool:
         try:
             self._write(frame(), expires)
+            self._sent(self._clock())
         except NotConnectedError:
             # The link dropped between two resends: the supervisor clears us; never
             # resume this command later.
