@@ -153,7 +153,7 @@ class Owner:
     def fenced(self) -> None:
         self.fences += 1
 
-    def zero_frame(self) -> bytes:
+    def closing_frame(self) -> bytes | None:
         return b"0"
 
 

@@ -120,3 +120,20 @@ async def test_the_api_is_refused_while_a_source_of_higher_priority_drives() -> 
         await until(lambda: drives(sim)[-1].linear_mm == 0)
         await robot.set_velocity(0.1, 0.0)
         assert robot.motion.driver == "api"
+
+
+@pytest.mark.parametrize("drove", [False, True], ids=["never-drove", "drove"])
+async def test_zero_on_close_off_writes_the_zero_only_after_a_velocity(drove: bool) -> None:
+    # A read-only dashboard's device: its pages may stop the robot, so it is writable,
+    # but it writes nothing a page did not ask for, not even the zero at close.
+    async with ChassisSimulator() as sim:
+        async with Chassis(sim.port) as robot:
+            robot.motion.zero_on_close = False
+            if drove:
+                await robot.stop()
+            before = robot.stats.frames_sent
+        assert robot.stats.frames_sent == before + (1 if drove else 0)
+        if drove:  # the stop, then the zero at close
+            await until(lambda: [d.linear_mm for d in drives(sim)] == [0, 0])
+        else:
+            assert drives(sim) == []

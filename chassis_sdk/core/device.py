@@ -173,6 +173,10 @@ class Device(Session[M, K]):
         """Breaks in the device's frame numbers (protocols that number frames)."""
         return 0
 
+    def _closing_frame(self) -> bytes | None:
+        motion = self._motion
+        return self._zero_frame() if motion.zero_on_close or motion.watchdog.wrote else None
+
     def _on_fenced(self) -> None:
         self._motion.arbiter.stop()
         self._watchdog.clear()

@@ -155,8 +155,8 @@ class _LinkHooks(Generic[M]):
         session._on_link_up()
         return session._decoder, session._received
 
-    def zero_frame(self) -> bytes:
-        return self._session._zero_frame()
+    def closing_frame(self) -> bytes | None:
+        return self._session._closing_frame()
 
     def fenced(self) -> None:
         self._session._on_fenced()
@@ -246,6 +246,10 @@ class Session(abc.ABC, Generic[M, K]):
     @abc.abstractmethod
     def _make_decoder(self) -> FrameDecoder[M]:
         """The device's incremental decoder (one per device, reset per connection)."""
+
+    def _closing_frame(self) -> bytes | None:
+        """The last velocity frame at close: zero (a device may owe none)."""
+        return self._zero_frame()
 
     @abc.abstractmethod
     def _zero_frame(self) -> bytes:

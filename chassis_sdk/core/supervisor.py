@@ -84,8 +84,9 @@ OPEN = frozenset({ConnectionState.CONNECTED, ConnectionState.STALE})
 class Fenced(Protocol):
     """What the writer needs of the device it writes for."""
 
-    def zero_frame(self) -> bytes:
-        """A zero-velocity frame: the last velocity frame on every path."""
+    def closing_frame(self) -> bytes | None:
+        """The last velocity frame, written at the fence: zero (``None``: none is owed,
+        the device never wrote a velocity and was asked not to write one at close)."""
         ...
 
     def fenced(self) -> None:
@@ -290,8 +291,8 @@ class Writer(Generic[M]):
         self._owner.fenced()
         link = self.link
         if link is not None and not self.read_only:
-            zero = self._owner.zero_frame()
-            if link.close_velocity(zero):
+            zero = self._owner.closing_frame()
+            if zero is not None and link.close_velocity(zero):
                 self._count_sent(len(zero))
 
 

@@ -171,6 +171,11 @@ class Motion:
         self._clock = clock
         #: Refusals, for the log: the first at once, then a summary a second.
         self.refusals = Refusals(1.0, clock=clock)
+        #: Whether closing the device writes a zero even if it never wrote a velocity
+        #: (True, the default: the robot is left stopped whatever moved it). A surface
+        #: that only lets its clients stop (a read-only dashboard) sets False, so it
+        #: writes nothing a client did not ask for.
+        self.zero_on_close = True
         #: The application's own calls (``robot.set_velocity``...), a one-shot source.
         self.api = MotionSource(self, self.arbiter.add("api", "api", streaming=False))
 

@@ -182,6 +182,8 @@ class VelocityWatchdog:
         self.expiries = 0
         #: Commands whose first frame waited for the write period (a faster caller).
         self.deferred = 0
+        #: Whether any velocity frame (a zero included) was written.
+        self.wrote = False
 
     @property
     def active(self) -> MotionCommand | None:
@@ -258,6 +260,7 @@ class VelocityWatchdog:
         """A velocity frame was written at ``now``: the next is due one period on (a
         frame may come up to `WRITE_JITTER` early, as long as the rate holds)."""
         self._slot = max(self._slot, now) + WRITE_PERIOD
+        self.wrote = True
 
     def clear(self) -> None:
         """Drop the active command without writing anything (the link is gone)."""
