@@ -26,7 +26,7 @@ import termios
 import time
 import tty
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
@@ -35,6 +35,9 @@ from ..errors import ChassisError, NotConnectedError
 from .common import driven, out
 from .joystick import JoyMapping, Pad
 from .teleop import KEY_HELP, Effect, Key, KeyTeleop
+
+if TYPE_CHECKING:
+    from ..core.motion import MotionSource
 
 __all__ = ["REFRESH", "teleop"]
 
@@ -198,9 +201,13 @@ async def _drive(
         out(f"gamepad {pad.name} ({pad.path}): hold the enable button and steer")
     note = ""
     sent: tuple[float, float] | None = None  # the command written, None: stopped
+    refused = False  # the motion core refused the last one: a stop is owed at release
     next_refresh = next_status = 0.0
     end = None if args.seconds is None else time.monotonic() + args.seconds
     has_estop = hasattr(dev, "emergency_stop")
+    # The terminal's operator outranks a dashboard, ROS 2 and MQTT (the motion core's
+    # priorities); with a gamepad the kind is the pad's (the same rank by default).
+    source = dev.motion.source("teleop", kind="teleop" if pad is None else "gamepad")
     try:
         while True:
             now = time.monotonic()
@@ -212,16 +219,16 @@ async def _drive(
                 if effect is Effect.QUIT:
                     break
                 if effect is Effect.STOP:
-                    await _stop(dev)
-                    sent = None
+                    _stop(source)
+                    sent, refused = None, False
                 elif effect is Effect.ESTOP:
                     if has_estop:
                         await _guard(dev.emergency_stop())
                         note = "E-STOP: r releases"
                     else:
-                        await _stop(dev)
+                        _stop(source)
                         note = f"no e-stop on a {dev.device_name}: stopped; r resumes"
-                    sent = None
+                    sent, refused = None, False
                 elif effect is Effect.RELEASE:
                     if has_estop:
                         await _guard(dev.release_emergency_stop())
@@ -229,22 +236,26 @@ async def _drive(
             if keys.quit:
                 break
             if term.gone is not None:
-                await _stop(dev)
+                _stop(source)
                 raise ChassisError(f"{term.gone}; the robot is stopped")
             if pad is not None and pad.gone is not None:
-                await _stop(dev)
+                _stop(source)
                 raise ChassisError(f"{pad.gone}; the robot is stopped")
             target = _target(keys, pad, now)
             if target is None:
-                if sent is not None:
-                    await _stop(dev)
-                    sent = None
+                if sent is not None or refused:  # let go: the neutral the core asks for
+                    _stop(source)
+                    sent, refused = None, False
             elif target != sent or now >= next_refresh:
                 try:
-                    await dev.set_velocity(*target)
+                    refusal = source.set_velocity(*target)
                 except NotConnectedError:
                     keys.key(Key.STOP, now)  # after a reconnect, a fresh press drives
-                    target = None
+                    refusal, target = None, None
+                if refusal is not None:  # blocked, another source drives, neutral owed
+                    note, refused, target = f"refused: {refusal.detail}", True, None
+                elif refused or note.startswith("refused"):
+                    note, refused = "", False
                 sent = target
                 next_refresh = now + REFRESH
             if now >= next_status or effects:
@@ -260,9 +271,10 @@ async def _drive(
                 continue
             with anyio.move_on_after(max(0.0, min(due) - time.monotonic())):
                 await wake.wait()
-        await _stop(dev)
+        _stop(source)
         term.status(_status_line(dev, keys, pad, None, note, time.monotonic()))
     finally:
+        source.close()
         term.close()
         term.end_status()
     out("stopped")
@@ -274,9 +286,9 @@ async def _guard(request: Any) -> None:
         await request
 
 
-async def _stop(dev: Any) -> None:
+def _stop(source: MotionSource) -> None:
     with contextlib.suppress(NotConnectedError):
-        await dev.stop()
+        source.stop()
 
 
 def _target(keys: KeyTeleop, pad: Pad | None, now: float) -> tuple[float, float] | None:
