@@ -4,6 +4,7 @@ named streams, its connection states), and everything it adds goes with close().
 from __future__ import annotations
 
 import gc
+import weakref
 
 import pytest
 
@@ -80,12 +81,16 @@ async def test_it_sees_both_directions_and_the_states_of_a_real_link() -> None:
 def test_a_notifier_nobody_keeps_goes_on_until_closed() -> None:
     robot = Chassis("/dev/never-opened")
     seen: list[object] = []
-    Notifier(robot).listen("telemetry", seen.append)  # no reference kept
+    notifier = Notifier(robot)
+    notifier.listen("telemetry", seen.append)
+    kept = weakref.ref(notifier)
+    del notifier  # no reference kept but the device's
     gc.collect()
     robot.feed(_telemetry_bytes(), 1.0)
     assert len(seen) == 1
-    for notifier in list(robot._notifiers):
-        notifier.close()
+    alive = kept()
+    assert alive is not None
+    alive.close()
     robot.feed(_telemetry_bytes(), 2.0)
     assert len(seen) == 1
 

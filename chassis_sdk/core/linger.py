@@ -18,10 +18,9 @@ of the same port waits for it (its zero must be
 the last frame of that session), and `wait_lingering` lets a program end only
 once every zero has left (or its bound has passed).
 
-Each link makes its own `Linger`, which reads and changes the link's write state
-directly (its held frames, the part-sent frame, the blocked flag, its descriptor, the
-loss counter) and uses the link's write-path helpers (``drain``, ``_send_held``,
-``_drop_held``, ``_release_wfd``); the link remains the one object its owner talks to.
+Each link makes its own `Linger`, which acts on the link only through `Closable`, the
+hooks a link offers its close (``drain``, ``keep_only_the_zero``, ``drop_held``,
+``release_write_fd``...); the link remains the one object its owner talks to.
 """
 
 from __future__ import annotations
@@ -33,14 +32,11 @@ import logging
 import socket
 import struct
 import termios
-from typing import TYPE_CHECKING, Any
+from typing import Protocol
 
 import anyio
 
-if TYPE_CHECKING:
-    from .transport import Link
-
-__all__ = ["CLOSE_GRACE", "CLOSE_WAIT", "Linger", "lingering", "wait_lingering"]
+__all__ = ["CLOSE_GRACE", "CLOSE_WAIT", "Closable", "Linger", "lingering", "wait_lingering"]
 
 #: How long a port (or a socket's peer) closing by itself may take before a lingering
 #: close goes on in the background, and before a given-up close is taken as done.
@@ -75,8 +71,36 @@ async def wait_lingering(timeout: float | None = None) -> None:
             await mine[0].lingered()
 
 
-def _ignore_messages(messages: list[Any], now: float) -> None:
-    """The sink of a link that is closing."""
+class Closable(Protocol):
+    """What a link offers its close (`chassis_sdk.core.transport.Link` has it)."""
+
+    @property
+    def transport(self) -> asyncio.WriteTransport | None: ...
+    @property
+    def url(self) -> str: ...
+    @property
+    def closed(self) -> asyncio.Future[None]: ...
+    @property
+    def discarded(self) -> int: ...
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop: ...
+    @property
+    def log(self) -> logging.Logger: ...
+    @property
+    def write_fd(self) -> int | None: ...
+    @property
+    def finished(self) -> bool: ...
+    @property
+    def holds_zero(self) -> bool: ...
+    async def drain(self, timeout: float) -> bool: ...
+    def is_flushed(self) -> bool: ...
+    def mark_finished(self) -> None: ...
+    def stop_receiving(self) -> None: ...
+    def discard_partial(self) -> None: ...
+    def keep_only_the_zero(self, flushed: bool) -> None: ...
+    def count_lost(self) -> None: ...
+    def drop_held(self) -> None: ...
+    def release_write_fd(self) -> None: ...
 
 
 class Linger:
@@ -84,7 +108,7 @@ class Linger:
     `aclose` and
     `lingered`."""
 
-    def __init__(self, link: Link[Any]) -> None:
+    def __init__(self, link: Closable) -> None:
         self._link = link
         self._task: asyncio.Task[None] | None = None  # the background close, once handed over
 
@@ -101,7 +125,7 @@ class Linger:
         acknowledged, the final zero with it. Once this is 0, nothing can be lost.
         """
         link = self._link
-        fd = link._wfd
+        fd = link.write_fd
         if fd is None and link.transport is not None:
             sock = link.transport.get_extra_info("socket")
             fd = sock.fileno() if sock is not None else None
@@ -117,7 +141,7 @@ class Linger:
     def _is_out(self) -> bool:
         """Everything written has left: the link holds nothing and neither does the
         kernel."""
-        return self._link._is_flushed() and not self._kernel_pending()
+        return self._link.is_flushed() and not self._kernel_pending()
 
     async def _until_out(self, limit: float) -> bool:
         """Wait (at most ``limit`` s) until everything written has left; return whether
@@ -132,7 +156,7 @@ class Linger:
     def _flush_output(self) -> bool:
         """Discard a serial port's kernel output queue; False for a socket (whose
         kernel buffer cannot be flushed)."""
-        wfd = self._link._wfd
+        wfd = self._link.write_fd
         if wfd is None:
             return False
         with contextlib.suppress(OSError, termios.error):
@@ -147,24 +171,18 @@ class Linger:
         zero, whole, and send it at once where that made room."""
         link = self._link
         before = link.discarded
-        link._lost += bool(link._partial)
-        link._partial = b""
-        wfd = link._wfd
+        link.discard_partial()
         flushed = self._flush_output()
-        if flushed and link._blocked and wfd is not None:
-            link._loop.remove_writer(wfd)  # the flush made room: write again now
-            link._blocked = False
         # The zero, held, or (a serial port) flushed from the kernel with the rest, even
         # part sent, is held again whole, the last frame the device will get. A device
         # that took the head of a frame before the flush resynchronises on it.
-        if link._held.discard_stale(flushed):
-            link._send_held()
+        link.keep_only_the_zero(flushed)
         stale = link.discarded - before
-        link._log.log(
+        link.log.log(
             logging.WARNING if stale else logging.INFO,
             "the device is not reading; discarded %d stale frame(s) on closing%s",
             stale,
-            "" if link._held.zero is None else ", kept the final zero",
+            ", kept the final zero" if link.holds_zero else "",
         )
 
     async def _finish(self, wait: float) -> bool:
@@ -179,11 +197,9 @@ class Linger:
         transport = link.transport
         if transport is None or transport.is_closing():
             return True
-        link._finished = True
-        link._on_messages = _ignore_messages  # what comes now is of no one's use
-        link._intercept = None
-        link.tap = None
-        if link._wfd is not None or not transport.can_write_eof():
+        link.mark_finished()
+        link.stop_receiving()  # what comes now is of no one's use
+        if link.write_fd is not None or not transport.can_write_eof():
             transport.close()
             return True
         transport.write_eof()
@@ -198,12 +214,12 @@ class Linger:
         transport = link.transport
         if transport is None:
             return
-        link._finished = True
+        link.mark_finished()
         if not self._is_out():
-            link._drop_held()
+            link.drop_held()
             if not self._flush_output():
                 if transport.get_write_buffer_size():
-                    link._lost += 1  # what asyncio's transport still held
+                    link.count_lost()  # what asyncio's transport still held
                 sock = transport.get_extra_info("socket")
                 if sock is not None:
                     with contextlib.suppress(OSError):
@@ -215,7 +231,7 @@ class Linger:
         link = self._link
         try:
             transport = link.transport
-            if transport is not None and not transport.is_closing() and not link._finished:
+            if transport is not None and not transport.is_closing() and not link.finished:
                 # A moment for what is on its way (the kernel of a healthy line empties
                 # in a millisecond or two), then what is still held is stale.
                 if not await self._until_out(CLOSE_GRACE):
@@ -235,17 +251,15 @@ class Linger:
         except BaseException:  # cancelled (the loop is ending): never leave it open
             if self._task is None:
                 self._give_up()
-                link._release_wfd()
+                link.release_write_fd()
             raise
 
     def _hand_over(self, linger: float) -> None:
         """Go on closing in the background: the caller's close() returns now."""
         link = self._link
         # Nobody is listening any more (a recording is closed once close() returns).
-        link._on_messages = _ignore_messages
-        link._intercept = None
-        link.tap = None
-        _lingering[link._loop, link.url] = self  # an open of this port from now on waits
+        link.stop_receiving()
+        _lingering[link.loop, link.url] = self  # an open of this port from now on waits
         self._task = asyncio.ensure_future(self._linger_then_close(linger))
 
     async def lingered(self) -> None:
@@ -255,10 +269,10 @@ class Linger:
         task = self._task
         if task is not None and not task.done():
             await asyncio.wait((task,))
-        if _lingering.get((link._loop, link.url)) is self:  # a task that never ran
-            del _lingering[link._loop, link.url]
+        if _lingering.get((link.loop, link.url)) is self:  # a task that never ran
+            del _lingering[link.loop, link.url]
             self._give_up()
-            link._release_wfd()
+            link.release_write_fd()
 
     async def _wait_closed(self, timeout: float) -> None:
         link = self._link
@@ -268,25 +282,25 @@ class Linger:
                     await asyncio.shield(link.closed)
             except TimeoutError:
                 if link.transport is not None:  # stuck: never leave it open
-                    link._log.warning("port did not close within %.1f s; aborted", timeout)
+                    link.log.warning("port did not close within %.1f s; aborted", timeout)
                     self._give_up()
                 else:
-                    link._log.warning("port did not report closing within %.1f s", timeout)
-        link._release_wfd()
+                    link.log.warning("port did not report closing within %.1f s", timeout)
+        link.release_write_fd()
 
     async def _linger_then_close(self, bound: float) -> None:
         """Hold the port open (in the background) until the final zero has left and, for
         a socket, the peer has closed after it, or ``bound`` seconds have passed."""
         link = self._link
-        loop = link._loop
-        link._log.info("the device is not reading; the final zero waits up to %g s", bound)
+        loop = link.loop
+        link.log.info("the device is not reading; the final zero waits up to %g s", bound)
         deadline = loop.time() + bound
         try:
-            if not link._finished:
+            if not link.finished:
                 if await self._until_out(bound):
                     await self._finish(max(deadline - loop.time(), 0.0))
                 elif link.transport is not None:
-                    link._log.warning(
+                    link.log.warning(
                         "the device did not read for %g s after closing; what had not "
                         "left is discarded",
                         bound,
@@ -297,12 +311,12 @@ class Linger:
                     await asyncio.shield(link.closed)
             transport = link.transport
             if transport is not None and not transport.is_closing():
-                link._log.info("the peer kept the connection open after the final zero")
+                link.log.info("the peer kept the connection open after the final zero")
                 transport.close()
             await self._wait_closed(CLOSE_WAIT)
         except BaseException:  # cancelled (the loop is ending): nothing stale, ever
             self._give_up()
-            link._release_wfd()
+            link.release_write_fd()
             raise
         finally:
             if _lingering.get((loop, link.url)) is self:

@@ -20,14 +20,32 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self
 
 from .dispatch import SLOW_CALLBACK, Listener, ListenerStats
 from .supervisor import ConnectionState
 
 if TYPE_CHECKING:
-    from .session import Session
     from .transport import Tap
+
+
+class Observable(Protocol):
+    """What a `Notifier` needs of a device: its observation hooks (every device has
+    them, from `chassis_sdk.core.session.Session`)."""
+
+    @property
+    def stream_names(self) -> tuple[str, ...]: ...
+    def listen(
+        self, stream: str, callback: Callable[[Any], None], *, slow: float = ...
+    ) -> Listener[Any]: ...
+    def listen_states(
+        self, callback: Callable[[ConnectionState], None], *, slow: float = ...
+    ) -> Listener[ConnectionState]: ...
+    def add_tap(self, tap: Tap) -> None: ...
+    def remove_tap(self, tap: Tap) -> None: ...
+    def keep_observer(self, observer: object) -> None: ...
+    def drop_observer(self, observer: object) -> None: ...
+
 
 __all__ = ["Notifier"]
 
@@ -70,24 +88,24 @@ class Notifier:
         ```
     """
 
-    def __init__(self, device: Session[Any, Any]) -> None:
+    def __init__(self, device: Observable) -> None:
         self.device = device
         self._taps: list[Tap] = []
         self._listeners: list[Listener[Any]] = []
-        device._notifiers.add(self)
+        device.keep_observer(self)
 
     @property
     def stream_names(self) -> tuple[str, ...]:
         """The names of the device's streams: the methods that subscribe to them
         (``"telemetry"``, ``"odometry"``, ``"events"``, ...)."""
-        return tuple(self.device._streams.named)
+        return self.device.stream_names
 
     def add_tap(self, tap: Tap) -> None:
         """Let ``tap`` see every byte of the device's link, both ways: ``tap.rx(data,
         now)`` for each chunk received (or [`feed`][chassis_sdk.Board.feed]),
         ``tap.tx(frame, now)`` for each frame as it begins to leave; ``now`` is
         ``time.monotonic()``."""
-        self.device._link.add_tap(tap)
+        self.device.add_tap(tap)
         self._taps.append(tap)
 
     def listen(
@@ -114,13 +132,7 @@ class Notifier:
             ValueError: The device has no stream of that name, or ``slow`` is not a
                 finite number > 0.
         """
-        named = self.device._streams.named
-        found = named.get(stream)
-        if found is None:
-            raise ValueError(
-                f"{self.device.device_name} has no stream {stream!r}; it has: {', '.join(named)}"
-            )
-        listener = found.listen(callback, slow=slow, stream=stream)
+        listener = self.device.listen(stream, callback, slow=slow)
         self._listeners.append(listener)
         return listener
 
@@ -133,13 +145,7 @@ class Notifier:
         Raises:
             ValueError: ``slow`` is not a finite number > 0.
         """
-        listener = self.device._link.states.listen(callback)
-        try:
-            listener._set_bound(slow)
-        except BaseException:
-            listener.close()
-            raise
-        listener.stream = "connection_states"
+        listener = self.device.listen_states(callback, slow=slow)
         self._listeners.append(listener)
         return listener
 
@@ -159,12 +165,12 @@ class Notifier:
     def close(self) -> None:
         """Remove every tap and listener this notifier added (safe to call again)."""
         for tap in self._taps:
-            self.device._link.remove_tap(tap)
+            self.device.remove_tap(tap)
         for listener in self._listeners:
             listener.close()
         self._taps.clear()
         self._listeners.clear()
-        self.device._notifiers.discard(self)
+        self.device.drop_observer(self)
 
     def __enter__(self) -> Self:
         return self

@@ -18,22 +18,19 @@ import os
 from collections.abc import Callable, Coroutine, Hashable
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, Self, TypeVar, runtime_checkable
+from typing import Any, ClassVar, Generic, Protocol, Self, TypeVar, runtime_checkable
 
 import anyio
 import anyio.lowlevel
 
 from ..errors import NotConnectedError, RequestTimeoutError
-from .dispatch import Broadcast, Streams, Subscription, first_match
+from .dispatch import SLOW_CALLBACK, Broadcast, Listener, Streams, Subscription, first_match
 from .framing import FrameDecoder
 from .ports import parse_usb_identity
 from .requests import Requester
 from .supervisor import ConnectionState, LinkSupervisor
-from .transport import Decoder, backend_name
+from .transport import Decoder, Tap, backend_name
 from .validation import check_int, check_real
-
-if TYPE_CHECKING:
-    from .notifier import Notifier
 
 __all__ = ["RecordTarget", "Recorder", "Session", "set_recorder"]
 
@@ -213,7 +210,7 @@ class Session(abc.ABC, Generic[M, K]):
         self._recording: Recorder | None = None
         self._decoder = self._make_decoder()
         self._streams = Streams(queue_size)
-        self._notifiers: set[Notifier] = set()  # kept until closed (core.notifier)
+        self._observers: set[object] = set()  # kept until closed (core.notifier)
         self._link: LinkSupervisor[M] = LinkSupervisor(
             _LinkHooks(self),
             port,
@@ -435,6 +432,55 @@ class Session(abc.ABC, Generic[M, K]):
         await self.close()
 
     # --- observing it (recorders, bridges, live views; see core.notifier) --------------------
+
+    @property
+    def stream_names(self) -> tuple[str, ...]:
+        """The names of the device's streams: the methods that subscribe to them
+        (``"telemetry"``, ``"odometry"``, ``"events"``, ...)."""
+        return tuple(self._streams.named)
+
+    def listen(
+        self, stream: str, callback: Callable[[Any], None], *, slow: float = SLOW_CALLBACK
+    ) -> Listener[Any]:
+        """Call ``callback(message)`` for every message of the stream named ``stream``,
+        inside the read path, until the returned handle is closed or dropped (see
+        [`Notifier.listen`][chassis_sdk.core.notifier.Notifier.listen], which keeps it).
+
+        Raises:
+            ValueError: No stream of that name, or ``slow`` is not a finite number > 0.
+        """
+        named = self._streams.named
+        found = named.get(stream)
+        if found is None:
+            raise ValueError(
+                f"{self.device_name} has no stream {stream!r}; it has: {', '.join(named)}"
+            )
+        return found.listen(callback, slow=slow, stream=stream)
+
+    def listen_states(
+        self, callback: Callable[[ConnectionState], None], *, slow: float = SLOW_CALLBACK
+    ) -> Listener[ConnectionState]:
+        """Call ``callback(state)`` on every `ConnectionState` change (a stream named
+        ``"connection_states"`` in the log and the stats), as `listen`."""
+        return self._link.states.listen(callback, slow=slow, stream="connection_states")
+
+    def add_tap(self, tap: Tap) -> None:
+        """Let ``tap`` see every byte of the link, both ways (see
+        [`Notifier.add_tap`][chassis_sdk.core.notifier.Notifier.add_tap])."""
+        self._link.add_tap(tap)
+
+    def remove_tap(self, tap: Tap) -> None:
+        """Stop ``tap`` seeing the link's bytes (nothing if it does not)."""
+        self._link.remove_tap(tap)
+
+    def keep_observer(self, observer: object) -> None:
+        """Hold ``observer`` (a `Notifier`) as long as the device lives or until
+        `drop_observer`: its callbacks go on without the caller keeping it."""
+        self._observers.add(observer)
+
+    def drop_observer(self, observer: object) -> None:
+        """Stop holding ``observer``."""
+        self._observers.discard(observer)
 
     def command_decoder(self) -> FrameDecoder[Any] | None:
         """A new decoder of what the *host* writes to this device, so recordings show

@@ -48,7 +48,7 @@ from ..errors import (
     RequestTimeoutError,
 )
 from .backoff import Backoff
-from .dispatch import Broadcast, Listener, Subscription
+from .dispatch import SLOW_CALLBACK, Broadcast, Listener, Subscription
 from .transport import QUEUE_LIMIT, Decoder, Link, Tap, backend_name, open_link
 
 __all__ = ["ConnectionState", "ConnectionStates", "LinkSupervisor", "Supervised", "Writer"]
@@ -188,10 +188,16 @@ class ConnectionStates:
         """An async iterator of state changes, from the next one on."""
         return self._stream.subscribe()
 
-    def listen(self, callback: Callable[[ConnectionState], None]) -> Listener[ConnectionState]:
+    def listen(
+        self,
+        callback: Callable[[ConnectionState], None],
+        *,
+        slow: float = SLOW_CALLBACK,
+        stream: str | None = None,
+    ) -> Listener[ConnectionState]:
         """Call ``callback(state)`` synchronously on every change (see
         `Broadcast.listen`)."""
-        return self._stream.listen(callback)
+        return self._stream.listen(callback, slow=slow, stream=stream)
 
     def end_subscriptions(self) -> None:
         """End the iterators (after ``DISCONNECTED``); new ones may subscribe again."""

@@ -349,8 +349,8 @@ class Link(asyncio.Protocol, Generic[M]):
     def connection_lost(self, exc: Exception | None) -> None:
         self._rfd = None
         self.transport = None
-        self._drop_held()
-        self._release_wfd()
+        self.drop_held()
+        self.release_write_fd()
         self._wake_flushed()
         if not self.closed.done():
             self.closed.set_result(None)
@@ -477,7 +477,7 @@ class Link(asyncio.Protocol, Generic[M]):
         except OSError as exc:  # the device is gone; reading will notice it too
             self._write_error = exc
             self._partial = b""
-            self._release_wfd()
+            self.release_write_fd()
             if self.transport is not None:
                 self.transport.abort()
             return -1
@@ -505,15 +505,74 @@ class Link(asyncio.Protocol, Generic[M]):
             if frame is None or not self._emit(frame):
                 break
             held.pop()
-        if self._is_flushed():
+        if self.is_flushed():
             self._wake_flushed()
 
-    def _drop_held(self) -> None:
-        self._held.drop_all()
+    # --- the close's hooks (`chassis_sdk.core.linger.Closable`) ------------------------
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        """The loop the link runs on."""
+        return self._loop
+
+    @property
+    def log(self) -> logging.Logger:
+        """The logger the link reports to."""
+        return self._log
+
+    @property
+    def write_fd(self) -> int | None:
+        """Our own descriptor of a serial port, written to directly; ``None`` for a
+        socket (and once released)."""
+        return self._wfd
+
+    @property
+    def finished(self) -> bool:
+        """Closed, or half-closed (a socket), with nothing held."""
+        return self._finished
+
+    @property
+    def holds_zero(self) -> bool:
+        """The final zero is held, waiting for the port to take it."""
+        return self._held.zero is not None
+
+    def mark_finished(self) -> None:
+        """Nothing more will be written (the close has begun to end the port)."""
+        self._finished = True
+
+    def stop_receiving(self) -> None:
+        """Nobody listens any more: what arrives from now on is decoded for nothing,
+        and the tap sees nothing more (a recording is closed once close() returns)."""
+        self._on_messages = _ignore_messages
+        self._intercept = None
+        self.tap = None
+
+    def discard_partial(self) -> None:
+        """Drop the unsent rest of a part-sent frame (counted as lost)."""
         self._lost += bool(self._partial)
         self._partial = b""
 
-    def _release_wfd(self) -> None:
+    def keep_only_the_zero(self, flushed: bool) -> None:
+        """Discard every frame held but the final zero, kept whole (``flushed``: the
+        kernel's output queue was flushed too, which made room: write again now)."""
+        wfd = self._wfd
+        if flushed and self._blocked and wfd is not None:
+            self._loop.remove_writer(wfd)
+            self._blocked = False
+        if self._held.discard_stale(flushed):
+            self._send_held()
+
+    def count_lost(self) -> None:
+        """One frame lost outside the held ones (what asyncio's transport still held)."""
+        self._lost += 1
+
+    def drop_held(self) -> None:
+        """Discard everything held, the zero too, and a part-sent frame's rest."""
+        self._held.drop_all()
+        self.discard_partial()
+
+    def release_write_fd(self) -> None:
+        """Close our own descriptor of a serial port (once the port is closed)."""
         wfd, self._wfd = self._wfd, None
         if wfd is not None:
             self._loop.remove_writer(wfd)
@@ -521,7 +580,8 @@ class Link(asyncio.Protocol, Generic[M]):
 
     # --- draining and closing ---------------------------------------------------------
 
-    def _is_flushed(self) -> bool:
+    def is_flushed(self) -> bool:
+        """Everything written has left the link (and asyncio's transport)."""
         transport = self.transport
         if transport is None:
             return True
@@ -542,7 +602,7 @@ class Link(asyncio.Protocol, Generic[M]):
         """
         try:
             with anyio.fail_after(timeout):
-                while not self._is_flushed():
+                while not self.is_flushed():
                     self._flushed = waiter = self._loop.create_future()
                     try:
                         await waiter
@@ -550,7 +610,7 @@ class Link(asyncio.Protocol, Generic[M]):
                         self._flushed = None
         except TimeoutError:
             pass
-        return self._is_flushed()
+        return self.is_flushed()
 
     async def aclose(self, timeout: float, linger: float = 0.0) -> None:
         """Close the port: at once if everything written has left, else see
@@ -568,6 +628,10 @@ class Link(asyncio.Protocol, Generic[M]):
         """Wait until this link's background close (if any) is over; a cancellation
         stops the wait, not the close."""
         await self._closing.lingered()
+
+
+def _ignore_messages(messages: list[Any], now: float) -> None:
+    """The sink of a link that is closing."""
 
 
 # --- opening ---------------------------------------------------------------------------
