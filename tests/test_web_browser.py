@@ -196,14 +196,18 @@ async def test_a_frozen_tab_stops_the_robot_within_the_deadman() -> None:
         # one, not from when the test asked the page to freeze (on a loaded machine the
         # page's timer or the socket can lag, and late messages are refused, so the last
         # accepted command may come well before the freeze).
+        # (Each page is a source of the motion core: its commands pass `offer`; one
+        # taken holds from when it was given, ``age`` s before it was taken.)
         written: list[float] = []
-        set_velocity = robot.set_velocity
+        offer = robot.motion.offer
 
-        async def recorded(*args: Any, **kwargs: Any) -> Any:
-            written.append(time.monotonic())
-            return await set_velocity(*args, **kwargs)
+        def recorded(*args: Any, **kwargs: Any) -> Any:
+            refusal = offer(*args, **kwargs)
+            if refusal is None:
+                written.append(time.monotonic() - kwargs.get("age", 0.0))
+            return refusal
 
-        robot.set_velocity = recorded
+        robot.motion.offer = recorded
         await page.keyboard.down("KeyW")
         await until(lambda: moving(sim), 2.0)
         # The page's thread busy for 2 s: it sends nothing (the socket stays open).

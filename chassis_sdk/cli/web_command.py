@@ -2,9 +2,10 @@
 
 The device is opened once, with ``reconnect=True`` and the motion limits; the page is
 served until Ctrl-C, SIGTERM or ``--seconds``, and the end stops the robot if a page was
-driving it (zero first), then closes every page. Options are checked before the device
-opens: a refused option moves nothing. The token, when one is required, is printed
-once, inside the address to open.
+driving it (zero first), then closes every page. ``--read-only`` writes nothing no page
+asked for (no zero at the end unless a page pressed STOP or E-STOP). Options are
+checked before the device opens: a refused option moves nothing. The token, when one
+is required, is printed once, inside the address to open.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ async def web(device: DeviceProfile, port: str, args: argparse.Namespace) -> Non
     except ValueError as exc:
         raise ChassisError(str(exc)) from None
     show_warnings("chassis_sdk.integrations.web", "web")  # the refusals
-    # Writable even read-only: STOP and E-STOP stay offered.
+    # Writable even read-only: STOP and E-STOP stay offered (the dashboard, read-only,
+    # sets robot.motion.zero_on_close = False: the close writes no zero nobody asked for).
     async with driven(device, port, args) as dev:
         dashboard = WebDashboard(
             dev,

@@ -15,28 +15,41 @@ events and notes not yet sent, per page).
 
 Driving: one contract with every other surface
 ----------------------------------------------
+Each page is a source of the device's motion core (``device.motion.source("web page
+N", kind="web")``), made when it connects and closed when it goes away; the rules are
+the core's, the same for every surface:
+
 * Each ``drive`` message is one fresh ``set_velocity(linear, angular,
-  duration=command_timeout)``: the page sends the current command at 20 Hz while a
-  control is held, so a frozen tab, a lost network or a closed laptop stops the robot
-  within ``command_timeout``. Releasing a control sends ``stop`` at once; the page
-  hidden sends ``stop``; a socket that closes (or misses its heartbeat) while its
-  client was driving stops the robot at once.
-* Velocity is state, not a queue: of the drive messages that arrive, only the newest
-  counts, and at most one is written per `VELOCITY_PERIOD`. ``stop`` and
-  ``estop`` are acted on as they arrive, never behind a velocity or a request, and a
-  velocity taken before a stop is never written after it.
+  duration=command_timeout)`` of that page's source: the page sends the current
+  command at 20 Hz while a control is held, so a frozen tab, a lost network or a closed
+  laptop stops the robot within ``command_timeout``. Releasing a control sends ``stop``
+  at once; the page hidden sends ``stop``; a socket that closes (or misses its
+  heartbeat) while its page was driving stops the robot at once (a page that did not
+  drive leaves the robot to the one that does).
+* One page drives at a time: another page's velocity is refused ("driven by web page
+  1") until the driving page's command lapses or it stops. A block (an e-stop of any
+  origin, a bumper, a fault, a lost link) refuses velocity and ends the command; after
+  it a page must send a zero or a stop before it drives again (the page's script
+  sends its stop right after its E-STOP: it has let go of its controls).
+* Velocity is state, not a queue: the core writes at most one velocity frame per
+  `~chassis_sdk.core.motion.WRITE_PERIOD`, the newest. ``stop`` and ``estop`` are
+  acted on as they arrive, never behind a velocity or a request, and a velocity taken
+  before a stop is never written after it.
 * A drive message carries the page's clock (``t``, milliseconds of
   ``performance.now()``). The server keeps, per connection, the least difference
   between its own clock and the page's (the fastest a message has come); a message
   that arrives later than that by more than ``command_timeout`` was held up (a stalled
-  network delivering a backlog) and is refused. No clock needs to agree with another.
+  network delivering a backlog) and is refused; a later one is given to the core that
+  much old (its deadman counts from then). No clock needs to agree with another.
 * A message that is not a well-formed command (not JSON, UTF-8 only, duplicate keys,
   unknown type or keys, wrong types, non-finite, beyond ``max_linear``/``max_angular``)
   is refused, counted, logged (the first at once, then at most one summary a second,
   by `Refusals`) and shown on the page; it
   never moves the robot and never ends the server.
 * ``read_only``: the page offers only STOP and E-STOP, and the server takes nothing
-  else.
+  else; the device writes nothing at close that no page asked for.
+* With ``max_clients`` pages connected, a few more (`STOP_ONLY_PAGES`) are let in
+  behind the same checks offering only STOP and E-STOP: the operator can always stop.
 
 Who may connect
 ---------------
@@ -50,7 +63,9 @@ request but the static files needs the token (the cookie, ``?token=`` or
 ``Authorization: Bearer``), compared in constant time. The WebSocket handshake's
 ``Origin`` must be the page's own (``http://`` + the ``Host`` asked for) or one of
 ``allow_origins``: another page in the operator's browser cannot drive. The page
-cannot be framed (``frame-ancestors 'none'``) and loads nothing from elsewhere.
+cannot be framed (``frame-ancestors 'none'``) and loads nothing from elsewhere. A
+refused request or handshake is counted (`refused_connections`) and logged as the
+refused messages are: the first at once, then at most one summary a second.
 """
 
 from __future__ import annotations
@@ -75,20 +90,21 @@ import anyio
 
 from ..core.charge import battery_fields
 from ..core.device import Device
+from ..core.motion import MotionSource, Refusal
 from ..core.notifier import Notifier
 from ..core.plain import outbound
 from ..core.validation import check_int, check_real
 from ..devices import profile
 from ..errors import ChassisError
 from .access import check_allowed_origin, check_token, given_tokens, is_loopback, origin_key
-from .inbound import CommandError, Refusals, command_number, command_object
+from .inbound import CommandError, RefusalReport, Refusals, command_number, command_object
 
 __all__ = [
     "DEFAULT_MAX_ANGULAR",
     "DEFAULT_MAX_LINEAR",
     "MAX_CLIENTS",
     "MAX_DEADZONE",
-    "VELOCITY_PERIOD",
+    "STOP_ONLY_PAGES",
     "GamepadMapping",
     "WebDashboard",
 ]
@@ -97,14 +113,16 @@ _log = logging.getLogger("chassis_sdk.integrations.web")
 
 #: The widest gamepad deadzone taken (a fraction of full deflection).
 MAX_DEADZONE = 0.95
-#: Least seconds between two velocity commands written (the newest in between counts).
-VELOCITY_PERIOD = 0.02
 #: What a page may ask for when neither the dashboard nor the device sets a limit
 #: (m/s, rad/s): ``chassis-sdk drive``'s defaults, slow enough to walk beside.
 DEFAULT_MAX_LINEAR = 0.5
 DEFAULT_MAX_ANGULAR = 1.0
-#: The most WebSocket clients served at once (more are refused with HTTP 503).
+#: The most WebSocket clients served at once (beyond them, `STOP_ONLY_PAGES`).
 MAX_CLIENTS = 8
+#: Pages let in beyond ``max_clients``, offered STOP and E-STOP only (more get HTTP
+#: 503): pages that fill the limit (frozen tabs answer heartbeats) never keep the
+#: operator from stopping the robot.
+STOP_ONLY_PAGES = 2
 #: The largest WebSocket message taken (a drive message is about 60 bytes).
 _MAX_MESSAGE = 4096
 #: Seconds between WebSocket pings: a client that does not answer within half of it is
@@ -188,16 +206,21 @@ def _keys(body: Mapping[str, Any], allowed: Iterable[str]) -> None:
 
 
 class _Client:
-    """One WebSocket connection: its socket, its clock and what it is doing."""
+    """One WebSocket connection: its socket, its motion source, its clock and what it
+    is doing."""
 
-    def __init__(self, ws: Any, number: int) -> None:
+    def __init__(self, ws: Any, source: MotionSource, actions: list[str], stop_only: bool) -> None:
         self.ws = ws
-        self.name = f"client {number}"
+        #: Its source in the device's motion core (closed when the page goes away).
+        self.source = source
+        self.name = source.name
+        #: What this page may do (a stop-only page, let in beyond the limit: STOP and
+        #: E-STOP).
+        self.actions = actions
+        self.stop_only = stop_only
         #: The least (server clock - page clock) seen: the fastest delivery.
         self.offset = math.inf
         self.last_t = -math.inf
-        #: Whether its last velocity command was not a stop (its close stops the robot).
-        self.driving = False
         #: The newest state not yet sent, and whether the sender is waiting for one.
         self.state: str | None = None
         self.wake = asyncio.Event()
@@ -216,7 +239,9 @@ class WebDashboard:
         device: A device (connected, or about to be: the page follows its link).
         host: Address to bind; ``127.0.0.1`` (default) serves this computer only.
         port: TCP port; 0 picks a free one (`port` says which).
-        read_only: Take no velocity and no request: the page offers STOP and E-STOP only.
+        read_only: Take no velocity and no request: the page offers STOP and E-STOP only
+            (and ``device.motion.zero_on_close`` is set False: the device's close writes
+            no zero unless a page stopped it).
         token: The secret every request must carry (at least 16 printable ASCII
             characters). Beyond loopback a random one is made if none is given; on
             loopback none is needed unless given.
@@ -231,7 +256,8 @@ class WebDashboard:
             `DEFAULT_MAX_ANGULAR`.
         rate: State updates a second sent to each page (1 to 50).
         gamepad: How the page reads a gamepad.
-        max_clients: The most pages served at once.
+        max_clients: The most pages served at once; beyond them `STOP_ONLY_PAGES` more
+            are let in offering STOP and E-STOP only.
 
     Raises:
         ValueError: A bad option (before anything opens).
@@ -291,22 +317,19 @@ class WebDashboard:
         self.max_clients = max_clients
         self._profile = profile(device.device_name)
         self._actions = self._offered()
-        #: Velocity commands written; commands refused; drive messages replaced by a
-        #: newer one before they were written; connections refused at the door.
+        #: Velocity commands taken by the motion core; requests and handshakes refused
+        #: at the door.
         self.commands = 0
-        self.superseded = 0
         self.refused_connections = 0
         self.refusals = Refusals()
+        self._door = Refusals()
         self._clients: set[_Client] = set()
         self._numbered = 0
         self._admitted = 0
+        self._admitted_stop_only = 0
         #: Errors caught in the dashboard's own tasks and callbacks (logged with their
         #: traceback: each of a task, the first of each callback).
         self.errors = 0
-        self._pending: tuple[float, float] | None = None
-        self._pending_from: _Client | None = None
-        self._velocity = asyncio.Event()
-        self._estop_engaged = False
         self._events: deque[dict[str, Any]] = deque(maxlen=_EVENTS_KEPT)
         self._path: deque[tuple[float, float]] = deque(maxlen=_PATH_POINTS)
         self._latest: dict[str, Any] = {}
@@ -411,6 +434,10 @@ class WebDashboard:
                 f"cannot serve on {self.host}:{self._port}: {exc.strerror or exc}"
             ) from None
         self._runner = runner
+        if self.read_only:
+            # Nothing written at close that no page asked for (a page's STOP is written,
+            # and then the close's zero too).
+            self.device.motion.zero_on_close = False
         if runner.addresses:
             self._bound = runner.addresses[0][1]
         self._notifier = self._listen()
@@ -424,7 +451,6 @@ class WebDashboard:
         async with anyio.create_task_group() as tg:
             self._tasks = tg
             # None of them may end the dashboard: each is guarded.
-            tg.start_soon(self._guarded, "the velocity writer", self._write_velocity)
             tg.start_soon(self._guarded, "the state broadcast", self._broadcast)
 
     async def _guarded(self, what: str, job: Callable[..., Awaitable[None]], *args: Any) -> None:
@@ -447,16 +473,15 @@ class WebDashboard:
         if self._closed:
             return
         self._closed = True
-        self._pending = None
-        driving = any(c.driving for c in self._clients)
+        driving = [c for c in self._clients if c.source.driving]
         if self._notifier is not None:
             self._notifier.close()  # no more readings kept
         background = self._background
         if background is not None:
-            background.cancel()  # the writer, the broadcast, the requests
-        if driving and not self.read_only:
+            background.cancel()  # the broadcast, the requests
+        for client in driving:
             with contextlib.suppress(ChassisError):
-                await self.device.stop()
+                client.source.stop()
         with anyio.CancelScope(shield=True):
             for client in list(self._clients):
                 with contextlib.suppress(Exception), anyio.move_on_after(1.0):
@@ -508,9 +533,9 @@ class WebDashboard:
         return None
 
     def _refused_at_door(self, request: Any, why: str) -> None:
+        """Count a refused request; log the first at once, then a summary a second."""
         self.refused_connections += 1
-        peer = request.remote or "?"
-        _log.warning("web: refused a request from %s: %s", peer, why)
+        _log_door(self._door.add(request.remote or "?", why))
 
     async def _index(self, request: Any) -> Any:
         web = self._web
@@ -560,21 +585,29 @@ class WebDashboard:
         if why is not None:
             self._refused_at_door(request, why)
             return web.Response(status=403, text=f"{why}\n")
-        if self._admitted >= self.max_clients or self._closed:
+        stop_only = self._admitted >= self.max_clients
+        if self._closed or (stop_only and self._admitted_stop_only >= STOP_ONLY_PAGES):
             self._refused_at_door(request, f"{self.max_clients} pages are connected already")
             return web.Response(status=503, text="too many pages connected\n")
-        self._admitted += 1  # before the handshake's first await: the bound holds
+        # Counted before the handshake's first await: the bound holds.
+        if stop_only:
+            self._admitted_stop_only += 1
+        else:
+            self._admitted += 1
         try:
             ws = web.WebSocketResponse(
                 heartbeat=_HEARTBEAT, max_msg_size=_MAX_MESSAGE, compress=False, autoping=True
             )
             await ws.prepare(request)
             self._numbered += 1
-            client = _Client(ws, self._numbered)
+            source = self.device.motion.source(f"web page {self._numbered}", kind="web")
+            actions = ["stop", "estop"] if stop_only else self._actions
+            client = _Client(ws, source, actions, stop_only)
             self._clients.add(client)
-            _log.info("web: %s connected from %s", client.name, request.remote)
+            mode = " (stop only: the page limit is reached)" if stop_only else ""
+            _log.info("web: %s connected from %s%s", client.name, request.remote, mode)
             try:
-                await ws.send_str(json.dumps(self._hello()))
+                await ws.send_str(json.dumps(self._hello(client)))
                 async with anyio.create_task_group() as tg:
                     tg.start_soon(self._send, client)
                     await self._receive(client)
@@ -583,24 +616,28 @@ class WebDashboard:
                 pass  # the page went away while its hello was written
             finally:
                 self._clients.discard(client)
-                if client.driving and not self.read_only and not self._closed:
+                if source.driving:
                     _log.info("web: %s left while driving; the robot is stopped", client.name)
-                    with contextlib.suppress(ChassisError):  # an outage: nothing to stop
-                        await self._stop_now()
+                source.close()  # stops the robot only if this page was driving
                 with anyio.CancelScope(shield=True), anyio.move_on_after(1.0):
                     await ws.close()
         finally:
-            self._admitted -= 1
+            if stop_only:
+                self._admitted_stop_only -= 1
+            else:
+                self._admitted -= 1
         return ws
 
-    def _hello(self) -> dict[str, Any]:
+    def _hello(self, client: _Client) -> dict[str, Any]:
         device = self.device
+        stop_only = client.stop_only
         return {
             "type": "hello",
             "device": device.device_name,
             "port": device.port,
-            "read_only": self.read_only,
-            "actions": self._actions,
+            "read_only": self.read_only or stop_only,
+            "stop_only": stop_only,
+            "actions": client.actions,
             "max_linear": self.max_linear,
             "max_angular": self.max_angular,
             "command_timeout": self.command_timeout,
@@ -671,9 +708,14 @@ class WebDashboard:
         kind = body.get("type")
         if not isinstance(kind, str):
             raise CommandError("a message needs a string 'type'")
-        if kind not in self._actions:
+        if kind not in client.actions:
             if kind in ("drive", "release", "clear_faults", "led", "buzzer", "stop", "estop"):
-                mode = "read-only" if self.read_only else f"a {self.device.device_name}"
+                if client.stop_only:
+                    mode = "stop only: the page limit is reached"
+                elif self.read_only:
+                    mode = "read-only"
+                else:
+                    mode = f"a {self.device.device_name}"
                 raise CommandError(f"{kind!r} is not offered ({mode})")
             raise CommandError(f"unknown message type {kind[:40]!r}")
         if kind == "drive":
@@ -681,18 +723,14 @@ class WebDashboard:
             self._drive(client, body)
         elif kind == "stop":
             _keys(body, ())
-            client.driving = False
-            await self._stop_now()
+            client.source.stop()
         elif kind == "estop":
             _keys(body, ())
-            client.driving = False
             device: Any = self.device
             if not hasattr(device, "emergency_stop"):
-                await self._stop_now()
+                client.source.stop()
                 client.notes.append({"done": f"stop (a {device.device_name} has no e-stop)"})
                 return
-            self._estop_engaged = True
-            self._pending = None
             await device.emergency_stop()
             client.notes.append({"done": "estop"})
         else:
@@ -706,6 +744,7 @@ class WebDashboard:
         ):
             if abs(value) > limit * (1 + 1e-9):
                 raise CommandError(f"{name} {value:g} is beyond the limit {limit:g}")
+        age = 0.0
         if "t" in body:
             t = command_number(body, "t") / 1000.0
             if t < client.last_t:
@@ -713,28 +752,20 @@ class WebDashboard:
             client.last_t = t
             now = time.monotonic()
             client.offset = min(client.offset, now - t)
-            late = now - t - client.offset
-            if late > self.command_timeout:
-                raise CommandError(f"held up {late:.2f} s (longer than the deadman)")
-        if self._estop_engaged:
-            raise CommandError("the emergency stop is engaged: release it first")
+            age = now - t - client.offset  # later than the fastest delivery
+            if age > self.command_timeout:
+                raise CommandError(f"held up {age:.2f} s (longer than the deadman)")
         if self._closed:
             raise CommandError("the dashboard is closing")
-        if linear == 0.0 and angular == 0.0:
-            client.driving = False
-        else:
-            client.driving = True
-        if self._pending is not None:
-            self.superseded += 1
-        self._pending = (linear, angular)
-        self._pending_from = client
-        self._velocity.set()
-
-    async def _stop_now(self) -> None:
-        if self._pending is not None:
-            self.superseded += 1
-        self._pending = None
-        await self.device.stop()
+        try:
+            refusal = client.source.set_velocity(
+                linear, angular, duration=self.command_timeout, age=age
+            )
+        except ChassisError as exc:  # not connected (an outage): this command is lost
+            raise CommandError(f"not written: {exc}") from None
+        if refusal is not None:
+            raise CommandError(_refusal_text(refusal))
+        self.commands += 1
 
     def _request(self, client: _Client, kind: str, body: Mapping[str, Any]) -> None:
         """Release, clear faults, LED, buzzer: in a task (a stop behind it never waits),
@@ -761,8 +792,6 @@ class WebDashboard:
             try:
                 with anyio.fail_after(_REQUEST_TIMEOUT):
                     await call(*args)
-                if kind == "release":
-                    self._estop_engaged = False
                 client.notes.append({"done": kind})
             except (ChassisError, ValueError, TimeoutError) as exc:
                 self._refuse(client, f"{kind} not done: {exc}")
@@ -776,36 +805,6 @@ class WebDashboard:
         self._tasks.start_soon(run, name=f"web {kind}")
 
     # --- the device --------------------------------------------------------------------
-
-    async def _write_velocity(self) -> None:
-        """The newest drive message, at most one per `VELOCITY_PERIOD`."""
-        next_write = -math.inf
-        while True:
-            await self._velocity.wait()
-            self._velocity.clear()
-            wait = next_write - anyio.current_time()
-            if wait > 0:
-                await anyio.sleep(wait)  # a newer one may come meanwhile: it counts
-            # Taken and written with no await in between (set_velocity and stop write
-            # before their first await): a stop handled before this emptied the slot,
-            # one handled after writes its zero after this.
-            pending, self._pending = self._pending, None
-            sender = self._pending_from
-            if pending is None or self._estop_engaged or self._closed:
-                continue
-            linear, angular = pending
-            try:
-                if linear == 0.0 and angular == 0.0:
-                    await self.device.stop()
-                else:
-                    await self.device.set_velocity(linear, angular, duration=self.command_timeout)
-            except (ChassisError, ValueError) as exc:
-                # Not connected (an outage), or beyond the wire: this command is lost.
-                if sender is not None:
-                    self._refuse(sender, f"not written: {exc}")
-                continue
-            self.commands += 1
-            next_write = anyio.current_time() + VELOCITY_PERIOD
 
     def _listen(self) -> Notifier:
         """Listen to the device's streams and events: each reading is kept as it
@@ -871,7 +870,7 @@ class WebDashboard:
         device = self.device
         latest = {name: outbound(reading) for name, reading in self._latest.items()}
         commanded = device.commanded_velocity
-        estop = self._estop_engaged
+        estop = any("ESTOP" in block for block in device.motion.blocks)
         telemetry = self._latest.get("telemetry")
         if telemetry is not None and getattr(telemetry, "emergency_stopped", False):
             estop = True
@@ -908,15 +907,39 @@ class WebDashboard:
         period = 1.0 / self.rate
         while True:
             await anyio.sleep(period)
+            report = self.refusals.due()
+            if report is not None:
+                _log.warning("web: refused %s", report.summary())
+            _log_door(self._door.due())
             if not self._clients:
                 continue
             state = self._state()
             for client in self._clients:
                 client.state = state
                 client.wake.set()
-            report = self.refusals.due()
-            if report is not None:
-                _log.warning("web: refused %s", report.summary())
+
+
+def _log_door(report: RefusalReport | None) -> None:
+    """Log what was refused at the door: the first at once, then a summary."""
+    if report is None:
+        return
+    if report.count == 1:
+        _log.warning("web: refused a request from %s: %s", report.where, report.why)
+    else:
+        _log.warning(
+            "web: refused %d requests (%d since the start), latest from %s: %s",
+            report.count,
+            report.total,
+            report.where,
+            report.why,
+        )
+
+
+def _refusal_text(refusal: Refusal) -> str:
+    """What a page is told of a velocity the motion core refused."""
+    if refusal.reason == "blocked" and any("ESTOP" in b for b in refusal.blocks):
+        return f"the emergency stop is engaged: release it first ({refusal.detail})"
+    return refusal.detail
 
 
 def _finite_only(value: Any) -> Any:

@@ -65,7 +65,8 @@ function onHello(hello) {
   state.hello = hello;
   $("title").textContent = `chassis-sdk ${hello.device}`;
   document.title = `${hello.device} ${hello.port}: chassis-sdk`;
-  $("mode").textContent = `${hello.port}${hello.read_only ? " · read-only" : ""} · deadman ${hello.command_timeout} s`;
+  const mode = hello.stop_only ? " · stop only: the page limit is reached" : hello.read_only ? " · read-only" : "";
+  $("mode").textContent = `${hello.port}${mode} · deadman ${hello.command_timeout} s`;
   for (const id of ["release", "clear_faults", "led", "buzzer"]) $(id).hidden = !offers(id);
   $("drive").hidden = !offers("drive");
   $("pad-enable").textContent = `buttons[${hello.gamepad.enable_button}]`;
@@ -429,7 +430,9 @@ function setUp() {
   window.addEventListener("pagehide", stopNow);
   window.addEventListener("gamepaddisconnected", () => { state.pad.index = null; tick(); });
   $("stop").addEventListener("click", stopNow);
-  $("estop").addEventListener("click", () => { letGo(); send({ type: "estop" }); state.driving = false; });
+  // E-STOP, then the page's neutral: it has let go of its controls, so once the e-stop
+  // is released it drives again on a new press (the motion core owes it a neutral).
+  $("estop").addEventListener("click", () => { letGo(); send({ type: "estop" }); send({ type: "stop" }); state.driving = false; });
   $("release").addEventListener("click", () => send({ type: "release" }));
   $("clear_faults").addEventListener("click", () => send({ type: "clear_faults" }));
   for (const id of ["led", "buzzer"]) {
