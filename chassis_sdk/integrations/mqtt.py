@@ -20,6 +20,8 @@ topic                           dir   retained  payload
 ``{p}/{id}/errors``             out   no        what was refused: the first at once, then
                                                 at most one summary per second
 ``{p}/{id}/request/{name}``     in    never     MQTT 5 request/response: ``get_*``, diagnose
+``{p}/{id}/probe``              both  never     the bridge's probe of the broker -> bridge
+                                                path, to itself: ``{"owner": ..., "probe": n}``
 ==============================  ====  ========  ==========================================
 
 Why it is shaped this way
@@ -29,7 +31,11 @@ broker keeps nothing for a bridge that is away), a retained or stale command is
 refused (one whose MQTT 5 message expiry has passed the broker never delivers), and
 each velocity command is one command under the SDK's deadman
 (``command_timeout``, counted from its ``timestamp`` when it has one): a dashboard
-that dies, or a Wi-Fi drop, stops the robot within half a second. Losing the broker
+that dies, or a Wi-Fi drop, stops the robot within half a second. A command without a
+``timestamp`` cannot tell its age, so the bridge probes the broker -> bridge path (a
+small message to itself every 150 ms): one that arrives while that probe shows the
+path held up for longer than the deadman is refused (a stalled TCP path delivers what
+it held all at once when it recovers). Losing the broker
 writes zero at once, and nothing moves the robot again but a new command after the
 bridge is back. The connection topic follows VDA 5050: ``ONLINE`` while bridged,
 ``OFFLINE`` after a clean stop, and the broker publishes the last will
@@ -49,7 +55,9 @@ message is sorted as paho hands it over, in bounded work, before anything waits:
   collapses to what it means: engaged if any engaged, stopped, released last if so);
 - ``cmd/velocity``: one slot, the newest valid command: velocity is state, not a
   queue, so a flood leaves at most one pending command and the deadman runs from the
-  last one the sender published;
+  last one the sender published; each is offered to the bridge's source in the
+  device's motion core, which paces the writes and refuses it while an e-stop (or
+  another block) holds or another source drives;
 - ``request/...``: a short bounded queue served by two workers of their own, so a slow
   device request never holds a command up.
 
@@ -120,9 +128,6 @@ __all__ = [
 
 _log = logging.getLogger("chassis_sdk.integrations.mqtt")
 
-#: Least seconds between two velocity commands written (50 a second, the rate of the
-#: chassis's telemetry; a joystick sends 10 to 50): the newest in between counts.
-_VELOCITY_PERIOD = 0.02
 #: The disconnect reason that makes the broker publish the last will (MQTT 5 §3.14.2.1).
 _DISCONNECT_WITH_WILL = 0x04
 
@@ -210,6 +215,8 @@ class MqttBridge:
         self._ownership = Ownership(self, self._out, self._inbox.lanes)
         self._in = Commands(self, self._out, self._ownership, self._inbox.lanes)
         self._inbox.sort = self._in.sort
+        if not read_only:  # the probe of the broker -> bridge path (see Commands)
+            self._out.probe = self._in.path
 
     @property
     def rejected(self) -> int:
@@ -248,6 +255,13 @@ class MqttBridge:
         return self._inbox.lanes.superseded
 
     @property
+    def held_up(self) -> int:
+        """Velocity commands without a timestamp refused as held up on their way: they
+        arrived while the bridge's probe showed the broker -> bridge path holding what
+        it carries for longer than the deadman."""
+        return self._in.held_up
+
+    @property
     def dropped(self) -> int:
         """Commands never acted on for ownership: routed before this bridge's ONLINE,
         or after another bridge took over."""
@@ -271,6 +285,10 @@ class MqttBridge:
         # while it runs: leaving the group cancels the workers until they are done,
         # however often a library loses a cancellation (aiomqtt's calls use
         # asyncio.wait_for, which can before Python 3.12).
+        if not self.read_only:
+            # The bridge's source in the motion core, from the start: an e-stop while
+            # it runs asks it for a neutral (a zero, or a stop) before it drives again.
+            self._in.source()
         try:
             async with self.client:
                 failure: BaseException | None = None
@@ -294,6 +312,7 @@ class MqttBridge:
         finally:
             with anyio.CancelScope(shield=True):
                 await self._stop_robot()
+                self._in.close()
 
     async def _serve(self, tg: TaskGroup) -> None:
         """Claim the robot id, then start the bridge's loops (in ``tg``)."""
@@ -332,7 +351,7 @@ class MqttBridge:
     # the name it had when it published only the events).
 
     async def _commands(self) -> None:
-        await self._in.consume(_VELOCITY_PERIOD)
+        await self._in.consume()
 
     async def _events(self) -> None:
         await self._out.run()
@@ -361,7 +380,7 @@ class MqttBridge:
         if self.read_only:
             return  # a viewer never writes to the device, not even a zero
         with contextlib.suppress(ChassisError):
-            await self.device.stop()
+            self._in.source().stop()  # whoever drives: the bridge's end stops the robot
 
 
 def _first_error(group: BaseExceptionGroup[BaseException]) -> BaseException:

@@ -6,12 +6,21 @@ work, before anything waits: junk, a retained command, a stale one, an unknown t
 is refused there and then (counted, reported on ``errors``), never queued; stops and
 e-stops take their lane (and cancel the velocity command before them), a velocity
 command the one slot, a request the short queue its workers serve. Then
-`Commands.consume` acts on the commands in the inbox's order (at most one
-velocity command per period, each one command under the device's deadman), and
+`Commands.consume` acts on the commands in the inbox's order, and
 `Commands.answer_requests` answers the requests (MQTT 5 request/response), so a
 slow request never holds a command up. Nothing is acted on before the bridge owns the
 robot id, nor after another bridge took it over
 (`Ownership`).
+
+Velocity commands and stops go through the bridge's one source in the device's motion
+core (``device.motion.source("mqtt robots/r1", kind="mqtt")``): each accepted velocity
+command is offered to it, with its age (from its ``timestamp``, or for one without, the
+least age the bridge's probe of the broker -> bridge path shows), and the core paces
+the writes (the newest wins), holds each command for the deadman from when it was
+given, and refuses it while motion is blocked or another source drives; its refusal is
+reported on ``errors`` like any other. A command without a ``timestamp`` that arrives
+while that probe shows the path held up for longer than the deadman is refused as held
+up (`PathProbe`; the publishing side sends the probes).
 
 `Commands` is `MqttBridge`'s collaborator
 for this: it reads the bridge's client, device, profile and options (``read_only``,
@@ -23,12 +32,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import math
 import re
+import time
 from typing import TYPE_CHECKING, Any
 
 import aiomqtt
-import anyio
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
@@ -43,11 +51,12 @@ from .inbound import (
     command_object,
     command_time,
 )
-from .mqtt_inbox import Lanes
+from .mqtt_inbox import Lanes, PathProbe
 from .mqtt_ownership import Ownership
 from .mqtt_publish import Publisher, epoch_now
 
 if TYPE_CHECKING:
+    from ..core.motion import MotionSource
     from .mqtt import MqttBridge
 
 __all__ = ["REQUEST_WORKERS", "Commands"]
@@ -56,6 +65,8 @@ __all__ = ["REQUEST_WORKERS", "Commands"]
 _REQUESTS_MAX = 16
 #: Workers answering requests (each may wait for the device for a few seconds).
 REQUEST_WORKERS = 2
+#: Seconds between two probes of the broker -> bridge path (`Publisher.run` sends them).
+PROBE_PERIOD = 0.15
 
 
 def _why(exc: Exception) -> str:
@@ -76,7 +87,17 @@ def _why(exc: Exception) -> str:
 _COMMAND_TREE = re.compile(r"^[^/]+/[^/]+/(cmd|request)(/|$)")
 #: The subtrees of a robot under the bridge's prefix: what a bridge publishes or takes
 #: there (a reply must not forge a robot's state, nor command one).
-_ROBOT_TREES = ("connection", "cmd", "request", "errors", "info", "link", "telemetry", "events")
+_ROBOT_TREES = (
+    "connection",
+    "cmd",
+    "request",
+    "errors",
+    "info",
+    "link",
+    "telemetry",
+    "events",
+    "probe",
+)
 #: The longest response topic and correlation data answered (bytes): a reply is small,
 #: and a request must not make the bridge publish (or hold) much more than it sent.
 _MAX_RESPONSE_TOPIC = 1024
@@ -141,10 +162,29 @@ class Commands:
         #: Commands never acted on for ownership: routed before this bridge's ONLINE,
         #: or after another bridge took over.
         self.dropped = 0
-        # asyncio's events, not anyio's: these wake-ups are cleared by the loop they
-        # wake (anyio's cannot be).
+        #: Velocity commands without a timestamp refused as held up on their way.
+        self.held_up = 0
+        #: The broker -> bridge path, probed: `sort` tells it when a probe is back
+        #: (`Publisher.run` sends them).
+        self.path = PathProbe(PROBE_PERIOD, keep=bridge.deadman + 1.0)
+        self._source: MotionSource | None = None
+        # asyncio's event, not anyio's: this wake-up is cleared by the loop it wakes
+        # (anyio's cannot be).
         self._request_ready = asyncio.Event()
-        self._urgent = asyncio.Event()
+
+    def source(self) -> MotionSource:
+        """The bridge's source in the device's motion core (made on first use)."""
+        source = self._source
+        if source is None or source.source.closed:
+            bridge = self._bridge
+            source = bridge.device.motion.source(f"mqtt {bridge.topic}", kind="mqtt")
+            self._source = source
+        return source
+
+    def close(self) -> None:
+        """Remove the bridge's source (the robot stops if it was driving)."""
+        if self._source is not None:
+            self._source.close()
 
     async def subscribe(self) -> None:
         """Subscribe to the commands (unless read-only) and the requests."""
@@ -156,7 +196,20 @@ class Commands:
             await bridge.client.subscribe(
                 f"{bridge.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
             )
+            await bridge.client.subscribe(
+                f"{bridge.topic}/probe", options=SubscribeOptions(qos=0, retainAsPublished=True)
+            )
         await bridge.client.subscribe(f"{bridge.topic}/request/+", qos=0)
+
+    def _probe_back(self, message: aiomqtt.Message) -> None:
+        """A message on the probe topic, as paho hands it over: the path's news if it
+        is one of this bridge's probes; refused if retained (nobody's probe)."""
+        if message.retain:
+            raise CommandError("a retained message on the probe topic is nobody's probe")
+        payload = command_object(message.payload)
+        number = payload.get("probe")
+        if payload.get("owner") == self._bridge.owner and type(number) is int:
+            self.path.back(number)
 
     def sort(self, message: aiomqtt.Message) -> bool:
         """Sort one message as it arrives (in paho's read callback): refuse it, act on
@@ -174,6 +227,9 @@ class Commands:
         sub = topic[len(self._base) :]
         if sub == "connection":
             self._ownership.on_connection(message)
+            return False
+        if sub == "probe":
+            self._probe_back(message)
             return False
         kind, _, name = sub.partition("/")
         lanes = self._lanes
@@ -193,8 +249,11 @@ class Commands:
             return False
         if message.retain:
             raise CommandError("a retained command is never acted on (it would be stale)")
+        since, neutral = None, False
         if name == "velocity":
-            self._velocity_of(message)  # junk and stale ones never take the slot
+            # Junk and stale ones never take the slot; nor does one held up on its way.
+            linear, angular, stamp = self._velocity_of(message)
+            since, neutral = self._given_by(stamp), linear == 0 and angular == 0
             lane = "velocity"
         elif name == "stop":
             lane = "stop"
@@ -210,9 +269,30 @@ class Commands:
             self.dropped += 1
             return False
         if lane == "velocity":
-            return lanes.put_velocity(message)
-        self._urgent.set()  # a velocity command held for its period gives way
+            return lanes.put_velocity(message, since, neutral=neutral)
         return lanes.put_urgent(lane, message)
+
+    def _given_by(self, stamp: float | None) -> float | None:
+        """When a velocity command arriving now was given at the latest
+        (``time.monotonic()``), by the probe of the path: ``None`` for a stamped one
+        (its stamp says).
+
+        Raises:
+            CommandError: It has no timestamp, and the probe shows the path held it
+                up for longer than the deadman.
+        """
+        if stamp is not None:
+            return None
+        held = self.path.held()
+        deadman = self._bridge.deadman
+        if held > deadman:
+            self.held_up += 1
+            raise CommandError(
+                f"held up: the broker -> bridge path has held what it carries for {held:.3f} s "
+                f"(by the bridge's probe), more than the {deadman:g} s deadman, and the command "
+                "has no 'timestamp' to tell its age"
+            )
+        return time.monotonic() - held
 
     def _check_time(self, payload: dict[str, Any]) -> float | None:
         """The command's timestamp (epoch seconds), checked fresh; ``None`` if none."""
@@ -233,20 +313,13 @@ class Commands:
         )
         return linear, angular, self._check_time(payload)
 
-    def _hold(self, stamp: float | None) -> float | None:
-        """How long a velocity command stamped ``stamp`` may hold from now: until its
-        stamp plus the deadman (plus the skew), never longer than the deadman; ``None``
-        (the device's own deadman) for a command without a timestamp."""
+    def _age(self, stamp: float | None, since: float) -> float:
+        """How old a velocity command is, for the core's deadman: from its stamp (less
+        the skew allowed to the sender's clock), else from when the probe of the path
+        shows it was given at the latest (``since``, ``time.monotonic()``)."""
         if stamp is None:
-            return None
-        deadman = self._bridge.deadman
-        left = stamp + deadman + TIMESTAMP_SKEW - epoch_now()
-        if left <= 0:
-            raise CommandError(
-                f"the command is {epoch_now() - stamp:.3f} s old: its {deadman:g} s deadman "
-                "(plus the skew) ran out before it could act"
-            )
-        return min(deadman, left)
+            return max(0.0, time.monotonic() - since)
+        return max(0.0, epoch_now() - stamp - TIMESTAMP_SKEW)
 
     def _estop_of(self, message: aiomqtt.Message) -> bool:
         payload = command_object(message.payload)
@@ -257,29 +330,12 @@ class Commands:
             self._check_time(payload)  # a release is as late-sensitive as a velocity
         return engaged
 
-    async def consume(self, period: float) -> None:
-        """Act on the commands as the inbox serves them: stops and e-stops first, at
-        most one velocity command per ``period`` (the newest)."""
-        lanes = self._lanes
-        next_velocity = -math.inf
+    async def consume(self) -> None:
+        """Act on the commands as the inbox serves them: stops and e-stops first, then
+        the newest velocity command (the motion core paces what is written)."""
         async for message in self._bridge.client.messages:
             try:
-                velocity = message.topic.value.endswith("/cmd/velocity")
-                wait = next_velocity - anyio.current_time()
-                if velocity and wait > 0:
-                    # At most one velocity command per period reaches the device, the
-                    # newest: the work (and the serial line) stays bounded whatever
-                    # the rate. It waits in its slot, where a newer one replaces it
-                    # and a stop or e-stop cancels it and is served at once.
-                    lanes.put_back(message)  # dropped if a stop came after it
-                    self._urgent.clear()
-                    if not lanes.urgent:
-                        with anyio.move_on_after(wait):
-                            await self._urgent.wait()
-                    continue
                 await self._act(message)
-                if velocity:
-                    next_velocity = anyio.current_time() + period
             except Exception as exc:  # any failure is this message's refusal, no more
                 self._out.refuse(_topic(message), _why(exc))
 
@@ -290,25 +346,38 @@ class Commands:
         bridge = self._bridge
         name = message.topic.value.rpartition("/")[2]
         if name == "velocity":
-            if not self._lanes.current(message):
+            lanes = self._lanes
+            if not lanes.current(message):
                 # A stop or e-stop was sorted after it (while it was out of its slot):
                 # it must never act after that stop.
-                self._lanes.superseded += 1
+                lanes.superseded += 1
                 return
             # Checked again: it may have waited (a little) for a stop to be served.
             linear, angular, stamp = self._velocity_of(message)
-            # One command under the deadman, counted from when it was sent: a stamped
-            # command holds until its stamp plus command_timeout, no longer (a newer
-            # one replaces it). Nothing awaits between the epoch's check and the write
-            # (set_velocity writes before its first await), so no stop comes between.
-            await bridge.device.set_velocity(linear, angular, duration=self._hold(stamp))
+            # One command under the deadman, counted from when it was given: its stamp
+            # (plus the skew), or the least age the probe of the path showed. Nothing
+            # awaits between the epoch's check and the offer, so no stop comes between.
+            timeout = bridge.device.command_timeout
+            duration = None if timeout is not None else bridge.deadman
+            source = self.source()
+            if lanes.neutral_passed:
+                # The sender gave a zero that a newer command superseded in the slot:
+                # it still counts as its neutral (after a block, the core wants one).
+                lanes.neutral_passed = False
+                if not source.driving:
+                    source.set_velocity(0.0, 0.0)
+            refusal = source.set_velocity(
+                linear, angular, duration=duration, age=self._age(stamp, lanes.since(message))
+            )
+            if refusal is not None:
+                raise CommandError(f"velocity refused: {refusal.detail}")
         elif name == "stop":
-            await bridge.device.stop()
+            self.source().stop()
         elif name == "estop":
             engaged = self._estop_of(message)
             device: Any = bridge.device
             if not hasattr(device, "emergency_stop"):
-                await bridge.device.stop()
+                self.source().stop()
                 raise CommandError(f"a {bridge.profile.name} has no e-stop; it was stopped")
             await (device.emergency_stop() if engaged else device.release_emergency_stop())
 

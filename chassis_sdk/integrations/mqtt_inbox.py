@@ -15,13 +15,21 @@ import asyncio
 import fcntl
 import logging
 import termios
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 import aiomqtt
 
-__all__ = ["READ_BATCH", "CommandInbox", "Lanes", "install_batched_reads", "install_inbox"]
+__all__ = [
+    "READ_BATCH",
+    "CommandInbox",
+    "Lanes",
+    "PathProbe",
+    "install_batched_reads",
+    "install_inbox",
+]
 
 _log = logging.getLogger("chassis_sdk.integrations.mqtt")
 
@@ -46,20 +54,35 @@ class Lanes:
         #: Stops and e-stops sorted so far (and take-overs): a velocity command sorted
         #: before the latest of them must never act, wherever it is when it moves on.
         self.epoch = 0
-        #: The epoch the velocity command in the slot was sorted in.
+        #: The epoch the velocity command in the slot was sorted in, and the time
+        #: (``time.monotonic()``) it is known to have been given by at the latest.
         self._velocity_epoch = 0
-        #: The velocity command last taken out by ``pop()``, and its epoch.
-        self._taken: tuple[aiomqtt.Message, int] | None = None
+        self._velocity_since = 0.0
+        self._velocity_neutral = False
+        #: A neutral (a zero velocity) was superseded in the slot since the last
+        #: ``pop()`` of a velocity command: the sender gave it, and the motion core
+        #: wants it after a block before the sender's next velocity.
+        self.neutral_passed = False
+        #: The velocity command last taken out by ``pop()``, its epoch and that time.
+        self._taken: tuple[aiomqtt.Message, int, float] | None = None
 
     def __len__(self) -> int:  # what ``get()`` can return (requests are not in it)
         return len(self.urgent) + (self.velocity is not None)
 
-    def put_velocity(self, message: aiomqtt.Message) -> bool:
+    def put_velocity(
+        self, message: aiomqtt.Message, since: float | None = None, *, neutral: bool = False
+    ) -> bool:
+        """Put ``message`` in the velocity slot (a command there before is superseded);
+        ``since``: the ``time.monotonic()`` it was given by at the latest (default:
+        now); ``neutral``: it is a zero. True if the slot was empty."""
         new = self.velocity is None
         if not new:
             self.superseded += 1
+            self.neutral_passed |= self._velocity_neutral
         self.velocity = message
+        self._velocity_neutral = neutral
         self._velocity_epoch = self.epoch
+        self._velocity_since = time.monotonic() if since is None else since
         return new
 
     def current(self, message: aiomqtt.Message) -> bool:
@@ -68,16 +91,11 @@ class Lanes:
         taken = self._taken
         return taken is not None and taken[0] is message and taken[1] == self.epoch
 
-    def put_back(self, message: aiomqtt.Message) -> None:
-        """Return a velocity command taken out by ``pop()`` to its slot, to wait there
-        for its period: dropped if a stop or e-stop came after it (paho sorted one
-        while it was out of the slot, so the stop could not cancel it), or if a newer
-        velocity command is in the slot already."""
-        if self.velocity is not None or not self.current(message):
-            self.superseded += 1
-            return
-        self.velocity = message
-        self._velocity_epoch = self.epoch
+    def since(self, message: aiomqtt.Message) -> float:
+        """When ``message``, the velocity command last taken out by ``pop()``, was
+        given at the latest (``time.monotonic()``; now if it is not that command)."""
+        taken = self._taken
+        return taken[2] if taken is not None and taken[0] is message else time.monotonic()
 
     def put_urgent(self, kind: str, message: aiomqtt.Message) -> bool:
         self.epoch += 1  # a velocity command out of its slot now cannot act either
@@ -114,7 +132,7 @@ class Lanes:
             return self.urgent.popleft()[1]
         message, self.velocity = self.velocity, None
         assert message is not None  # asyncio.Queue gets only when len() > 0
-        self._taken = (message, self._velocity_epoch)
+        self._taken = (message, self._velocity_epoch, self._velocity_since)
         return message
 
     def clear(self) -> None:
@@ -135,6 +153,82 @@ class Lanes:
         self.superseded += len(self.urgent) - len(kept)
         self.urgent.clear()
         self.urgent.extend(kept)
+
+
+class PathProbe:
+    """How long the broker -> bridge path has been holding what it carries, without
+    the senders' clocks: the bridge publishes a small probe to itself through the
+    broker every `period` (`send`), and tells this when one comes back (`back`).
+
+    The broker sends one subscriber its messages in the order it routed them, so a
+    message that arrives while a probe is still out was routed before that probe (which
+    reached the broker about when it was sent): it is at least as old as that probe.
+    `held` is that age for a message arriving now: the time since the oldest probe
+    still out was due (or since the next probe was due, if the probing itself is late:
+    the bridge's loop was held up). Sans-IO: an injected clock, no I/O.
+
+    Args:
+        period: Seconds between two probes.
+        keep: Seconds of probes kept out (older ones are forgotten: one probe out
+            longer than ``keep`` says as much as many).
+        clock: Monotonic clock (``time.monotonic`` by default).
+    """
+
+    def __init__(
+        self, period: float, keep: float, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.period = period
+        self.keep = keep
+        self._clock = clock
+        #: Probes out, oldest first: (number, when it was due).
+        self._out: deque[tuple[int, float]] = deque()
+        self._sent = 0
+        self._due: float | None = None
+        #: Probes that came back.
+        self.returned = 0
+
+    def due(self) -> float | None:
+        """When the next probe is due (``None`` before `start`)."""
+        return self._due
+
+    def start(self) -> None:
+        """Probing begins: the first probe is due now."""
+        self._due = self._clock()
+        self._out.clear()
+
+    def send(self) -> int:
+        """A probe goes out now; returns its number (to put in its payload)."""
+        now = self._clock()
+        due = now if self._due is None else min(self._due, now)
+        out = self._out
+        while out and out[0][1] < now - self.keep:
+            out.popleft()
+        self._sent += 1
+        out.append((self._sent, due))
+        self._due = now + self.period
+        return self._sent
+
+    def back(self, number: int) -> bool:
+        """Probe ``number`` came back: it and every probe before it are in (one lost
+        by the way is settled by any after it). False if it is none of those out."""
+        out = self._out
+        if not out or not out[0][0] <= number <= out[-1][0]:
+            return False
+        while out and out[0][0] <= number:
+            out.popleft()
+        self.returned += 1
+        return True
+
+    def held(self) -> float:
+        """How long, at least, a message arriving now has been on its way (s); 0 when
+        no probe is out and the probing is on time (or has not started)."""
+        now = self._clock()
+        since = now
+        if self._out:
+            since = self._out[0][1]
+        if self._due is not None:
+            since = min(since, self._due)
+        return max(0.0, now - since)
 
 
 class CommandInbox(asyncio.Queue[aiomqtt.Message]):

@@ -60,6 +60,7 @@ from ..core.plain import outbound, plain
 from ..core.supervisor import ConnectionState
 from ..errors import ChassisError, ConnectionLostError, NotConnectedError
 from .inbound import RefusalReport, Refusals
+from .mqtt_inbox import PathProbe
 
 if TYPE_CHECKING:
     from .mqtt import MqttBridge
@@ -194,6 +195,9 @@ class Publisher:
         self.telemetry_skipped = 0
         # When the slots began to be skipped (None: the last slot was sent).
         self._stalled_since: float | None = None
+        #: The probe of the broker -> bridge path whose probes `run` sends (``None``:
+        #: none, a read-only bridge).
+        self.probe: PathProbe | None = None
 
     async def publish(
         self,
@@ -300,6 +304,9 @@ class Publisher:
             await self.publish("link", state_payload(state), qos=1, retain=True)
             period = 1.0 / bridge.rate
             due = anyio.current_time() + slot_phase(bridge.topic, period)
+            probe = self.probe
+            if probe is not None:
+                probe.start()
             while True:
                 # Cleared before the queues are read: whatever arrives from here on
                 # (also while publishing) wakes the wait below.
@@ -312,7 +319,12 @@ class Publisher:
                     due = next_slot(due, period, now)
                     self._publish_latest()
                     continue
-                with anyio.move_on_after(due - now):
+                wait = due - now
+                if probe is not None:
+                    # Between two telemetry slots, so that the slot after it finds the
+                    # probe written (a slot finding packets unwritten is skipped).
+                    wait = min(wait, self._send_probe(probe))
+                with anyio.move_on_after(wait):
                     await self._wake.wait()
 
     async def _publish_queued(self) -> None:
@@ -370,6 +382,18 @@ class Publisher:
                 body.update(battery_fields(bridge.device))
             messages.append((f"{bridge.topic}/telemetry/{stream}", json.dumps(body).encode()))
         send_latest(client, messages)
+
+    def _send_probe(self, probe: PathProbe) -> float:
+        """Send the probe to the bridge itself if it is due (QoS 0, not retained, handed
+        to the client as telemetry is); return the seconds until the next is due."""
+        due = probe.due()
+        left = 0.0 if due is None else due - time.monotonic()
+        if left > 0:
+            return left
+        bridge = self._bridge
+        payload = json.dumps({"owner": bridge.owner, "probe": probe.send()}).encode()
+        send_latest(bridge.client, [(f"{bridge.topic}/probe", payload)])
+        return probe.period
 
     # --- what was refused ----------------------------------------------------------------
 
