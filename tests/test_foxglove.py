@@ -329,13 +329,20 @@ async def test_foxglove_client_sees_streams_calls_services_and_drives(tmp_path: 
         assert (await client.call("release_emergency_stop"))["success"]
         await until(lambda: not sim.firmware.software_estop, 1.0)
         assert (await client.call("clear_faults"))["success"]
-        # The panel going away stops the robot at once, not at the deadman.
+        # Releasing the e-stop restarts nothing: the client streams, so it must send a
+        # zero (neutral) before it drives again (the joystick rule).
+        await client.publish(1, _twist(0.2, 0.0))
+        await until(lambda: server.rejected == 1, 1.0)
+        assert not any(sim.firmware.target)
+        await client.publish(1, _twist(0.0, 0.0))
         await client.publish(1, _twist(0.2, 0.0))
         await _moving(sim, True, 2.0)
+        # The panel going away stops the robot at once, not at the deadman.
         await client.unadvertise(1)
         assert await _moving(sim, False, 0.2) < 0.2
-        assert server.commands >= 8
-        assert server.rejected == 0
+        assert server.commands >= 9
+        assert server.rejected == 1
+        assert any("neutral" in s["message"] for s in client.statuses)
     channels, _ = summary(tmp_path / "live.mcap")
     assert channels["/chassis/telemetry"][3] >= 50
     assert channels["/chassis/commands"][3] > 0

@@ -12,6 +12,7 @@ import logging
 import os
 import signal
 import socket
+import struct
 import sys
 import time
 from collections.abc import AsyncIterator
@@ -23,12 +24,13 @@ import pytest
 from websockets.exceptions import InvalidStatus
 
 from chassis_sdk import Chassis
+from chassis_sdk.core.motion import WRITE_PERIOD
 from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
 from .support.cli import cli, running
-from .support.foxglove_client import FoxgloveClient
+from .support.foxglove_client import _SERVICE_CALL, FoxgloveClient
 from .support.helpers import drives, until
 
 pytestmark = pytest.mark.timeout(60)
@@ -434,17 +436,122 @@ async def test_a_flood_of_twists_is_state_not_a_queue() -> None:
         for i in range(n - 1):
             await client.publish(1, twist(0.1 + 0.3 * (i % 2)))
         await client.publish(1, twist(0.25))
-        await until(lambda: server.commands + server.superseded == n, 10.0)
+        await until(lambda: server.commands == n, 10.0)
         await until(lambda: robot.commanded_velocity == (0.25, 0.0), 1.0)
         # A stop right after the flood is not behind it.
         start = time.monotonic()
         assert (await client.call("stop"))["success"]
         await moving(sim, False, 0.5)
         print(
-            f"\n{n} Twists: {server.commands} handed over, {server.superseded} superseded; "
+            f"\n{n} Twists: {server.commands} taken, {len(drives(sim))} velocity frames; "
             f"stop in {(time.monotonic() - start) * 1000:.1f} ms"
         )
         assert server.rejected == 0
+
+
+def _frames(sim: ChassisSimulator, since: float) -> list[tuple[float, DriveVelocity]]:
+    """The velocity frames the simulated chassis read from ``since`` (monotonic), timed."""
+    return [(t, c) for t, c in sim.firmware.received if isinstance(c, DriveVelocity) and t >= since]
+
+
+@pytest.mark.integration
+@pytest.mark.timing
+async def test_a_twist_flood_reaches_the_wire_at_most_once_per_write_period() -> None:
+    """2,000 Twists a second for a second: the core writes the newest at most once per
+    `WRITE_PERIOD` (about 50 frames a second), not one frame per Twist."""
+    rate, seconds = 2000, 1.0
+    async with (
+        served(command_timeout=5.0) as (sim, robot, server),
+        FoxgloveClient(server.url) as client,
+    ):
+        await teleop(client)
+        start = time.monotonic()
+        sent = 0
+        while (elapsed := time.monotonic() - start) < seconds:
+            while sent < elapsed * rate:
+                await client.publish(1, twist(0.1 + 0.1 * (sent % 2)))
+                sent += 1
+            await asyncio.sleep(0.001)  # paces the sender, not a wait for the server
+        await client.publish(1, twist(0.25))
+        sent += 1
+        await until(lambda: robot.commanded_velocity == (0.25, 0.0), 10.0)
+        await until(lambda: _frames(sim, start)[-1][1].linear_mm == 250, 1.0)
+        end = time.monotonic()
+        frames = _frames(sim, start)
+        span = frames[-1][0] - frames[0][0]
+        per_second = len(frames) / (end - start)
+        print(f"\n{sent} Twists in {end - start:.2f} s: {len(frames)} velocity frames "
+              f"({per_second:.0f} a second)")  # fmt: skip
+        assert sent > 0.9 * rate * seconds
+        # A frame may come WRITE_JITTER early, but the rate holds: one per period.
+        assert len(frames) <= span / WRITE_PERIOD + 2, (len(frames), span)
+        assert per_second <= 51 + 2 / (end - start), per_second
+        assert server.rejected == 0
+        assert server.commands == sent  # each one taken: velocity is state
+
+
+async def call_in_this_step(client: FoxgloveClient, service: str) -> asyncio.Future[bytes]:
+    """Send a service call now, without giving the event loop a turn first (as
+    `FoxgloveClient.call` does); the future gets the response."""
+    spec = client.services[service]
+    call = client._next_call
+    client._next_call += 1
+    future: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
+    client._calls[call] = future
+    await client.send_raw(struct.pack("<BIII", _SERVICE_CALL, spec["id"], call, 4) + b"json{}")
+    return future
+
+
+@pytest.mark.integration
+@pytest.mark.timing
+@pytest.mark.parametrize("service", ["stop", "emergency_stop"])
+async def test_a_twist_sent_just_before_a_stop_is_never_written_after_it(service: str) -> None:
+    """The stop (or e-stop) service acts at once: a Twist sent just before it, still on
+    its way to the device when the call comes, is never written after its zero."""
+    stopped = DriveVelocity(0, 0.0)
+    async with (
+        served(command_timeout=5.0) as (sim, robot, server),
+        FoxgloveClient(server.url) as client,
+    ):
+        await teleop(client)
+        await client.wait_for(lambda: service in client.services)
+        for _ in range(3):
+            await client.publish(1, twist(0.0))  # the neutral owed after an e-stop
+            await client.publish(1, twist(0.1))
+            await moving(sim, True, 2.0)
+            start = time.monotonic()
+            # A loaded event loop (an application's slow callbacks) while a Teleop
+            # client streams: the server's threads take each Twist meanwhile and hand
+            # it over; the loop gets a turn in between.
+            await client.publish(1, twist(0.2))
+            time.sleep(0.05)
+            await asyncio.sleep(0)
+            await client.publish(1, twist(0.3))  # the last Twist, then at once the call
+            call = await call_in_this_step(client, service)
+            time.sleep(0.05)
+            resumed = time.monotonic()
+            assert json.loads(await asyncio.wait_for(call, 5.0))["success"]
+            took = time.monotonic() - resumed
+            since = start
+
+            def frames() -> list[DriveVelocity]:
+                return [c for _, c in _frames(sim, since)]  # noqa: B023
+
+            await until(lambda: stopped in frames(), 1.0)
+            # The stop's zero (by its place: frames read in one chunk share a time).
+            zero = frames().index(stopped)
+
+            def moved_after_the_zero() -> bool:
+                return any(c.linear_mm for c in frames()[zero + 1 :])  # noqa: B023
+
+            # Whatever was queued before the stop would be written within a period.
+            with pytest.raises(TimeoutError):
+                await until(moved_after_the_zero, 0.2)
+            assert not any(sim.firmware.target)
+            assert robot.commanded_velocity is None
+            print(f"\n{service} answered {took * 1000:.1f} ms after the loop was free")
+            if service == "emergency_stop":
+                await robot.release_emergency_stop()
 
 
 # --- the CLI ---------------------------------------------------------------------------------
@@ -784,8 +891,7 @@ async def test_a_new_run_forgets_the_last_ones_clients_and_secret() -> None:
             assert server._secret != secret
             assert not server._fronted
             assert not server._teleop
-            assert server._pending is None
-            assert not server._driving
+            assert not server._sources
             front = server._front
             assert front is not None
             async with FoxgloveClient(front._backend_url) as sneak:

@@ -271,6 +271,32 @@ async def test_stale_stamped_commands_are_refused() -> None:
 
 @pytest.mark.integration
 @pytest.mark.ros2
+@pytest.mark.timing
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_a_stamped_command_holds_only_what_is_left_of_the_timeout() -> None:
+    """A TwistStamped 0.6 s old, with a 1 s command_timeout, holds 0.4 s (then zero),
+    not a full second from when it arrived."""
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, stamped=True, command_timeout=1.0) as (b, _),
+    ):
+        g = Graph()
+        w = g.writer("rt/cmd_vel", m.TwistStamped, reliable=True)
+        await matched(g, "rt/cmd_vel")
+        aged = m.TwistStamped(header=m.Header(stamp=m.stamp(time.time() - 0.6)), twist=twist(0.3))
+        w.write(aged)
+        await until(lambda: any(c.linear_mm == 300 for _, c in drives(sim)), 2.0)
+        moved = next(t for t, c in drives(sim) if c.linear_mm == 300)
+        await until(lambda: drives(sim)[-1][1] == DriveVelocity(0, 0.0), 2.0)
+        held = drives(sim)[-1][0] - moved  # timed by the frames' own arrival
+        assert 0.3 < held < 0.4 + 0.1, held
+        assert b.commands == 1
+
+
+@pytest.mark.integration
+@pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
 async def test_emergency_stop_engages_refuses_velocity_and_releases() -> None:
@@ -286,9 +312,39 @@ async def test_emergency_stop_engages_refuses_velocity_and_releases() -> None:
         await until(lambda: b.refused == 1, 2.0)
         stop.write(m.Bool(data=False))
         await until(lambda: not sim.firmware.software_estop, 2.0)
+        # Releasing restarts nothing: cmd_vel streams, so it sends a zero first.
+        cmd.write(twist(0.15))
+        await until(lambda: b.refused == 2, 2.0)
+        assert not any(c.linear_mm for _, c in drives(sim))
+        cmd.write(twist(0.0))
         cmd.write(twist(0.15))
         await until(lambda: any(c.linear_mm == 150 for _, c in drives(sim)), 2.0)
         assert not any(c.linear_mm == 300 for _, c in drives(sim))
+
+
+@pytest.mark.integration
+@pytest.mark.ros2
+@pytest.mark.netns
+@pytest.mark.timeout(60)
+async def test_emergency_stop_on_a_device_without_one_blocks_motion_until_released() -> None:
+    async with BoardSimulator() as sim, Board(sim.port) as board, bridged(board) as (b, _):
+        g = Graph()
+        stop = g.writer("rt/emergency_stop", m.Bool, reliable=True)
+        cmd = g.writer("rt/cmd_vel", m.Twist, reliable=True)
+        await matched(g, "rt/emergency_stop")
+        await matched(g, "rt/cmd_vel")
+        stop.write(m.Bool(data=True))
+        await until(lambda: board.motion.blocks == ("SOFTWARE_ESTOP",), 2.0)
+        await until(lambda: b.refused == 1, 2.0)  # "has no e-stop": reported
+        cmd.write(twist(0.3))
+        await until(lambda: b.refused == 2, 2.0)  # blocked by the core
+        assert board.commanded_velocity is None
+        stop.write(m.Bool(data=False))
+        await until(lambda: not board.motion.blocks, 2.0)
+        cmd.write(twist(0.0))
+        cmd.write(twist(0.2))
+        await until(lambda: board.commanded_velocity == (0.2, 0.0), 2.0)
+        assert b.refused == 2
 
 
 @pytest.mark.integration

@@ -23,6 +23,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 
 from chassis_sdk import Chassis
+from chassis_sdk.core.motion import WRITE_PERIOD
 from chassis_sdk.integrations.ros2_dds import Discovery
 from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.sim import ChassisSimulator
@@ -199,7 +200,10 @@ async def test_a_flood_of_valid_commands_reaches_the_line_at_most_once_per_20_ms
             took = time.monotonic() - started
         sent = int(line.split()[1])
         assert sent > 1000, line  # a flood
-        assert bridge.commands <= took / 0.02 + 5, (bridge.commands, took)
-        assert bridge.superseded > 0
+        # The bridge hands every sample to the core; the core writes (resends included)
+        # at most one velocity frame per WRITE_PERIOD.
+        written = len(drives(sim, started))
+        assert written <= took / WRITE_PERIOD + 5, (written, took)
+        assert bridge.commands > written, (bridge.commands, written)  # the newest won
         assert heart.max_gap < 0.1, heart.max_gap
         assert {c.linear_mm for _, c in drives(sim)} <= {0, 100, 200}

@@ -7,11 +7,14 @@ streams, odometry pose and ``/tf``, events, link state, raw bytes), and the app 
   ``clear_faults`` (those the device has; ``std_srvs/Trigger``-shaped JSON: the
   response is ``{"success": bool, "message": str}``);
 * drive from the **Teleop** panel: a client channel whose schema is
-  ``geometry_msgs/Twist`` (or ``geometry_msgs/msg/Twist``), JSON-encoded, becomes
-  ``set_velocity(linear.x, angular.z)`` under the device's deadman: when the panel stops
-  publishing, the robot stops within ``command_timeout``; when the panel's channel goes
-  away (the app closes, the network drops) or is advertised again as something else
-  than a Twist, it stops at once.
+  ``geometry_msgs/Twist`` (or ``geometry_msgs/msg/Twist``), JSON-encoded, makes its
+  client a source of the device's motion core (kind ``"foxglove"``, streaming), and each
+  Twist a velocity ``(linear.x, angular.z)`` offered to it under the device's deadman:
+  the core writes the newest at most once per ``WRITE_PERIOD``, refuses it while motion
+  is blocked or another source drives, and after an e-stop wants a zero first. When the
+  panel stops publishing, the robot stops within ``command_timeout``; when the panel's
+  channel goes away (the app closes, the network drops) or is advertised again as
+  something else than a Twist, it stops at once if that client was driving.
 
 A message that is not a well-formed Twist of finite numbers (read strictly by
 `chassis_sdk.integrations.inbound.command_object`: UTF-8 only, no duplicate keys, bounded
@@ -65,6 +68,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import functools
 import hmac
 import json
 import logging
@@ -80,12 +84,12 @@ import anyio
 import anyio.to_thread
 
 from ..core.device import Device
+from ..core.motion import MotionSource
 from ..errors import ChassisError
 from ..recording.mcap import McapRecording
 from ..recording.sink import FoxgloveSink
 from .foxglove_front import (
     APP_ORIGINS,
-    FRONT_TIMEOUT,
     HELLO_ID,
     HELLO_TOPIC,
     MAX_CLIENT_CHANNELS,
@@ -228,13 +232,9 @@ class FoxgloveServer:
 
     @property
     def commands(self) -> int:
-        """Velocity commands taken from clients and handed to the device."""
+        """Velocity commands from clients taken by the device's motion core (it writes
+        the newest at most once per ``WRITE_PERIOD``)."""
         return self._channels.commands
-
-    @property
-    def superseded(self) -> int:
-        """Velocity commands replaced by a newer one before they were handed over."""
-        return self._channels.superseded
 
     @property
     def port(self) -> int:
@@ -250,8 +250,7 @@ class FoxgloveServer:
     # The clients' state, kept readable by its former names (the tests look at it).
     _teleop = property(lambda self: self._channels.teleop)
     _fronted = property(lambda self: self._channels.fronted)
-    _pending = property(lambda self: self._channels.pending)
-    _driving = property(lambda self: self._channels.driving)
+    _sources = property(lambda self: self._channels.sources)
 
     async def __aenter__(self) -> Self:
         self.start()
@@ -392,33 +391,39 @@ class FoxgloveServer:
 class _Channels:
     """The clients' channels: the front's proof that a client came through it, and
     the Teleop panel's (a client channel of JSON Twists, each a velocity under the
-    device's deadman, handed to the device one at a time, the newest).
+    device's deadman).
 
-    Its callbacks come from foxglove-sdk's threads; the device is called in the event
-    loop. It reads the server's ``device`` and ``read_only`` as they are when it acts.
+    Each Teleop client is a source of its own in the device's motion core (kind
+    ``"foxglove"``, streaming), made when it advertises a Twist channel and closed when
+    its last one goes away: the core paces what is written (the newest, at most once
+    per ``WRITE_PERIOD``), arbitrates between the clients and the other surfaces, and
+    refuses velocity while motion is blocked.
+
+    Its callbacks come from foxglove-sdk's threads: they check and parse there, then hand
+    each Twist to the event loop (``call_soon_threadsafe``, in the order they came), where
+    its client's source takes it. A stop or e-stop service is handed over the same way,
+    after the Twists that came before it, so none of them is written after its zero.
+    It reads the server's ``device`` and ``read_only`` as they are when it acts.
     """
 
     def __init__(self, owner: FoxgloveServer, reports: Reports, secret: str) -> None:
         self._owner = owner
         self._reports = reports
-        # Callbacks come from foxglove-sdk's threads, the front's and the event loop's.
+        # Guards what foxglove-sdk's threads, the front's and the loop share: the
+        # channels taken and the clients proven.
         self._lock = threading.Lock()
-        #: Velocity commands taken from clients and handed to the device.
+        #: Velocity commands taken by the motion core from clients.
         self.commands = 0
-        #: Velocity commands replaced by a newer one before they were handed over.
-        self.superseded = 0
         #: The event loop the server runs in (set by :meth:`reset`).
         self.loop: asyncio.AbstractEventLoop | None = None
         self._secret = secret
         self.teleop: dict[tuple[int, int], str] = {}  # (client id, channel id) -> topic
         self.fronted: set[int] = set()  # client ids proven to come through the front
-        # Velocity is state: the newest command not yet handed to the device, and
-        # whether a hand-over is queued or running (then no other is queued).
-        self.pending: tuple[float, float] | None = None
-        self.driving = False
+        # In the loop only: each Teleop client's source, and its channels that drive.
+        self.sources: dict[int, MotionSource] = {}
+        self._live: dict[int, set[int]] = {}
         # Set on leaving: no Twist is taken any more (the robot has been stopped).
         self._closing = False
-        self.handing: asyncio.Future[None] | None = None  # the hand-over running
 
     def reset(self, loop: asyncio.AbstractEventLoop, secret: str) -> None:
         """Fresh per-run state, for a server in ``loop`` whose front proves itself with
@@ -427,46 +432,35 @@ class _Channels:
         with self._lock:
             self.teleop = {}
             self.fronted = set()
-            self.pending = None
-            self.driving = False
             self._closing = False
-        self.handing = None
+        self._close_sources()  # a last run's (left by `stop`, not closed in its loop)
         self._secret = secret
 
-    def end(self) -> bool:
-        """Take no more Twists; whether a Teleop client was driving (or about to)."""
+    def end(self) -> None:
+        """Take no more Twists."""
         with self._lock:
             self._closing = True
-            driving = bool(self.teleop) or self.pending is not None or self.driving
             self.teleop.clear()
-            self.pending = None
-        return driving
 
     async def close(self) -> None:
-        """`end`; if a Teleop client was driving, stop the robot now."""
-        if self.end() and not self._owner.read_only:
-            await self._stop_robot()
-            handing = self.handing
-            if handing is not None and not handing.done():
-                # A velocity handed over just before may land after that zero: wait
-                # for it (bounded), then zero again.
-                with anyio.move_on_after(FRONT_TIMEOUT), contextlib.suppress(Exception):
-                    await asyncio.shield(handing)  # waited for, never cancelled
-                await self._stop_robot()
+        """`end`, and close every client's source (in the loop): the robot stops now
+        if one of them was driving."""
+        self.end()
+        self._close_sources()
+        await anyio.lowlevel.checkpoint()
 
     def close_soon(self) -> None:
-        """`end`; if a Teleop client was driving, queue a stop in the loop."""
-        if self.end() and not self._owner.read_only:
-            self._in_loop(self._stop_now)
+        """`end`, and queue the closing of the clients' sources in the loop."""
+        self.end()
+        self._in_loop(self._close_sources)
 
-    async def _stop_robot(self) -> None:
-        device = self._owner.device
-        if not device.is_connected:
-            return
-        # A link that just dropped (or a stop that cannot be written at once) is no
-        # reason to stay: the device's own deadman goes on meanwhile.
-        with anyio.move_on_after(FRONT_TIMEOUT), contextlib.suppress(ChassisError):
-            await device.stop()
+    def _close_sources(self) -> None:
+        """(In the loop.) Close every client's source: one that was driving stops the
+        robot (quietly if the port is closed)."""
+        sources, self.sources = self.sources, {}
+        self._live = {}
+        for source in sources.values():
+            source.close()
 
     # --- client publishing (the server's threads) ----------------------------------------
 
@@ -529,6 +523,7 @@ class _Channels:
                 if self._closing:
                     return  # leaving: the robot has been stopped
                 self.teleop[key] = shown(channel.topic)
+            self._in_loop(functools.partial(self._opened, key))
             _log.info("client %d drives on %s", client.id, shown(channel.topic))
             return
         else:
@@ -546,16 +541,17 @@ class _Channels:
         self._drop_teleop((client.id, client_channel_id))
 
     def _drop_teleop(self, key: tuple[int, int]) -> None:
-        """The channel no longer drives: if it did, stop now, not at the deadman."""
+        """The channel no longer drives: if its client was driving, stop now, not at
+        the deadman (in the loop, after the Twists that came before)."""
         with self._lock:
             if self.teleop.pop(key, None) is None:
                 return
-            self.pending = None  # a command not yet handed over never will be
-        self._in_loop(self._stop_now)
+        self._in_loop(functools.partial(self._dropped, key))
 
     def _message(self, client: Any, client_channel_id: int, data: bytes) -> None:
+        key = (client.id, client_channel_id)
         with self._lock:
-            topic = self.teleop.get((client.id, client_channel_id))
+            topic = self.teleop.get(key)
         if topic is None:
             self._reports.refuse(f"channel {client_channel_id}", "a message on a channel not taken")
             return
@@ -564,16 +560,9 @@ class _Channels:
         except CommandError as exc:
             self._reports.refuse(f"velocity on {topic}", str(exc))
             return
-        with self._lock:
-            if self._closing or (client.id, client_channel_id) not in self.teleop:
-                return  # leaving, or the channel went away meanwhile: it never drives
-            if self.pending is not None:
-                self.superseded += 1
-            self.pending = (linear, angular)
-            if self.driving:
-                return  # the hand-over queued or running takes the newest when it runs
-            self.driving = True
-        self._in_loop(self._hand_over)
+        # Every Twist to the loop, in order: there the core keeps the newest and
+        # writes it at most once per period.
+        self._in_loop(functools.partial(self._velocity, key, topic, linear, angular))
 
     def _in_loop(self, callback: Callable[[], None]) -> None:
         loop = self.loop
@@ -585,38 +574,56 @@ class _Channels:
         try:
             callback()
         except Exception as exc:
-            self._reports.failed(getattr(callback, "__name__", "callback"), exc)
+            name = getattr(getattr(callback, "func", callback), "__name__", "callback")
+            self._reports.failed(name, exc)
 
     # --- in the event loop ---------------------------------------------------------------
 
-    def _hand_over(self) -> None:
-        """Hand the newest pending velocity to the device: one at a time, so a flood of
-        Twists never queues work in the loop (only the newest pending one counts)."""
-        with self._lock:
-            target = self.pending
-            self.pending = None
-            if target is None:
-                self.driving = False
-                return
-        linear, angular = target
-        task = asyncio.ensure_future(self._owner.device.set_velocity(linear, angular))
-        self.handing = task
+    def _opened(self, key: tuple[int, int]) -> None:
+        """A Twist channel was taken: its client's source, made with the first one."""
+        if self._closing:
+            return
+        client_id, channel_id = key
+        if client_id not in self.sources:
+            self.sources[client_id] = self._owner.device.motion.source(
+                f"foxglove client {client_id}", kind="foxglove", streaming=True
+            )
+        self._live.setdefault(client_id, set()).add(channel_id)
 
-        def done(task: asyncio.Future[None]) -> None:
-            if not task.cancelled():
-                exc = task.exception()
-                if exc is None:
-                    with self._lock:
-                        self.commands += 1
-                else:
-                    self._reports.refuse(f"velocity ({linear}, {angular})", f"refused: {exc}")
-            self._guarded(self._hand_over)  # the next newest, if one came meanwhile
+    def _dropped(self, key: tuple[int, int]) -> None:
+        """A Twist channel went away: the robot stops now if its client drove; the
+        client's source is closed with its last channel."""
+        client_id, channel_id = key
+        live = self._live.get(client_id)
+        source = self.sources.get(client_id)
+        if live is None or source is None:
+            return
+        live.discard(channel_id)
+        if not live:
+            del self._live[client_id], self.sources[client_id]
+            source.close()  # stops the robot if this client was driving
+        elif source.driving:
+            with contextlib.suppress(ChassisError):
+                source.stop()
 
-        task.add_done_callback(done)
-
-    def _stop_now(self) -> None:
-        if self._owner.device.is_connected:
-            asyncio.ensure_future(self._owner.device.stop()).add_done_callback(_ignore_result)
+    def _velocity(self, key: tuple[int, int], topic: str, linear: float, angular: float) -> None:
+        """One Twist, offered to its client's source (the core paces the writes)."""
+        client_id, channel_id = key
+        source = self.sources.get(client_id)
+        if self._closing or source is None or channel_id not in self._live.get(client_id, ()):
+            return  # leaving, or the channel went away meanwhile: it never drives
+        try:
+            refusal = source.set_velocity(linear, angular)
+        except ValueError as exc:  # out of the device's range: refused, not written
+            self._reports.refuse(f"velocity on {topic}", str(exc))
+            return
+        except ChassisError as exc:  # not connected: this command is lost
+            self._reports.refuse(f"velocity on {topic}", f"not written: {exc}")
+            return
+        if refusal is not None:
+            self._reports.refuse(f"velocity on {topic}", f"refused: {refusal.detail}")
+            return
+        self.commands += 1
 
 
 class _Services:
@@ -692,11 +699,6 @@ class _Services:
         except Exception as exc:  # the device's own error, for the app to show
             return False, str(exc) or type(exc).__name__
         return True, "done"
-
-
-def _ignore_result(task: asyncio.Future[None]) -> None:
-    if not task.cancelled():
-        task.exception()  # retrieved: a stop on a link that just dropped is no news
 
 
 def _twist(data: bytes) -> tuple[float, float]:

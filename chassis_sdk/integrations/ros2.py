@@ -30,14 +30,20 @@ It keeps the contract of every surface that can move the robot (the MQTT bridge'
   robot stops, unless a newer sample came; a writer that stays alive and silent stops
   the robot within the deadman, and when no ``cmd_vel`` writer is left (DDS tells the
   reader: liveliness and matching) the robot stops at once;
-- velocity is state, not a queue: of what arrived, only the newest sample counts, and
-  at most one command per 20 ms reaches the serial line;
+- velocity is state, not a queue: every valid sample goes to the device's motion core
+  as the bridge's one source (kind ``"ros2"``: DDS does not tell its writers apart
+  cheaply, so every ``cmd_vel`` writer is that one source); the core writes the newest
+  at most once per ``WRITE_PERIOD`` (20 ms), and a stamped sample holds only for what
+  is left of ``command_timeout`` after its stamp;
 - a sample that is non-finite, out of the device's range, stamped older than the
   deadman, or that will not decode is refused, counted and reported in the log (the
   first at once, then at most one summary a second) and in ``/diagnostics``: never
   acted on, and nothing a sample holds can end the bridge;
-- ``emergency_stop`` never waits behind velocity, and while it is engaged velocity is
-  refused; ``read_only`` subscribes to nothing and never writes to the device;
+- ``emergency_stop`` never waits behind velocity, and while it is engaged the motion
+  core refuses velocity (from every source); once released, ``cmd_vel`` must send a
+  zero before it drives again (the core's rule for a streaming source: releasing an
+  e-stop restarts nothing); ``read_only`` subscribes to nothing and never writes to the
+  device;
 - the bridge ending, for any reason, stops the robot (then its DDS endpoints are
   deleted, so peers learn at once that it is gone);
 - stamps are wall-clock time.
@@ -70,6 +76,7 @@ import anyio
 from cyclonedds.core import DDSException
 
 from ..core.device import Device
+from ..core.motion import MotionSource
 from ..core.notifier import Notifier
 from ..core.supervisor import ConnectionState
 from ..core.validation import check_real
@@ -82,8 +89,6 @@ from .ros2_dds import Discovery, Participant, Reader, Writer, discovery_from_env
 __all__ = ["Ros2Bridge", "StaticTransform"]
 
 _log = logging.getLogger("chassis_sdk.integrations.ros2")
-#: Least seconds between two velocity commands written (the newest in between counts).
-_VELOCITY_PERIOD = 0.02
 #: The longest a ``diagnose()`` may take before the status says so.
 _DIAGNOSE_TIMEOUT = 2.0
 
@@ -181,14 +186,15 @@ class Ros2Bridge:
         self._refusals = Refusals(1.0)
         self._cmd: Reader[Any] | None = None
         self._estop: Reader[Any] | None = None
-        self._estop_engaged = False
+        # A device without an e-stop of its own: the e-stop topic blocks motion in the
+        # core while engaged (this bridge's block, cleared when it ends).
+        self._estop_block = False
         self._stop_now = False
         #: Set once the DDS endpoints exist (the bridge is on the graph).
         self.started = anyio.Event()
-        #: Velocity commands written to the device.
+        #: ``cmd_vel`` samples taken by the device's motion core (it writes the newest
+        #: at most once per ``WRITE_PERIOD``).
         self.commands = 0
-        #: Samples made moot by a newer one before they were written.
-        self.superseded = 0
         #: Stops because the last ``cmd_vel`` writer went away.
         self.writer_gone_stops = 0
         #: Odometry messages published.
@@ -253,6 +259,9 @@ class Ros2Bridge:
             notifier.close()  # nothing more is queued
             with anyio.CancelScope(shield=True):
                 await self._stop_robot()
+            if self._estop_block:
+                self._estop_block = False
+                self.device.motion.set_blocks(self._block_origin, ())
             participant.close()
 
     def _setup(
@@ -308,91 +317,88 @@ class Ros2Bridge:
         which then wakes the command loop)."""
         self._stop_now = True
 
-    def _velocity_of(self, sample: Any) -> tuple[float, float]:
+    def _velocity_of(self, sample: Any) -> tuple[float, float, float]:
+        """``(linear, angular, age)`` of a sample: its age (s) from its stamp, 0 if none."""
         twist = sample.twist if self.stamped else sample
+        age = 0.0
         if self.stamped:
             stamp = sample.header.stamp
             if stamp.sec or stamp.nanosec:  # an unset stamp is no stamp
-                check_fresh(stamp.sec + stamp.nanosec * 1e-9, self.command_timeout)
+                age = check_fresh(stamp.sec + stamp.nanosec * 1e-9, self.command_timeout)
         linear, angular = float(twist.linear.x), float(twist.angular.z)
         if not (math.isfinite(linear) and math.isfinite(angular)):
             raise CommandError(f"linear.x and angular.z must be finite, got {linear}, {angular}")
-        if self._estop_engaged:
-            raise CommandError("the emergency stop is engaged: release it first")
         if self.max_linear is not None:
             linear = max(-self.max_linear, min(self.max_linear, linear))
         if self.max_angular is not None:
             angular = max(-self.max_angular, min(self.max_angular, angular))
-        return linear, angular
+        return linear, angular, max(0.0, age)  # a stamp just ahead (within the skew): now
 
     async def _commands(self, reader: Reader[Any]) -> None:
-        """Act on ``cmd_vel``: the newest valid sample, at most one per period; a stop at
-        once when the last writer leaves (the reader wakes this loop for both)."""
+        """Act on ``cmd_vel``: each valid sample to the motion core through the bridge's
+        one source (the core paces the writes and keeps the newest); a stop at once when
+        the last writer leaves, if ``cmd_vel`` was driving (the reader wakes this loop for
+        both)."""
         where = TOPICS["cmd_vel"].qualified(self.namespace)
-        next_write = -math.inf
-        pending: tuple[float, float] | None = None
-        while True:
-            wait = next_write - anyio.current_time()
-            if pending is None:
+        source = self.device.motion.source(f"ros2 {where}", kind="ros2", streaming=True)
+        with source:  # the bridge ending: the robot stops if cmd_vel was driving
+            while True:
                 await reader.wait()
-            elif wait > 0:
-                # Its slot: a newer sample replaces it, a writer leaving or an e-stop
-                # cancels it.
-                with anyio.move_on_after(wait):
-                    await reader.wait()
-            await anyio.lowlevel.checkpoint()  # a flood of refusals still lets others run
-            for sample in reader.take():
-                try:
-                    velocity = self._velocity_of(sample)
-                except (CommandError, ValueError) as exc:
-                    self._refuse(where, str(exc))
-                    continue
-                if pending is not None:
-                    self.superseded += 1
-                pending = velocity
-            if self._estop_engaged and pending is not None:
-                self.superseded += 1
-                pending = None
-            if self._stop_now:
-                self._stop_now = False
-                if pending is not None:
-                    self.superseded += 1
-                pending = None
-                self.writer_gone_stops += 1
-                _log.info("%s: no writer left; the robot is stopped", where)
-                await self._stop_robot()
-                continue
-            if pending is None or next_write - anyio.current_time() > 0:
-                continue
-            linear, angular = pending
-            pending = None
-            try:
-                await self.device.set_velocity(linear, angular, duration=self.command_timeout)
-            except ValueError as exc:  # out of the device's range: refused, not written
-                self._refuse(where, str(exc))
-                continue
-            except ChassisError as exc:  # not connected: this command is lost, no more
-                self._refuse(where, f"not written: {exc}")
-                continue
-            self.commands += 1
-            next_write = anyio.current_time() + _VELOCITY_PERIOD
+                await anyio.lowlevel.checkpoint()  # a flood of refusals still lets others run
+                for sample in reader.take():
+                    self._command(where, source, sample)
+                if self._stop_now:
+                    self._stop_now = False
+                    if source.driving:
+                        self.writer_gone_stops += 1
+                        _log.info("%s: no writer left; the robot is stopped", where)
+                        with contextlib.suppress(ChassisError):
+                            source.stop()
+
+    def _command(self, where: str, source: MotionSource, sample: Any) -> None:
+        """One sample: refused (counted, reported) or offered to the core."""
+        try:
+            linear, angular, age = self._velocity_of(sample)
+            # Held for command_timeout from its stamp (diff_drive_controller's
+            # cmd_vel_timeout): a sample 0.2 s old holds 0.2 s less.
+            refusal = source.set_velocity(linear, angular, duration=self.command_timeout, age=age)
+        except (CommandError, ValueError) as exc:  # bad, stale, or out of the device's range
+            self._refuse(where, str(exc))
+            return
+        except ChassisError as exc:  # not connected: this command is lost, no more
+            self._refuse(where, f"not written: {exc}")
+            return
+        if refusal is not None:  # blocked (an e-stop), driven by another source, ...
+            self._refuse(where, refusal.detail)
+            return
+        self.commands += 1
+
+    @property
+    def _block_origin(self) -> str:
+        return f"ros2 {TOPICS['emergency_stop'].qualified(self.namespace)}"
 
     async def _estops(self, reader: Reader[Any]) -> None:
+        """Act on ``emergency_stop`` at once: the device's e-stop (the core then blocks
+        velocity from every source until it is released)."""
         where = TOPICS["emergency_stop"].qualified(self.namespace)
         device: Any = self.device
         while True:
             await reader.wait()
             for sample in reader.take():
                 engaged = bool(sample.data)
-                self._estop_engaged = engaged
-                if engaged and self._cmd is not None:
-                    self._cmd.wake()  # a pending velocity is dropped at once
                 try:
                     if not hasattr(device, "emergency_stop"):
-                        await self.device.stop()
+                        # No e-stop on the device: the core blocks motion (which ends
+                        # the command and writes zero) until the topic releases it.
+                        self._estop_block = engaged
+                        self.device.motion.set_blocks(
+                            self._block_origin, ("SOFTWARE_ESTOP",) if engaged else ()
+                        )
                         if engaged:
+                            await self.device.stop()
                             raise CommandError(
-                                f"a {self.device.device_name} has no e-stop; it was stopped"
+                                f"a {self.device.device_name} has no e-stop; it was stopped "
+                                "and motion is blocked until released"
                             )
                     elif engaged:
                         await device.emergency_stop()
