@@ -243,6 +243,31 @@ ROWS: list[tuple[str, list[tuple[Any, ...]], list[tuple[float, tuple[float, floa
         [(0.0, (0.0, 0.0)), (0.05, (0.4, 0.0))],
     ),
     (
+        "a streaming source silent for longer than the deadman has let go: no neutral owed",
+        [
+            ("add", "panel", "foxglove"),
+            ("v", "panel", 0.3, 0.0, "taken", {"duration": 0.02}),
+            ("at", 0.01),
+            ("block", "device", ("HARDWARE_ESTOP",)),
+            ("at", 0.3),
+            ("v", "panel", 0.3, 0.0, "blocked: blocked by HARDWARE_ESTOP"),
+            ("block", "device", ()),
+            ("at", 0.5),
+            (
+                "v",
+                "panel",
+                0.3,
+                0.0,
+                "neutral: send a zero (neutral) first: motion was "
+                "blocked since this source last drove",
+            ),
+            ("at", 1.0),  # the button let go: the panel sends nothing for 0.5 s
+            ("v", "panel", 0.2, 0.0, "taken"),
+            ("at", 1.01),
+        ],
+        [(0.0, (0.3, 0.0)), (0.01, (0.0, 0.0)), (1.0, (0.2, 0.0))],
+    ),
+    (
         "one source drives at a time: a second page of the same priority is refused",
         [
             ("add", "web page", "web"),

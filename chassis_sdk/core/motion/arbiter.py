@@ -12,8 +12,11 @@ decides, and every surface goes through it, so each rule lives here once:
   refused while any block holds, and the block's start ends the command in force. After
   the last block clears, a *streaming* source (one that repeats its command: a held key,
   a stick, a ``cmd_vel`` publisher) must first send a neutral (zero, or a stop) before
-  its velocity is taken again, the joystick rule of "neutral before re-enable". A
-  one-shot source (the API) gives a new command by calling again.
+  its velocity is taken again, the joystick rule of "neutral before re-enable". Silence
+  longer than the deadman (`quiet`) counts as letting go, as the deadman takes it: a
+  panel that publishes only while a button is held (Foxglove's Teleop) has let go once
+  it has been silent that long. A one-shot source (the API) gives a new command by
+  calling again.
 * **One source drives at a time**, under a lease that lapses with its command's
   deadline. Another source's velocity is refused ("driven by web page 2") unless its
   priority is higher (an order like twist_mux's, `DEFAULT_PRIORITIES`) or it takes over
@@ -103,7 +106,7 @@ class Source:
         streaming: Whether it repeats its command (must send a neutral after a block).
     """
 
-    __slots__ = ("_needs_neutral", "closed", "kind", "name", "streaming")
+    __slots__ = ("_last", "_needs_neutral", "closed", "kind", "name", "streaming")
 
     def __init__(self, name: str, kind: str, streaming: bool) -> None:
         self.name = name
@@ -111,6 +114,7 @@ class Source:
         self.streaming = streaming
         self.closed = False
         self._needs_neutral = False
+        self._last = -math.inf  # when it last offered a velocity
 
     def __repr__(self) -> str:
         return f"<Source {self.name!r} kind={self.kind!r}>"
@@ -127,6 +131,8 @@ class Arbiter:
         clock: Monotonic clock (injected in tests).
         priorities: Kind -> priority, higher wins (default `DEFAULT_PRIORITIES`);
             an unknown kind has priority 0.
+        quiet: Seconds of silence after which a streaming source has let go (owes no
+            neutral): the deadman; ``None``: silence never counts.
     """
 
     def __init__(
@@ -134,8 +140,11 @@ class Arbiter:
         *,
         clock: Callable[[], float] = time.monotonic,
         priorities: Mapping[str, int] | None = None,
+        quiet: float | None = None,
     ) -> None:
         self._clock = clock
+        #: Silence (s) that counts as a streaming source letting go; ``None``: never.
+        self.quiet = quiet
         #: Kind -> priority (higher wins); change it at any time.
         self.priorities: dict[str, int] = dict(
             DEFAULT_PRIORITIES if priorities is None else priorities
@@ -244,6 +253,10 @@ class Arbiter:
         del age
         if source.closed:
             raise RuntimeError(f"source {source.name!r} is closed")
+        now = self._clock()
+        if self.quiet is not None and now - source._last >= self.quiet:
+            source._needs_neutral = False  # silent that long: it has let go
+        source._last = now
         blocks = self.blocks
         if blocks:
             if neutral:

@@ -163,7 +163,7 @@ class Motion:
             clock=clock,
         )
         #: Decides which source's command acts (see `Arbiter`).
-        self.arbiter = Arbiter(clock=clock)
+        self.arbiter = Arbiter(clock=clock, quiet=command_timeout)
         self._ensure_open = ensure_open
         self._zero_frame = zero_frame
         self._builder = velocity_builder
