@@ -422,6 +422,9 @@ class _Channels:
         # In the loop only: each Teleop client's source, and its channels that drive.
         self.sources: dict[int, MotionSource] = {}
         self._live: dict[int, set[int]] = {}
+        # Under the lock: each client channel's newest Twist not yet handed to the loop
+        # (topic, linear, angular, whether a zero was replaced on the way).
+        self._newest: dict[tuple[int, int], tuple[str, float, float, bool]] = {}
         # Set on leaving: no Twist is taken any more (the robot has been stopped).
         self._closing = False
 
@@ -454,11 +457,23 @@ class _Channels:
         self.end()
         self._in_loop(self._close_sources)
 
+    async def stop(self, client_id: int) -> None:
+        """(In the loop.) The ``stop`` service called by client ``client_id``: its
+        Teleop source's stop (which counts as its neutral after an e-stop), or the
+        device's if it has none. A stop always acts, whoever drives."""
+        source = self.sources.get(client_id)
+        if source is not None:
+            source.stop()
+        else:
+            await self._owner.device.stop()
+
     def _close_sources(self) -> None:
         """(In the loop.) Close every client's source: one that was driving stops the
         robot (quietly if the port is closed)."""
         sources, self.sources = self.sources, {}
         self._live = {}
+        with self._lock:
+            self._newest.clear()
         for source in sources.values():
             source.close()
 
@@ -560,9 +575,16 @@ class _Channels:
         except CommandError as exc:
             self._reports.refuse(f"velocity on {topic}", str(exc))
             return
-        # Every Twist to the loop, in order: there the core keeps the newest and
-        # writes it at most once per period.
-        self._in_loop(functools.partial(self._velocity, key, topic, linear, angular))
+        # Velocity is state: one hand-over per client channel waits in the loop's queue,
+        # taking the newest Twist when it runs, so a flood queues no work and a stop
+        # service waits behind one hand-over at most. A zero replaced on the way is still
+        # given first (the neutral the core may want after an e-stop).
+        with self._lock:
+            held = self._newest.get(key)
+            zero = held is not None and (held[3] or (held[1] == 0 and held[2] == 0))
+            self._newest[key] = (topic, linear, angular, zero)
+        if held is None:
+            self._in_loop(functools.partial(self._hand_over, key))
 
     def _in_loop(self, callback: Callable[[], None]) -> None:
         loop = self.loop
@@ -605,6 +627,17 @@ class _Channels:
         elif source.driving:
             with contextlib.suppress(ChassisError):
                 source.stop()
+
+    def _hand_over(self, key: tuple[int, int]) -> None:
+        """The newest Twist of a client channel, to its source."""
+        with self._lock:
+            held = self._newest.pop(key, None)
+        if held is None:
+            return
+        topic, linear, angular, zero = held
+        if zero and (linear or angular):
+            self._velocity(key, topic, 0.0, 0.0)
+        self._velocity(key, topic, linear, angular)
 
     def _velocity(self, key: tuple[int, int], topic: str, linear: float, angular: float) -> None:
         """One Twist, offered to its client's source (the core paces the writes)."""
@@ -675,7 +708,10 @@ class _Services:
                 )
                 ok, message = False, "refused: the connection was not checked"
             else:
-                ok, message = self._run_in_loop(getattr(self._owner.device, method))
+                call = getattr(self._owner.device, method)
+                if method == "stop":  # the client's own stop: its source's neutral too
+                    call = functools.partial(self._channels.stop, request.client_id)
+                ok, message = self._run_in_loop(call)
                 _log.info("service %s: %s", method, message)
         except Exception as exc:  # never let a service call fail unreported
             self._reports.failed(f"service {method}", exc)
