@@ -445,7 +445,7 @@ async def commands_and_odometry(quick: bool) -> dict[str, Any]:
 
 async def measure_discovery(kind: str, repeats: int, timeout: float) -> dict[str, Any]:
     """(in a child) ``repeats`` peers one after another against one fresh bridge."""
-    from chassis_sdk.integrations.ros2_dds import Discovery
+    from chassis_sdk.integrations.ros2.dds import Discovery
 
     discovery = Discovery()
     if kind == "localhost":

@@ -29,7 +29,9 @@ PURE_CORE = {
     "chassis_sdk.core.enums",
     "chassis_sdk.core.firmware",
     "chassis_sdk.core.framing",
+    "chassis_sdk.core.motion.arbiter",
     "chassis_sdk.core.pack",
+    "chassis_sdk.core.refusals",
     "chassis_sdk.core.calibration",
     "chassis_sdk.core.charge",
     "chassis_sdk.core.plain",
@@ -44,7 +46,7 @@ LAYERS = [
     ("devices", ("chassis_sdk.devices", "chassis_sdk.protocol")),
     ("sim", ("chassis_sdk.sim",)),
     ("recording", ("chassis_sdk.recording",)),
-    ("integrations", ("chassis_sdk.integrations",)),
+    ("integrations", ("chassis_sdk.integrations", "chassis_sdk.teleop")),
     ("cli", ("chassis_sdk.cli",)),
     ("facade", ("chassis_sdk",)),
 ]

@@ -482,7 +482,7 @@ def test_bridges_spread_their_telemetry_slots_over_the_period() -> None:
     """Bridges started together must not publish in one burst every period (a command
     arriving then waited behind all of them: p99 6-11 ms at 50 robots in one process):
     each topic has its own place in the period, the same every time."""
-    from chassis_sdk.integrations.mqtt_publish import PHASES, slot_phase
+    from chassis_sdk.integrations.mqtt.publish import PHASES, slot_phase
 
     phases = [slot_phase(f"robots/r{i}", 0.1) for i in range(50)]
     assert len(set(phases)) == PHASES

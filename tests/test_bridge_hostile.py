@@ -32,9 +32,9 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from chassis_sdk import Board, Chassis
-from chassis_sdk.integrations import mqtt as bridge_module
 from chassis_sdk.integrations.mqtt import MqttBridge, RobotIdTaken
-from chassis_sdk.integrations.mqtt_inbox import READ_BATCH, PathProbe, install_batched_reads
+from chassis_sdk.integrations.mqtt import bridge as bridge_module
+from chassis_sdk.integrations.mqtt.inbox import READ_BATCH, PathProbe, install_batched_reads
 from chassis_sdk.protocol import CommandId, DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 

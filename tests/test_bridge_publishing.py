@@ -21,8 +21,8 @@ import pytest
 
 from chassis_sdk import Board, Chassis, ConnectionLostError, RobotEvent, Telemetry
 from chassis_sdk.core.notifier import Notifier
-from chassis_sdk.integrations import mqtt_publish
 from chassis_sdk.integrations.mqtt import MqttBridge
+from chassis_sdk.integrations.mqtt import publish as mqtt_publish
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.helpers import until

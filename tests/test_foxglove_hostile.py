@@ -406,7 +406,7 @@ async def test_what_a_client_names_is_shown_bounded_in_reports() -> None:
 async def test_an_error_in_a_callback_is_caught_counted_and_reported(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import chassis_sdk.integrations.foxglove as live
+    import chassis_sdk.integrations.foxglove.server as live
 
     def broken(data: bytes) -> tuple[float, float]:
         raise RuntimeError("a bug")
@@ -841,7 +841,7 @@ async def test_the_cli_stops_a_teleop_robot_at_once_on_sigterm_with_a_half_open_
 async def test_a_service_call_that_timed_out_is_cancelled_not_done_later(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import chassis_sdk.integrations.foxglove as live
+    import chassis_sdk.integrations.foxglove.server as live
 
     monkeypatch.setattr(live, "_SERVICE_TIMEOUT", 0.2)
     done: list[str] = []
@@ -937,7 +937,7 @@ async def test_the_front_refuses_text_frames_that_are_not_json_objects(
 
 @pytest.mark.integration
 async def test_the_front_keeps_a_bounded_record_of_a_connections_channels() -> None:
-    import chassis_sdk.integrations.foxglove as live
+    import chassis_sdk.integrations.foxglove.server as live
 
     MAX_CLIENT_CHANNELS = getattr(live, "MAX_CLIENT_CHANNELS", 256)
     n = MAX_CLIENT_CHANNELS + 44

@@ -26,7 +26,7 @@ from cyclonedds.topic import Topic
 from chassis_sdk import Board, Chassis, ConnectionLostError
 from chassis_sdk.devices.chassis.messages import DriveVelocity
 from chassis_sdk.integrations.ros2 import Ros2Bridge
-from chassis_sdk.integrations.ros2_dds import (
+from chassis_sdk.integrations.ros2.dds import (
     Discovery,
     Participant,
     discovery_from_env,
@@ -592,7 +592,7 @@ async def test_two_bridges_in_one_process_share_a_domain_and_a_different_one_is_
 async def test_no_writer_left_is_told_once_per_leaving(
     statuses: list[tuple[int, bool]], told: int
 ) -> None:
-    from chassis_sdk.integrations.ros2_dds import Reader
+    from chassis_sdk.integrations.ros2.dds import Reader
 
     reader: Reader[Any] = Reader("/cmd_vel", asyncio.get_running_loop())
     calls: list[int] = []
@@ -656,7 +656,13 @@ async def test_the_ros2_bridge_has_no_task_per_stream_and_odometry_comes_in_orde
         # run() itself, and one task each for the readings, /diagnostics, cmd_vel and
         # emergency_stop: before, one per stream instead of "_publish" (a chassis's
         # odometry and telemetry, a board's odometry, imu and battery).
-        assert tasks_of("ros2.py") == ["_commands", "_diagnostics", "_estops", "_publish", "run"]
+        assert tasks_of("ros2/bridge.py") == [
+            "_commands",
+            "_diagnostics",
+            "_estops",
+            "_publish",
+            "run",
+        ]
         published = bridge.odometry_published
     stamps = [seconds(o.header.stamp) for o in got]
     assert stamps == sorted(stamps)

@@ -24,7 +24,7 @@ from cyclonedds.topic import Topic
 
 from chassis_sdk import Chassis
 from chassis_sdk.core.motion import WRITE_PERIOD
-from chassis_sdk.integrations.ros2_dds import Discovery
+from chassis_sdk.integrations.ros2.dds import Discovery
 from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.sim import ChassisSimulator
 

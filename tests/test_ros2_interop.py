@@ -24,7 +24,7 @@ import pytest
 from chassis_sdk import Board, Chassis
 from chassis_sdk.devices.chassis.messages import DriveVelocity
 from chassis_sdk.integrations.ros2 import Ros2Bridge
-from chassis_sdk.integrations.ros2_dds import Discovery
+from chassis_sdk.integrations.ros2.dds import Discovery
 from chassis_sdk.recording.ros2_types import DEFAULT_POSE_COVARIANCE, wall_time
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 

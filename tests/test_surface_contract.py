@@ -39,15 +39,15 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 
 from chassis_sdk import Chassis, MotionBlockedError
-from chassis_sdk.cli.teleop import KeyTeleop
 from chassis_sdk.cli.teleop_command import _drive as teleop_drive
 from chassis_sdk.core.motion import WRITE_PERIOD
 from chassis_sdk.integrations.foxglove import FoxgloveServer
-from chassis_sdk.integrations.ros2_dds import Discovery
+from chassis_sdk.integrations.ros2.dds import Discovery
 from chassis_sdk.integrations.web import WebDashboard
 from chassis_sdk.protocol import Command, CommandId, DriveVelocity
 from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.sim import ChassisSimulator
+from chassis_sdk.teleop.keys import KeyTeleop
 
 from .support.cli import ROOT
 from .support.foxglove_client import FoxgloveClient

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from chassis_sdk.cli import build_parser
-from chassis_sdk.cli.joystick import (
+from chassis_sdk.teleop.gamepad import (
     ABS_CODES,
     BTN_CODES,
     EV_ABS,
@@ -27,7 +27,7 @@ from chassis_sdk.cli.joystick import (
     Pad,
     event_code,
 )
-from chassis_sdk.cli.teleop import (
+from chassis_sdk.teleop.keys import (
     KEY_TIMEOUT,
     REPEAT_FLOOR,
     Effect,

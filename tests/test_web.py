@@ -222,7 +222,7 @@ async def test_the_dashboard_has_no_task_per_stream_and_pages_get_states_in_orde
         # sender): before, also one for the events and one per stream (9 for a chassis,
         # 10 for a board), and a velocity writer (the motion core's pacing now).
         tasks = ["_guarded", "_run_tasks", "_send", "_socket"]
-        assert tasks_of("web.py") == tasks
+        assert tasks_of("web/server.py") == tasks
         events: list[dict[str, Any]] = []
         if not board:
             await robot.emergency_stop(confirm=True)

@@ -24,7 +24,7 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
     """Bridge until Ctrl-C, SIGTERM or ``--seconds``."""
     try:
         from ..integrations.ros2 import Ros2Bridge
-        from ..integrations.ros2_dds import discovery_from_env
+        from ..integrations.ros2.dds import discovery_from_env
         from ..recording.ros2_types import check_namespace
     except ImportError as exc:
         raise ChassisError(

@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
 from ..errors import ChassisError
+from ..teleop.gamepad import ABS_CODES, BTN_CODES, event_code
+from ..teleop.keys import KEY_TIMEOUT, MAX_KEY_TIMEOUT
 from .arguments import (
     arg_type,
     deadman_args,
@@ -20,8 +22,6 @@ from .arguments import (
     port_args,
     require_port,
 )
-from .joystick import ABS_CODES, BTN_CODES, event_code
-from .teleop import KEY_TIMEOUT, MAX_KEY_TIMEOUT
 
 #: The longest a silent pad may go on driving (s).
 MAX_JOY_TIMEOUT = 5.0

@@ -1,7 +1,7 @@
 """``chassis-sdk teleop``: drive from a terminal's keys, or a gamepad on the robot
 computer, with a status line.
 
-The keys' meaning and timing are `chassis_sdk.cli.teleop.KeyTeleop` (sans-IO);
+The keys' meaning and timing are `chassis_sdk.teleop.keys.KeyTeleop` (sans-IO);
 this is the I/O around it: the terminal in cbreak mode with signals and flow control
 off (Ctrl-C, Ctrl-Z and Ctrl-S arrive as bytes: Ctrl-C quits, the others are ignored,
 so the process is never suspended with the robot moving), stdin read from the event
@@ -32,9 +32,9 @@ import anyio
 
 from ..devices import DeviceProfile
 from ..errors import ChassisError, NotConnectedError
+from ..teleop.gamepad import JoyMapping, Pad
+from ..teleop.keys import KEY_HELP, Effect, Key, KeyTeleop
 from .common import driven, out
-from .joystick import JoyMapping, Pad
-from .teleop import KEY_HELP, Effect, Key, KeyTeleop
 
 if TYPE_CHECKING:
     from ..core.motion import MotionSource

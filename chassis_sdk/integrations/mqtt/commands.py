@@ -41,9 +41,9 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from ..core.plain import plain
-from ..errors import ChassisError
-from .inbound import (
+from ...core.plain import plain
+from ...errors import ChassisError
+from ..inbound import (
     TIMESTAMP_SKEW,
     CommandError,
     check_fresh,
@@ -51,13 +51,13 @@ from .inbound import (
     command_object,
     command_time,
 )
-from .mqtt_inbox import Lanes, PathProbe
-from .mqtt_ownership import Ownership
-from .mqtt_publish import Publisher, epoch_now
+from .inbox import Lanes, PathProbe
+from .ownership import Ownership
+from .publish import Publisher, epoch_now
 
 if TYPE_CHECKING:
-    from ..core.motion import MotionSource
-    from .mqtt import MqttBridge
+    from ...core.motion import MotionSource
+    from .bridge import MqttBridge
 
 __all__ = ["REQUEST_WORKERS", "Commands"]
 

@@ -106,16 +106,16 @@ from paho.mqtt import client as paho
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.reasoncodes import ReasonCode
 
-from ..core.device import Device
-from ..core.validation import check_real
-from ..devices import DeviceProfile, profile
-from ..errors import ChassisError
-from .inbound import CommandError as CommandError  # re-exported: it was defined here
-from .inbound import check_topic_level
-from .mqtt_commands import REQUEST_WORKERS, Commands
-from .mqtt_inbox import CommandInbox, install_batched_reads, install_inbox
-from .mqtt_ownership import Ownership, RobotIdTaken, new_owner
-from .mqtt_publish import Publisher, connection_will
+from ...core.device import Device
+from ...core.validation import check_real
+from ...devices import DeviceProfile, profile
+from ...errors import ChassisError
+from ..inbound import CommandError as CommandError  # re-exported: it was defined here
+from ..inbound import check_topic_level
+from .commands import REQUEST_WORKERS, Commands
+from .inbox import CommandInbox, install_batched_reads, install_inbox
+from .ownership import Ownership, RobotIdTaken, new_owner
+from .publish import Publisher, connection_will
 
 __all__ = [
     "CommandError",

@@ -83,12 +83,13 @@ from typing import Any, Self
 import anyio
 import anyio.to_thread
 
-from ..core.device import Device
-from ..core.motion import MotionSource
-from ..errors import ChassisError
-from ..recording.mcap import McapRecording
-from ..recording.sink import FoxgloveSink
-from .foxglove_front import (
+from ...core.device import Device
+from ...core.motion import MotionSource
+from ...errors import ChassisError
+from ...recording.mcap import McapRecording
+from ...recording.sink import FoxgloveSink
+from ..inbound import CommandError, command_object
+from .front import (
     APP_ORIGINS,
     HELLO_ID,
     HELLO_TOPIC,
@@ -99,13 +100,12 @@ from .foxglove_front import (
     is_loopback,
     private_loopback,
 )
-from .foxglove_front import MIN_TOKEN_LENGTH as MIN_TOKEN_LENGTH
-from .foxglove_front import SUBPROTOCOL as SUBPROTOCOL
-from .foxglove_reports import REPORT_INTERVAL as REPORT_INTERVAL
-from .foxglove_reports import STATUS_HANDSHAKE as STATUS_HANDSHAKE
-from .foxglove_reports import STATUS_REFUSALS as STATUS_REFUSALS
-from .foxglove_reports import Reports, shown
-from .inbound import CommandError, command_object
+from .front import MIN_TOKEN_LENGTH as MIN_TOKEN_LENGTH
+from .front import SUBPROTOCOL as SUBPROTOCOL
+from .reports import REPORT_INTERVAL as REPORT_INTERVAL
+from .reports import STATUS_HANDSHAKE as STATUS_HANDSHAKE
+from .reports import STATUS_REFUSALS as STATUS_REFUSALS
+from .reports import Reports, shown
 
 __all__ = [
     "APP_ORIGINS",

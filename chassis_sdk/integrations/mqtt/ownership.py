@@ -31,13 +31,13 @@ import aiomqtt
 import anyio
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
-from ..errors import ChassisError
-from .inbound import CommandError, command_object
-from .mqtt_inbox import Lanes
-from .mqtt_publish import Publisher, state_payload
+from ...errors import ChassisError
+from ..inbound import CommandError, command_object
+from .inbox import Lanes
+from .publish import Publisher, state_payload
 
 if TYPE_CHECKING:
-    from .mqtt import MqttBridge
+    from .bridge import MqttBridge
 
 __all__ = ["Ownership", "RobotIdTaken", "new_owner"]
 

@@ -1,6 +1,6 @@
 """The web dashboard: one device, watched and driven by hand from a browser.
 
-`WebDashboard` serves one page (``web_static/``: HTML, JavaScript, CSS and the
+`WebDashboard` serves one page (``static/``: HTML, JavaScript, CSS and the
 uPlot charting library, all in the package; nothing is built or fetched) and a
 WebSocket at ``/ws`` on an aiohttp server. The page shows the device live (speeds
 commanded beside measured, wheels, battery, status and faults, events, the link and the
@@ -88,16 +88,16 @@ from urllib.parse import urlsplit
 
 import anyio
 
-from ..core.charge import battery_fields
-from ..core.device import Device
-from ..core.motion import MotionSource, Refusal
-from ..core.notifier import Notifier
-from ..core.plain import outbound
-from ..core.validation import check_int, check_real
-from ..devices import profile
-from ..errors import ChassisError
-from .access import check_allowed_origin, check_token, given_tokens, is_loopback, origin_key
-from .inbound import CommandError, RefusalReport, Refusals, command_number, command_object
+from ...core.charge import battery_fields
+from ...core.device import Device
+from ...core.motion import MotionSource, Refusal
+from ...core.notifier import Notifier
+from ...core.plain import outbound
+from ...core.validation import check_int, check_real
+from ...devices import profile
+from ...errors import ChassisError
+from ..access import check_allowed_origin, check_token, given_tokens, is_loopback, origin_key
+from ..inbound import CommandError, RefusalReport, Refusals, command_number, command_object
 
 __all__ = [
     "DEFAULT_MAX_ANGULAR",
@@ -549,7 +549,7 @@ class WebDashboard:
                 self._cookie(), self._token, httponly=True, samesite="Lax", path="/"
             )
             raise redirect
-        page = resources.files(__package__).joinpath("web_static/index.html").read_text("utf-8")
+        page = resources.files(__package__).joinpath("static/index.html").read_text("utf-8")
         return web.Response(text=page, content_type="text/html", charset="utf-8")
 
     async def _static(self, request: Any) -> Any:
@@ -558,7 +558,7 @@ class WebDashboard:
         kind = _STATIC.get(name)
         if kind is None:
             raise web.HTTPNotFound()
-        body = resources.files(__package__).joinpath(f"web_static/{name}").read_bytes()
+        body = resources.files(__package__).joinpath(f"static/{name}").read_bytes()
         return web.Response(body=body, content_type=kind, charset="utf-8")
 
     # --- WebSocket ---------------------------------------------------------------------

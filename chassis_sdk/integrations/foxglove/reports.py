@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from .inbound import RefusalReport, Refusals
+from ..inbound import RefusalReport, Refusals
 
 __all__ = ["REPORT_INTERVAL", "STATUS_HANDSHAKE", "STATUS_REFUSALS", "Reports", "shown"]
 

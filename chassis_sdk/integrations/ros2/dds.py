@@ -69,7 +69,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from ..recording.ros2_types import TopicSpec, check_namespace, type_hash
+from ...recording.ros2_types import TopicSpec, check_namespace, type_hash
 
 __all__ = [
     "Discovery",

@@ -32,7 +32,7 @@ from typing import Any
 
 import anyio
 
-from .access import (
+from ..access import (
     MIN_TOKEN_LENGTH,
     check_allowed_origin,
     check_token,
@@ -40,7 +40,7 @@ from .access import (
     is_loopback,
     origin_key,
 )
-from .foxglove_reports import REPORT_INTERVAL, Reports, shown
+from .reports import REPORT_INTERVAL, Reports, shown
 
 __all__ = [
     "APP_ORIGINS",

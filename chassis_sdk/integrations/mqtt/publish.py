@@ -52,18 +52,18 @@ import anyio
 import paho.mqtt.client as paho_mqtt
 from paho.mqtt.properties import Properties
 
-from ..core.charge import battery_fields
-from ..core.events import RobotEvent
-from ..core.firmware import next_slot
-from ..core.notifier import Notifier
-from ..core.plain import outbound, plain
-from ..core.supervisor import ConnectionState
-from ..errors import ChassisError, ConnectionLostError, NotConnectedError
-from .inbound import RefusalReport, Refusals
-from .mqtt_inbox import PathProbe
+from ...core.charge import battery_fields
+from ...core.events import RobotEvent
+from ...core.firmware import next_slot
+from ...core.notifier import Notifier
+from ...core.plain import outbound, plain
+from ...core.supervisor import ConnectionState
+from ...errors import ChassisError, ConnectionLostError, NotConnectedError
+from ..inbound import RefusalReport, Refusals
+from .inbox import PathProbe
 
 if TYPE_CHECKING:
-    from .mqtt import MqttBridge
+    from .bridge import MqttBridge
 
 __all__ = [
     "Publisher",

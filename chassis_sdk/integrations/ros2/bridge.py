@@ -75,16 +75,16 @@ from typing import Any
 import anyio
 from cyclonedds.core import DDSException
 
-from ..core.device import Device
-from ..core.motion import MotionSource
-from ..core.notifier import Notifier
-from ..core.supervisor import ConnectionState
-from ..core.validation import check_real
-from ..errors import ChassisError, ConnectionLostError, NotConnectedError
-from ..recording import ros2_types as msg
-from ..recording.ros2_types import TOPICS, Ros2Options, StaticTransform, Translator
-from .inbound import CommandError, Refusals, check_fresh
-from .ros2_dds import Discovery, Participant, Reader, Writer, discovery_from_env
+from ...core.device import Device
+from ...core.motion import MotionSource
+from ...core.notifier import Notifier
+from ...core.supervisor import ConnectionState
+from ...core.validation import check_real
+from ...errors import ChassisError, ConnectionLostError, NotConnectedError
+from ...recording import ros2_types as msg
+from ...recording.ros2_types import TOPICS, Ros2Options, StaticTransform, Translator
+from ..inbound import CommandError, Refusals, check_fresh
+from .dds import Discovery, Participant, Reader, Writer, discovery_from_env
 
 __all__ = ["Ros2Bridge", "StaticTransform"]
 
@@ -101,7 +101,7 @@ class Ros2Bridge:
         device: A connected (or connecting) device; the bridge never closes it.
         namespace: Where the relative topics go (``robot1`` → ``/robot1/odom``).
         discovery: How to find peers (default: ROS 2's variables,
-            [`discovery_from_env`][chassis_sdk.integrations.ros2_dds.discovery_from_env]).
+            [`discovery_from_env`][chassis_sdk.integrations.ros2.dds.discovery_from_env]).
         stamped: Read ``cmd_vel`` as ``geometry_msgs/TwistStamped`` (Jazzy's
             diff_drive_controller); a stamped sample older than ``command_timeout``
             is refused.
