@@ -656,13 +656,8 @@ async def test_the_ros2_bridge_has_no_task_per_stream_and_odometry_comes_in_orde
         # run() itself, and one task each for the readings, /diagnostics, cmd_vel and
         # emergency_stop: before, one per stream instead of "_publish" (a chassis's
         # odometry and telemetry, a board's odometry, imu and battery).
-        assert tasks_of("ros2/bridge.py") == [
-            "_commands",
-            "_diagnostics",
-            "_estops",
-            "_publish",
-            "run",
-        ]
+        assert tasks_of("ros2/bridge.py") == ["_diagnostics", "_publish", "run"]
+        assert tasks_of("ros2/commands.py") == ["commands_from", "estops_from"]
         published = bridge.odometry_published
     stamps = [seconds(o.header.stamp) for o in got]
     assert stamps == sorted(stamps)

@@ -66,7 +66,6 @@ import asyncio
 import contextlib
 import functools
 import logging
-import math
 import time
 from collections import deque
 from collections.abc import Callable, Coroutine, Sequence
@@ -76,14 +75,14 @@ import anyio
 from cyclonedds.core import DDSException
 
 from ...core.device import Device
-from ...core.motion import MotionSource
 from ...core.notifier import Notifier
 from ...core.supervisor import ConnectionState
 from ...core.validation import check_real
 from ...errors import ChassisError, ConnectionLostError, NotConnectedError
 from ...recording import ros2_types as msg
 from ...recording.ros2_types import TOPICS, Ros2Options, StaticTransform, Translator
-from ..inbound import CommandError, Refusals, check_fresh
+from ..inbound import Refusals
+from .commands import Inbound
 from .dds import Discovery, Participant, Reader, Writer, discovery_from_env
 
 __all__ = ["Ros2Bridge", "StaticTransform"]
@@ -184,19 +183,20 @@ class Ros2Bridge:
         # The device's battery model (if any) gives BatteryState.percentage.
         self.translator = Translator(self.options, streams, battery=device.battery_model)
         self._refusals = Refusals(1.0)
+        #: What comes in: ``cmd_vel`` and ``emergency_stop``, through the motion core.
+        self.inbound = Inbound(
+            device,
+            self.namespace,
+            stamped=self.stamped,
+            command_timeout=self.command_timeout,
+            max_linear=self.max_linear,
+            max_angular=self.max_angular,
+            refuse=self._refuse,
+        )
         self._cmd: Reader[Any] | None = None
         self._estop: Reader[Any] | None = None
-        # A device without an e-stop of its own: the e-stop topic blocks motion in the
-        # core while engaged (this bridge's block, cleared when it ends).
-        self._estop_block = False
-        self._stop_now = False
         #: Set once the DDS endpoints exist (the bridge is on the graph).
         self.started = anyio.Event()
-        #: ``cmd_vel`` samples taken by the device's motion core (it writes the newest
-        #: at most once per ``WRITE_PERIOD``).
-        self.commands = 0
-        #: Stops because the last ``cmd_vel`` writer went away.
-        self.writer_gone_stops = 0
         #: Odometry messages published.
         self.odometry_published = 0
         #: Readings dropped before they were published (the oldest first): the
@@ -208,6 +208,17 @@ class Ros2Bridge:
         self._queued: dict[str, deque[Any]] = {}
         self._ready = asyncio.Event()
         self._lost = False
+
+    @property
+    def commands(self) -> int:
+        """``cmd_vel`` samples taken by the device's motion core (it writes the newest
+        at most once per ``WRITE_PERIOD``)."""
+        return self.inbound.commands
+
+    @property
+    def writer_gone_stops(self) -> int:
+        """Stops because the last ``cmd_vel`` writer went away."""
+        return self.inbound.writer_gone_stops
 
     @property
     def refused(self) -> int:
@@ -259,9 +270,7 @@ class Ros2Bridge:
             notifier.close()  # nothing more is queued
             with anyio.CancelScope(shield=True):
                 await self._stop_robot()
-            if self._estop_block:
-                self._estop_block = False
-                self.device.motion.set_blocks(self._block_origin, ())
+            self.inbound.end()
             participant.close()
 
     def _setup(
@@ -286,16 +295,17 @@ class Ros2Bridge:
             ("diagnostics", lambda: self._diagnostics(diagnostics)),
         ]
         if not self.read_only:
+            inbound = self.inbound
             cmd = participant.reader(TOPICS["cmd_vel_stamped" if self.stamped else "cmd_vel"], loop)
-            cmd.on_no_writers = self._writer_gone
+            cmd.on_no_writers = inbound.writer_gone
             self._cmd = cmd
             estop = participant.reader(TOPICS["emergency_stop"], loop)
             self._estop = estop
             for reader in (cmd, estop):  # counted and reported with the other refusals
                 reader.on_undecodable = functools.partial(self._refuse, reader.name)
             loops += [
-                ("cmd_vel", lambda: self._commands(cmd)),
-                ("estop", lambda: self._estops(estop)),
+                ("cmd_vel", lambda: inbound.commands_from(cmd)),
+                ("estop", lambda: inbound.estops_from(estop)),
             ]
         return loops
 
@@ -311,101 +321,6 @@ class Ros2Bridge:
         report = self._refusals.add(where, why)
         if report is not None:
             _log.warning("refused: %s", report.summary())
-
-    def _writer_gone(self) -> None:
-        """The last ``cmd_vel`` writer left (on the loop, from the reader's listener,
-        which then wakes the command loop)."""
-        self._stop_now = True
-
-    def _velocity_of(self, sample: Any) -> tuple[float, float, float]:
-        """``(linear, angular, age)`` of a sample: its age (s) from its stamp, 0 if none."""
-        twist = sample.twist if self.stamped else sample
-        age = 0.0
-        if self.stamped:
-            stamp = sample.header.stamp
-            if stamp.sec or stamp.nanosec:  # an unset stamp is no stamp
-                age = check_fresh(stamp.sec + stamp.nanosec * 1e-9, self.command_timeout)
-        linear, angular = float(twist.linear.x), float(twist.angular.z)
-        if not (math.isfinite(linear) and math.isfinite(angular)):
-            raise CommandError(f"linear.x and angular.z must be finite, got {linear}, {angular}")
-        if self.max_linear is not None:
-            linear = max(-self.max_linear, min(self.max_linear, linear))
-        if self.max_angular is not None:
-            angular = max(-self.max_angular, min(self.max_angular, angular))
-        return linear, angular, max(0.0, age)  # a stamp just ahead (within the skew): now
-
-    async def _commands(self, reader: Reader[Any]) -> None:
-        """Act on ``cmd_vel``: each valid sample to the motion core through the bridge's
-        one source (the core paces the writes and keeps the newest); a stop at once when
-        the last writer leaves, if ``cmd_vel`` was driving (the reader wakes this loop for
-        both)."""
-        where = TOPICS["cmd_vel"].qualified(self.namespace)
-        source = self.device.motion.source(f"ros2 {where}", kind="ros2", streaming=True)
-        with source:  # the bridge ending: the robot stops if cmd_vel was driving
-            while True:
-                await reader.wait()
-                await anyio.lowlevel.checkpoint()  # a flood of refusals still lets others run
-                for sample in reader.take():
-                    self._command(where, source, sample)
-                if self._stop_now:
-                    self._stop_now = False
-                    if source.driving:
-                        self.writer_gone_stops += 1
-                        _log.info("%s: no writer left; the robot is stopped", where)
-                        with contextlib.suppress(ChassisError):
-                            source.stop()
-
-    def _command(self, where: str, source: MotionSource, sample: Any) -> None:
-        """One sample: refused (counted, reported) or offered to the core."""
-        try:
-            linear, angular, age = self._velocity_of(sample)
-            # Held for command_timeout from its stamp (diff_drive_controller's
-            # cmd_vel_timeout): a sample 0.2 s old holds 0.2 s less.
-            refusal = source.set_velocity(linear, angular, duration=self.command_timeout, age=age)
-        except (CommandError, ValueError) as exc:  # bad, stale, or out of the device's range
-            self._refuse(where, str(exc))
-            return
-        except ChassisError as exc:  # not connected: this command is lost, no more
-            self._refuse(where, f"not written: {exc}")
-            return
-        if refusal is not None:  # blocked (an e-stop), driven by another source, ...
-            self._refuse(where, refusal.detail)
-            return
-        self.commands += 1
-
-    @property
-    def _block_origin(self) -> str:
-        return f"ros2 {TOPICS['emergency_stop'].qualified(self.namespace)}"
-
-    async def _estops(self, reader: Reader[Any]) -> None:
-        """Act on ``emergency_stop`` at once: the device's e-stop (the core then blocks
-        velocity from every source until it is released)."""
-        where = TOPICS["emergency_stop"].qualified(self.namespace)
-        device: Any = self.device
-        while True:
-            await reader.wait()
-            for sample in reader.take():
-                engaged = bool(sample.data)
-                try:
-                    if not hasattr(device, "emergency_stop"):
-                        # No e-stop on the device: the core blocks motion (which ends
-                        # the command and writes zero) until the topic releases it.
-                        self._estop_block = engaged
-                        self.device.motion.set_blocks(
-                            self._block_origin, ("SOFTWARE_ESTOP",) if engaged else ()
-                        )
-                        if engaged:
-                            await self.device.stop()
-                            raise CommandError(
-                                f"a {self.device.device_name} has no e-stop; it was stopped "
-                                "and motion is blocked until released"
-                            )
-                    elif engaged:
-                        await device.emergency_stop()
-                    else:
-                        await device.release_emergency_stop()
-                except (CommandError, ChassisError) as exc:
-                    self._refuse(where, str(exc))
 
     # --- what goes out ---------------------------------------------------------------------
 
