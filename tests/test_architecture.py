@@ -161,8 +161,14 @@ def test_the_import_graph_has_no_cycle() -> None:
     for module in MODULES:
         for target, _, only in imports(module):
             found = internal(target) if target.startswith("chassis_sdk") else None
-            if found is not None and found != module and not only:
-                graph[module].add(found)
+            if found is None or found == module:
+                continue
+            # An import under TYPE_CHECKING counts: a module that needs another's type
+            # while that one imports it is a friend reaching into its state. Only a
+            # lazy package façade naming its own modules for type checkers is exempt.
+            if only and MODULES[module].name == "__init__.py" and found.startswith(module + "."):
+                continue
+            graph[module].add(found)
         # Importing a module runs its package's __init__ first.
         parent = module.rpartition(".")[0]
         if parent in MODULES and parent != module:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import datetime as dt
 import json
 import os
@@ -28,13 +29,21 @@ from typing import Any, cast
 
 import aiomqtt
 import pytest
+from paho.mqtt import client as paho_client
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from chassis_sdk import Board, Chassis
 from chassis_sdk.integrations.mqtt import MqttBridge, RobotIdTaken
 from chassis_sdk.integrations.mqtt import bridge as bridge_module
-from chassis_sdk.integrations.mqtt.inbox import READ_BATCH, PathProbe, install_batched_reads
+from chassis_sdk.integrations.mqtt.inbox import (
+    READ_BATCH,
+    CommandInbox,
+    PathProbe,
+    install_batched_reads,
+    install_inbox,
+)
+from chassis_sdk.integrations.mqtt.internals import client_internals
 from chassis_sdk.protocol import CommandId, DriveVelocity
 from chassis_sdk.sim import ChassisSimulator
 
@@ -264,6 +273,10 @@ async def test_an_error_of_its_own_ends_the_bridge_with_its_last_will(
         await asyncio.wait_for(task, 10)
     # The fleet learns it: the broker published the will, not a clean goodbye.
     await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "CONNECTIONBROKEN")
+    # The will itself (made without an owner), not the bridge's own CONNECTIONBROKEN
+    # (which names it): the DISCONNECT with reason 0x04 went out through aiomqtt's paho
+    # client, and aiomqtt's disconnection future ended (`client_internals`).
+    assert "owner" not in obs.on("robots/r1/connection")[-1]
     await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
 
 
@@ -337,7 +350,7 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
         client = aiomqtt.Client("127.0.0.1", b.port, protocol=aiomqtt.ProtocolVersion.V5)
         install_batched_reads(client)
         install_batched_reads(client)  # once is enough: a second call changes nothing
-        paho = client._client
+        paho = client_internals(client).paho
         batched = paho.loop_read
         wakes = 0
 
@@ -357,7 +370,7 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
                 cwd=ROOT, capture_output=True, timeout=20, check=True,
             )  # fmt: skip
             sent = json.loads(stalled.stdout)["sent"]
-            queue = client._queue
+            queue = client_internals(client).queue
             await until(lambda: queue.qsize() >= sent, timeout=20)
         assert sent == 2_000
         assert queue.qsize() == sent  # nothing lost, nothing twice
@@ -365,6 +378,54 @@ async def test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets() ->
     with pytest.raises(ValueError, match="at least 1"):
         install_batched_reads(aiomqtt.Client("127.0.0.1"), batch=0)
     assert READ_BATCH >= 16
+
+
+async def test_the_aiomqtt_internals_the_bridge_uses() -> None:
+    # aiomqtt 2 has no public way to its paho client, its incoming queue or the end of
+    # its connection (https://github.com/empicano/aiomqtt/issues/191): the bridge
+    # reads them in one place, `client_internals`. An aiomqtt that changes them fails
+    # here (and the bridge refuses the client), not on the robot.
+    made = aiomqtt.Client("127.0.0.1", queue_type=CommandInbox)
+    parts = client_internals(made)
+    assert isinstance(parts.paho, paho_client.Client)
+    assert isinstance(parts.queue, CommandInbox)
+    assert isinstance(parts.disconnected, asyncio.Future)
+    assert install_inbox(made) is parts.queue  # queue_type's own instance
+    # A client with aiomqtt's default queue gets an inbox in its place, the queue
+    # aiomqtt's message iterator reads.
+    default = aiomqtt.Client("127.0.0.1")
+    inbox = install_inbox(default)
+    assert client_internals(default).queue is inbox
+    inbox.sort = lambda message: inbox.lanes.put_velocity(message)
+    inbox.put_nowait(aiomqtt.Message("robots/r1/cmd/velocity", b"{}", 0, False, 1, None))
+    assert len(default.messages) == 1
+    with pytest.raises(TypeError, match="aiomqtt"):
+        client_internals(cast(Any, SimpleNamespace()))
+    with pytest.raises(TypeError, match="cannot be replaced"):
+        install_inbox(cast(Any, SimpleNamespace()))
+
+
+async def test_a_client_made_without_queue_type_gets_a_command_inbox(
+    stand: tuple[Broker, ChassisSimulator, Chassis, Watcher],
+) -> None:
+    # The docs make the client with queue_type=CommandInbox; one made without it has
+    # aiomqtt's default queue, which the bridge replaces before it is entered.
+    b, sim, robot, obs = stand
+    client = bridge_client(b, "r1", queue_type=None)
+    assert not isinstance(client_internals(client).queue, CommandInbox)
+    bridge = MqttBridge(robot, client, "r1")
+    assert client_internals(client).queue is bridge._inbox
+    task = asyncio.create_task(bridge.run())
+    try:
+        await ready(obs)
+        await obs.publish("robots/r1/cmd/velocity", {"linear": 0.2, "angular": 0.0})
+        await until(lambda: any(d.linear_mm == 200 for d in drives(sim)))
+        await obs.publish("robots/r1/cmd/stop", b"")
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+            await task
 
 
 @pytest.mark.timing
@@ -908,7 +969,9 @@ async def test_a_velocity_taken_out_before_a_stop_never_acts_after_it(
         if message is late:  # out of its slot: the stop finds the slot empty
             inbox.put_nowait(command("stop", b""))
 
-    bridge.client = cast(Any, SimpleNamespace(messages=_Messages(inbox, stop_after)))
+    # The command side reads its client from its context: a client of the test's own.
+    client = cast(Any, SimpleNamespace(messages=_Messages(inbox, stop_after)))
+    bridge._in._ctx = dataclasses.replace(bridge._in._ctx, client=client)
     loop = asyncio.create_task(bridge._commands())
     try:
         inbox.put_nowait(command("velocity", b'{"linear": 0.1, "angular": 0}'))

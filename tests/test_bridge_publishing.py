@@ -23,6 +23,7 @@ from chassis_sdk import Board, Chassis, ConnectionLostError, RobotEvent, Telemet
 from chassis_sdk.core.notifier import Notifier
 from chassis_sdk.integrations.mqtt import MqttBridge
 from chassis_sdk.integrations.mqtt import publish as mqtt_publish
+from chassis_sdk.integrations.mqtt.internals import client_internals
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.helpers import until
@@ -103,7 +104,7 @@ async def test_every_telemetry_message_published_reaches_the_broker_in_order() -
         published: list[bytes] = []
         # Telemetry is handed to paho's client directly (``send_latest``): recorded
         # where it enters the connection.
-        paho: Any = bridge.client._client
+        paho: Any = client_internals(bridge.client).paho
         publish = paho.publish
 
         def recording(topic: str, payload: bytes, *args: Any, **kwargs: Any) -> Any:
@@ -169,7 +170,7 @@ async def test_telemetry_behind_a_stalled_broker_is_skipped_not_queued() -> None
         client = bridge_client(b, "r1", socket_options=SMALL_SEND_BUFFER, timeout=60.0)
         bridge = MqttBridge(robot, client, "r1", rate=100.0)
         streams = len(bridge.profile.remote.streams)
-        paho: Any = client._client
+        paho: Any = client_internals(client).paho
         task = asyncio.create_task(bridge.run())
         topic = "robots/r1/telemetry/telemetry"
         try:

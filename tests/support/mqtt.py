@@ -18,7 +18,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from chassis_sdk import Board, Chassis
-from chassis_sdk.integrations.mqtt import MqttBridge, connection_will
+from chassis_sdk.integrations.mqtt import CommandInbox, MqttBridge, connection_will
 
 from .mqtt_broker import Broker
 
@@ -28,7 +28,10 @@ V5 = aiomqtt.ProtocolVersion.V5
 
 
 def bridge_client(b: Broker, robot_id: str, **options: Any) -> aiomqtt.Client:
-    """A bridge's client on ``b``; ``options`` go to ``aiomqtt.Client`` as well."""
+    """A bridge's client on ``b``, with ``queue_type=CommandInbox`` as the docs make it;
+    ``options`` go to ``aiomqtt.Client`` as well (``queue_type=None``: aiomqtt's default
+    queue, which the bridge replaces)."""
+    options.setdefault("queue_type", CommandInbox)
     return aiomqtt.Client(
         "127.0.0.1",
         b.port,

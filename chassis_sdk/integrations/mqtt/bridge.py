@@ -79,16 +79,14 @@ How it is built
 `MqttBridge` is the one object its user talks to, and it holds the bridge's
 lifetime: entering the client, the task group its loops run in, the stop of the robot
 whatever the end, ``OFFLINE`` on a clean stop and the disconnect with reason 0x04 on
-an error of its own. Its collaborators do the rest, by job, and read its options as
-they are: the `CommandInbox` and its lanes
-(`mqtt_inbox`), the publishing side
-(`mqtt_publish`: the retained topics, telemetry,
-events, ``errors`` and the last will; what the device produces reaches it by callback,
-inside the device's read path, and one task publishes it all, however many streams),
-the robot id's ownership
-(`mqtt_ownership`) and the command side
-(`mqtt_commands`: sorting, velocity, stop, e-stop and
-requests).
+an error of its own. Its collaborators do the rest, by job, each given a narrow,
+frozen context of the bridge's options (`context`), never the bridge: the
+`CommandInbox` and its lanes (`inbox`), the publishing side (`publish`: the retained
+topics, telemetry, events, ``errors`` and the last will; what the device produces
+reaches it by callback, inside the device's read path, and one task publishes it all,
+however many streams), the robot id's ownership (`ownership`) and the command side
+(`commands`: sorting, velocity, stop, e-stop and requests). What aiomqtt does not
+offer publicly is reached in one place (`internals`).
 """
 
 from __future__ import annotations
@@ -113,7 +111,9 @@ from ...errors import ChassisError
 from ..inbound import CommandError as CommandError  # re-exported: it was defined here
 from ..inbound import check_topic_level
 from .commands import REQUEST_WORKERS, Commands
+from .context import CommandContext, OwnershipContext, PublishContext
 from .inbox import CommandInbox, install_batched_reads, install_inbox
+from .internals import client_internals
 from .ownership import Ownership, RobotIdTaken, new_owner
 from .publish import Publisher, connection_will
 
@@ -208,12 +208,36 @@ class MqttBridge:
         self.topic = f"{prefix}/{robot_id}"
         self.profile: DeviceProfile = profile(device.device_name)
         # Its collaborators, by job: what it publishes, who owns the robot id, and
-        # what it does with what comes in (sorted into the inbox's lanes as it comes).
-        self._out = Publisher(self, float(report_interval))
+        # what it does with what comes in (sorted into the inbox's lanes as it comes),
+        # each given only what it reads.
+        published = PublishContext(
+            client=client,
+            topic=self.topic,
+            device=device,
+            profile=self.profile,
+            owner=self.owner,
+            rate=self.rate,
+        )
+        self._out = Publisher(published, float(report_interval))
         self._inbox = install_inbox(client)
         install_batched_reads(client)
-        self._ownership = Ownership(self, self._out, self._inbox.lanes)
-        self._in = Commands(self, self._out, self._ownership, self._inbox.lanes)
+        owned = OwnershipContext(
+            client=client, topic=self.topic, owner=self.owner, take_over=take_over
+        )
+        self._ownership = Ownership(owned, self._out, self._inbox.lanes)
+        commanded = CommandContext(
+            client=client,
+            topic=self.topic,
+            prefix=prefix,
+            device=device,
+            profile=self.profile,
+            owner=self.owner,
+            read_only=read_only,
+            require_timestamp=require_timestamp,
+            max_age=self.max_age,
+            deadman=self.deadman,
+        )
+        self._in = Commands(commanded, self._out, self._ownership, self._inbox.lanes)
         self._inbox.sort = self._in.sort
         if not read_only:  # the probe of the broker -> bridge path (see Commands)
             self._out.probe = self._in.path
@@ -299,7 +323,8 @@ class MqttBridge:
                     # A clean stop says OFFLINE (if this bridge got as far as owning
                     # the robot id), bounded, even under a cancelled scope.
                     with anyio.CancelScope(shield=True):
-                        await self._out.offline()
+                        if self._ownership.online:  # else the connection topic is not ours
+                            await self._out.offline()
                     raise
                 except BaseExceptionGroup as group:
                     failure = _first_error(group)
@@ -361,10 +386,12 @@ class MqttBridge:
         reason 0x04 makes the broker publish the last will (``CONNECTIONBROKEN``),
         where aiomqtt's own clean disconnect would cancel it and leave ``ONLINE``."""
         _log.error("%s: the bridge ends on an error; the last will tells the fleet", self.topic)
-        client: Any = self.client
-        inner = getattr(client, "_client", None)
-        disconnected = getattr(client, "_disconnected", None)
-        if isinstance(inner, paho.Client) and isinstance(disconnected, asyncio.Future):
+        try:
+            internals = client_internals(self.client)
+        except TypeError:
+            internals = None
+        if internals is not None:
+            inner, disconnected = internals.paho, internals.disconnected
             reason = ReasonCode(PacketTypes.DISCONNECT, identifier=_DISCONNECT_WITH_WILL)
             with contextlib.suppress(Exception):
                 if inner.disconnect(reasoncode=reason) == paho.MQTT_ERR_SUCCESS:

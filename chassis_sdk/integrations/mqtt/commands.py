@@ -23,8 +23,8 @@ while that probe shows the path held up for longer than the deadman is refused a
 up (`PathProbe`; the publishing side sends the probes).
 
 `Commands` is `MqttBridge`'s collaborator
-for this: it reads the bridge's client, device, profile and options (``read_only``,
-``require_timestamp``, ``max_age``, ``deadman``) as they are when it acts.
+for this: it is given a `CommandContext` (the bridge's client, topic, device, profile,
+owner and options: ``read_only``, ``require_timestamp``, ``max_age``, ``deadman``).
 """
 
 from __future__ import annotations
@@ -51,13 +51,13 @@ from ..inbound import (
     command_object,
     command_time,
 )
+from .context import CommandContext
 from .inbox import Lanes, PathProbe
 from .ownership import Ownership
 from .publish import Publisher, epoch_now
 
 if TYPE_CHECKING:
     from ...core.motion import MotionSource
-    from .bridge import MqttBridge
 
 __all__ = ["REQUEST_WORKERS", "Commands"]
 
@@ -152,13 +152,13 @@ class Commands:
     answering the requests (see the module docstring)."""
 
     def __init__(
-        self, bridge: MqttBridge, publisher: Publisher, ownership: Ownership, lanes: Lanes
+        self, context: CommandContext, publisher: Publisher, ownership: Ownership, lanes: Lanes
     ) -> None:
-        self._bridge = bridge
+        self._ctx = context
         self._out = publisher
         self._ownership = ownership
         self._lanes = lanes
-        self._base = f"{bridge.topic}/"
+        self._base = f"{context.topic}/"
         #: Commands never acted on for ownership: routed before this bridge's ONLINE,
         #: or after another bridge took over.
         self.dropped = 0
@@ -166,7 +166,7 @@ class Commands:
         self.held_up = 0
         #: The broker -> bridge path, probed: `sort` tells it when a probe is back
         #: (`Publisher.run` sends them).
-        self.path = PathProbe(PROBE_PERIOD, keep=bridge.deadman + 1.0)
+        self.path = PathProbe(PROBE_PERIOD, keep=context.deadman + 1.0)
         self._source: MotionSource | None = None
         # asyncio's event, not anyio's: this wake-up is cleared by the loop it wakes
         # (anyio's cannot be).
@@ -176,8 +176,8 @@ class Commands:
         """The bridge's source in the device's motion core (made on first use)."""
         source = self._source
         if source is None or source.source.closed:
-            bridge = self._bridge
-            source = bridge.device.motion.source(f"mqtt {bridge.topic}", kind="mqtt")
+            ctx = self._ctx
+            source = ctx.device.motion.source(f"mqtt {ctx.topic}", kind="mqtt")
             self._source = source
         return source
 
@@ -188,18 +188,18 @@ class Commands:
 
     async def subscribe(self) -> None:
         """Subscribe to the commands (unless read-only) and the requests."""
-        bridge = self._bridge
+        ctx = self._ctx
         # QoS 0 and a clean session: a command is never kept for later. Retain As
         # Published (MQTT 5 §3.8.3.1): a live retained command keeps RETAIN 1, so it is
         # refused like a stored one (without it the broker clears the flag).
-        if not bridge.read_only:
-            await bridge.client.subscribe(
-                f"{bridge.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
+        if not ctx.read_only:
+            await ctx.client.subscribe(
+                f"{ctx.topic}/cmd/+", options=SubscribeOptions(qos=0, retainAsPublished=True)
             )
-            await bridge.client.subscribe(
-                f"{bridge.topic}/probe", options=SubscribeOptions(qos=0, retainAsPublished=True)
+            await ctx.client.subscribe(
+                f"{ctx.topic}/probe", options=SubscribeOptions(qos=0, retainAsPublished=True)
             )
-        await bridge.client.subscribe(f"{bridge.topic}/request/+", qos=0)
+        await ctx.client.subscribe(f"{ctx.topic}/request/+", qos=0)
 
     def _probe_back(self, message: aiomqtt.Message) -> None:
         """A message on the probe topic, as paho hands it over: the path's news if it
@@ -208,7 +208,7 @@ class Commands:
             raise CommandError("a retained message on the probe topic is nobody's probe")
         payload = command_object(message.payload)
         number = payload.get("probe")
-        if payload.get("owner") == self._bridge.owner and type(number) is int:
+        if payload.get("owner") == self._ctx.owner and type(number) is int:
             self.path.back(number)
 
     def sort(self, message: aiomqtt.Message) -> bool:
@@ -242,7 +242,7 @@ class Commands:
             lanes.requests.append(message)
             self._request_ready.set()
             return False
-        if kind != "cmd" or self._bridge.read_only or "/" in name:
+        if kind != "cmd" or self._ctx.read_only or "/" in name:
             return False
         if self._ownership.displaced_by is not None:
             self.dropped += 1  # another bridge owns the robot id now
@@ -284,7 +284,7 @@ class Commands:
         if stamp is not None:
             return None
         held = self.path.held()
-        deadman = self._bridge.deadman
+        deadman = self._ctx.deadman
         if held > deadman:
             self.held_up += 1
             raise CommandError(
@@ -298,11 +298,11 @@ class Commands:
         """The command's timestamp (epoch seconds), checked fresh; ``None`` if none."""
         stamp = payload.get("timestamp")
         if stamp is None:
-            if self._bridge.require_timestamp:
+            if self._ctx.require_timestamp:
                 raise CommandError("the command has no 'timestamp', and this bridge requires one")
             return None
         seconds = command_time(stamp)
-        check_fresh(seconds, self._bridge.max_age)
+        check_fresh(seconds, self._ctx.max_age)
         return seconds
 
     def _velocity_of(self, message: aiomqtt.Message) -> tuple[float, float, float | None]:
@@ -333,7 +333,7 @@ class Commands:
     async def consume(self) -> None:
         """Act on the commands as the inbox serves them: stops and e-stops first, then
         the newest velocity command (the motion core paces what is written)."""
-        async for message in self._bridge.client.messages:
+        async for message in self._ctx.client.messages:
             try:
                 await self._act(message)
             except Exception as exc:  # any failure is this message's refusal, no more
@@ -343,7 +343,7 @@ class Commands:
         if self._ownership.displaced_by is not None:
             self.dropped += 1
             return
-        bridge = self._bridge
+        ctx = self._ctx
         name = message.topic.value.rpartition("/")[2]
         if name == "velocity":
             lanes = self._lanes
@@ -357,8 +357,8 @@ class Commands:
             # One command under the deadman, counted from when it was given: its stamp
             # (plus the skew), or the least age the probe of the path showed. Nothing
             # awaits between the epoch's check and the offer, so no stop comes between.
-            timeout = bridge.device.command_timeout
-            duration = None if timeout is not None else bridge.deadman
+            timeout = ctx.device.command_timeout
+            duration = None if timeout is not None else ctx.deadman
             source = self.source()
             if lanes.neutral_passed:
                 # The sender gave a zero that a newer command superseded in the slot:
@@ -375,10 +375,10 @@ class Commands:
             self.source().stop()
         elif name == "estop":
             engaged = self._estop_of(message)
-            device: Any = bridge.device
+            device: Any = ctx.device
             if not hasattr(device, "emergency_stop"):
                 self.source().stop()
-                raise CommandError(f"a {bridge.profile.name} has no e-stop; it was stopped")
+                raise CommandError(f"a {ctx.profile.name} has no e-stop; it was stopped")
             await (device.emergency_stop() if engaged else device.release_emergency_stop())
 
     async def answer_requests(self) -> None:
@@ -397,22 +397,22 @@ class Commands:
                 self._out.refuse(_topic(message), _why(exc))
 
     async def _request(self, message: aiomqtt.Message) -> None:
-        bridge = self._bridge
+        ctx = self._ctx
         name = message.topic.value.rpartition("/")[2]
         props = message.properties
-        response = _check_response_topic(getattr(props, "ResponseTopic", None), bridge.prefix)
+        response = _check_response_topic(getattr(props, "ResponseTopic", None), ctx.prefix)
         correlation = _check_correlation(getattr(props, "CorrelationData", None))
         reply = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
         if correlation is not None:
             reply.CorrelationData = correlation
-        known = bridge.profile.remote.requests
+        known = ctx.profile.remote.requests
         if name not in known:
             body: dict[str, Any] = {
                 "error": f"unknown request {name[:40]!r}; known: {', '.join(known)}"
             }
         else:
             try:
-                body = {"result": plain(await getattr(bridge.device, name)())}
+                body = {"result": plain(await getattr(ctx.device, name)())}
             except ChassisError as exc:
                 body = {"error": str(exc)}
-        await bridge.client.publish(response, json.dumps(body).encode(), properties=reply)
+        await ctx.client.publish(response, json.dumps(body).encode(), properties=reply)

@@ -22,6 +22,8 @@ from typing import Any
 
 import aiomqtt
 
+from .internals import client_internals
+
 __all__ = [
     "READ_BATCH",
     "CommandInbox",
@@ -267,25 +269,28 @@ class CommandInbox(asyncio.Queue[aiomqtt.Message]):
 
 
 def install_inbox(client: aiomqtt.Client) -> CommandInbox:
-    """The client's `CommandInbox`: its own, or one put in place of aiomqtt's
-    default queue (which must be empty: the client is not entered yet).
+    """The client's `CommandInbox`: its own (``queue_type=CommandInbox``), or one put in
+    place of aiomqtt's default queue (which must be empty: the client is not entered
+    yet).
 
     Raises:
         TypeError: The client's incoming queue cannot be replaced.
     """
-    queue = getattr(client, "_queue", None)
+    try:
+        queue = client_internals(client).queue
+    except TypeError as exc:
+        raise TypeError(f"the client's incoming queue cannot be replaced: {exc}") from None
     if isinstance(queue, CommandInbox):
-        inbox = queue
-    elif isinstance(queue, asyncio.Queue) and queue.empty():
-        # aiomqtt's default queue is unbounded and first in, first out: under a
-        # flood it grows without bound and a stop waits behind everything. The
-        # client is not entered yet, so nothing can be in it.
-        inbox = CommandInbox()
-        client._queue = inbox
-    else:
+        return queue
+    if not queue.empty():
         raise TypeError(
             "the client's incoming queue cannot be replaced: make it with queue_type=CommandInbox"
         )
+    # aiomqtt's default queue is unbounded and first in, first out: under a flood it
+    # grows without bound and a stop waits behind everything. The client is not
+    # entered yet, so nothing can be in it.
+    inbox = CommandInbox()
+    client_internals(client, new_queue=inbox)
     return inbox
 
 
@@ -317,7 +322,10 @@ def install_batched_reads(client: aiomqtt.Client, batch: int = READ_BATCH) -> No
     """
     if batch < 1:
         raise ValueError(f"batch must be at least 1, got {batch!r}")
-    paho = client._client
+    # aiomqtt's reader calls its paho client's ``loop_read()`` once per readable event:
+    # that method, of this client only, reads on (aiomqtt has no hook for it; pinned by
+    # ``test_each_wake_up_of_the_client_s_socket_reads_a_batch_of_packets``).
+    paho = client_internals(client).paho
     if "loop_read" in vars(paho):
         return  # installed already
     read_one = paho.loop_read
@@ -325,7 +333,7 @@ def install_batched_reads(client: aiomqtt.Client, batch: int = READ_BATCH) -> No
     def loop_read(max_packets: int = 1) -> Any:
         rc = read_one()
         for _ in range(batch - 1):
-            sock = paho._sock
+            sock = paho.socket()
             if rc != 0 or sock is None or not _pending(sock):
                 break
             rc = read_one()

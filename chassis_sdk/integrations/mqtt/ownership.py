@@ -12,7 +12,8 @@ bridge that sees a take-over stops taking commands at once and ends with
 last will) makes it say ``ONLINE`` again, at most once a second.
 
 `Ownership` is `MqttBridge`'s collaborator
-for this: it reads the bridge's client, topic, owner and ``take_over`` as they are.
+for this: it is given an `OwnershipContext` (the bridge's client, topic, owner and
+``take_over``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import secrets
 import socket
 import time
 from collections.abc import Awaitable, Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import aiomqtt
 import anyio
@@ -33,11 +34,9 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from ...errors import ChassisError
 from ..inbound import CommandError, command_object
+from .context import OwnershipContext
 from .inbox import Lanes
 from .publish import Publisher, state_payload
-
-if TYPE_CHECKING:
-    from .bridge import MqttBridge
 
 __all__ = ["Ownership", "RobotIdTaken", "new_owner"]
 
@@ -62,8 +61,8 @@ class RobotIdTaken(ChassisError):
 class Ownership:
     """A bridge's claim on its robot id, and its watch on the ``connection`` topic."""
 
-    def __init__(self, bridge: MqttBridge, publisher: Publisher, lanes: Lanes) -> None:
-        self._bridge = bridge
+    def __init__(self, context: OwnershipContext, publisher: Publisher, lanes: Lanes) -> None:
+        self._ctx = context
         self._out = publisher
         self._lanes = lanes
         #: True once this bridge is the robot id's owner on the broker (it has read its
@@ -91,12 +90,12 @@ class Ownership:
         our own is the state we replaced (a retained one, or a racing bridge's claim).
         ``subscribe_commands`` subscribes to the commands before the ``ONLINE`` goes.
         """
-        bridge = self._bridge
-        self._online_payload = state_payload("ONLINE", bridge.owner, take_over=bridge.take_over)
+        ctx = self._ctx
+        self._online_payload = state_payload("ONLINE", ctx.owner, take_over=ctx.take_over)
         # Retain As Published (MQTT 5 §3.8.3.1): a bridge publishes its state retained,
         # so a claim or take-over keeps RETAIN 1; a message without it is nobody's.
-        await bridge.client.subscribe(
-            f"{bridge.topic}/connection",
+        await ctx.client.subscribe(
+            f"{ctx.topic}/connection",
             options=SubscribeOptions(qos=1, retainAsPublished=True),
         )
         await subscribe_commands()  # held until the claim is settled (see Commands.sort)
@@ -106,12 +105,12 @@ class Ownership:
                 await self.echoed.wait()
         except TimeoutError:
             raise ChassisError(
-                f"{bridge.topic}/connection: the broker did not send this bridge's ONLINE "
+                f"{ctx.topic}/connection: the broker did not send this bridge's ONLINE "
                 f"back within {_ECHO_TIMEOUT:g} s (may its user read that topic? see "
                 "docs/mqtt.md, Access control)"
             ) from None
         other = self._other_owner(self._before)
-        if other is not None and not bridge.take_over:
+        if other is not None and not ctx.take_over:
             assert self._before is not None
             self._lanes.clear()  # none of them is ours to act on
             raw, state = self._before
@@ -120,7 +119,7 @@ class Ownership:
             since = state.get("timestamp")
             when = f" since {_clock(since)}" if isinstance(since, int | float) else ""
             raise RobotIdTaken(
-                f"{bridge.topic} is already bridged by {other} (ONLINE{when}); stop that "
+                f"{ctx.topic} is already bridged by {other} (ONLINE{when}); stop that "
                 "bridge first, or start this one with --take-over (take_over=True)"
             )
         self.online = True
@@ -130,7 +129,7 @@ class Ownership:
         if seen is None or seen[1].get("state") != "ONLINE":
             return None
         owner = seen[1].get("owner")
-        if owner == self._bridge.owner:
+        if owner == self._ctx.owner:
             return None  # our own, from before a reconnect
         return str(owner)[:100] if owner is not None else "a bridge without an owner id"
 
@@ -144,7 +143,7 @@ class Ownership:
             self._wanted.clear()
             if self.displaced_by is not None:
                 raise RobotIdTaken(
-                    f"{self._bridge.topic} was taken over by {self.displaced_by}: this "
+                    f"{self._ctx.topic} was taken over by {self.displaced_by}: this "
                     "bridge stopped its robot and takes no more commands"
                 )
             if self._reassert:
@@ -181,7 +180,7 @@ class Ownership:
             return
         owner = state.get("owner")
         taking = state.get("state") == "ONLINE" and state.get("take_over") is True
-        if taking and owner != self._bridge.owner:
+        if taking and owner != self._ctx.owner:
             # In the broker's order: every command routed to the new bridge comes
             # after this, so from here on none is acted on here.
             self.displaced_by = str(owner)[:100]

@@ -9,8 +9,8 @@ what was refused on ``errors`` (the first at once, then at most one summary per
 ``report_interval``).
 
 `Publisher` is `MqttBridge`'s publishing
-side: it reads the bridge's client, topic, device, profile, owner and rate as they are
-when it publishes (the bridge remains the one object its owner talks to). See the
+side: it is given a `PublishContext` (the bridge's client, topic, device, profile, owner
+and rate; the bridge remains the one object its owner talks to). See the
 module docstring of `chassis_sdk.integrations.mqtt` for the topics.
 
 It takes the device's data by callback (`chassis_sdk.core.notifier.Notifier`), not by
@@ -45,7 +45,7 @@ import logging
 import time
 import zlib
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import aiomqtt
 import anyio
@@ -60,10 +60,9 @@ from ...core.plain import outbound, plain
 from ...core.supervisor import ConnectionState
 from ...errors import ChassisError, ConnectionLostError, NotConnectedError
 from ..inbound import RefusalReport, Refusals
+from .context import PublishContext
 from .inbox import PathProbe
-
-if TYPE_CHECKING:
-    from .bridge import MqttBridge
+from .internals import client_internals
 
 __all__ = [
     "Publisher",
@@ -81,7 +80,7 @@ _log = logging.getLogger("chassis_sdk.integrations.mqtt")
 def _not_connected(client: aiomqtt.Client, rc: int) -> aiomqtt.MqttCodeError:
     """What aiomqtt's ``publish`` raises when the client is not connected."""
     error = aiomqtt.MqttCodeError(rc, "Could not publish message")
-    lost = client._disconnected
+    lost = client_internals(client).disconnected
     if lost.done() and not lost.cancelled() and lost.exception() is not None:
         error.__cause__ = lost.exception()
     return error
@@ -95,8 +94,8 @@ def unwritten(client: aiomqtt.Client) -> bool:
         aiomqtt.MqttCodeError: The client is not connected (what ``publish`` raises; paho
             keeps the unwritten packets of a lost connection until it reconnects).
     """
-    paho = client._client
-    if paho._sock is None:
+    paho = client_internals(client).paho
+    if paho.socket() is None:
         raise _not_connected(client, paho_mqtt.MQTT_ERR_NO_CONN)
     return paho.want_write()
 
@@ -126,13 +125,13 @@ def send_latest(client: aiomqtt.Client, messages: list[tuple[str, bytes]]) -> No
 
     They are written when the loop next finds the socket writable, all in that one
     wake-up, as aiomqtt's ``publish`` writes (less its wait for each message). It uses
-    aiomqtt's paho client (``client._client``), as `install_batched_reads` does; call
+    aiomqtt's paho client (`client_internals`), as `install_batched_reads` does; call
     `unwritten` first not to queue behind packets the broker has not read.
 
     Raises:
         aiomqtt.MqttCodeError: The client is not connected (what ``publish`` raises).
     """
-    paho = client._client
+    paho = client_internals(client).paho
     for topic, payload in messages:
         info = paho.publish(topic, payload)
         if info.rc != paho_mqtt.MQTT_ERR_SUCCESS:
@@ -173,8 +172,8 @@ class Publisher:
     """A bridge's publishing side: the retained topics, the telemetry, the events and
     the refusals' reports (see the module docstring)."""
 
-    def __init__(self, bridge: MqttBridge, report_interval: float) -> None:
-        self._bridge = bridge
+    def __init__(self, context: PublishContext, report_interval: float) -> None:
+        self._ctx = context
         #: What was refused, counted and summarised for ``errors``.
         self.refusals = Refusals(report_interval)
         self._reports: deque[RefusalReport] = deque(maxlen=4)
@@ -209,24 +208,24 @@ class Publisher:
         properties: Properties | None = None,
     ) -> None:
         """Publish ``payload`` on ``{prefix}/{id}/{sub}``."""
-        bridge = self._bridge
-        await bridge.client.publish(
-            f"{bridge.topic}/{sub}", payload, qos=qos, retain=retain, properties=properties
+        ctx = self._ctx
+        await ctx.client.publish(
+            f"{ctx.topic}/{sub}", payload, qos=qos, retain=retain, properties=properties
         )
 
     async def info(self) -> None:
         """The device's identity, retained on ``info``."""
-        bridge = self._bridge
+        ctx = self._ctx
         info: dict[str, Any] = {
-            "device": bridge.profile.name,
-            "summary": bridge.profile.summary,
-            "port": bridge.device.port,
-            "features": dict(bridge.profile.remote.features),
-            "owner": bridge.owner,
+            "device": ctx.profile.name,
+            "summary": ctx.profile.summary,
+            "port": ctx.device.port,
+            "features": dict(ctx.profile.remote.features),
+            "owner": ctx.owner,
         }
-        for name in bridge.profile.remote.identity:
+        for name in ctx.profile.remote.identity:
             try:
-                value = await getattr(bridge.device, name)()
+                value = await getattr(ctx.device, name)()
             except ChassisError as exc:
                 value = {"error": str(exc)}
             info[name.removeprefix("get_")] = plain(value)
@@ -234,20 +233,19 @@ class Publisher:
 
     async def offline(self) -> None:
         """Say ``OFFLINE`` (a clean stop), bounded: a broker that does not acknowledge
-        within two seconds does not hold the stop up (its last will then tells)."""
-        if not self._bridge.online:
-            return  # not the owner (or not yet): the connection topic is not ours
+        within two seconds does not hold the stop up (its last will then tells). Only
+        the robot id's owner may (the bridge checks)."""
         await self.bounded_state("OFFLINE")
 
     async def bounded_state(self, state: str) -> None:
         """Publish this bridge's ``state`` on ``connection``, waiting two seconds at
         most; a failure is logged, not raised."""
-        payload = state_payload(state, self._bridge.owner)
+        payload = state_payload(state, self._ctx.owner)
         with anyio.move_on_after(2.0):
             try:
                 await self.publish("connection", payload, qos=1, retain=True)
             except Exception as exc:
-                _log.info("%s: could not publish its state: %r", self._bridge.topic, exc)
+                _log.info("%s: could not publish its state: %r", self._ctx.topic, exc)
 
     # --- what the device hands over, and the one loop that publishes it ------------------
     #
@@ -284,8 +282,8 @@ class Publisher:
             ConnectionLostError: The device's link was lost and it does not reconnect
                 (after its last state and events are published).
         """
-        bridge = self._bridge
-        device = bridge.device
+        ctx = self._ctx
+        device = ctx.device
         if device.connection_state is ConnectionState.DISCONNECTED:
             raise NotConnectedError(f"{device.port} is not connected; use `async with` first")
         # Bounded as a subscriber of the device's streams is: its ``queue_size``.
@@ -293,7 +291,7 @@ class Publisher:
         self._states = deque(maxlen=device.queue_size)
         self._latest.clear()
         with Notifier(device) as notifier:
-            for stream in bridge.profile.remote.streams:
+            for stream in ctx.profile.remote.streams:
                 # ``latest[stream] = message``, with no Python frame: the newest
                 # replaces the one not yet published.
                 notifier.listen(stream, functools.partial(self._latest.__setitem__, stream))
@@ -302,8 +300,8 @@ class Publisher:
             # Listening first: a change while this is published is queued, not missed.
             state = device.connection_state.value
             await self.publish("link", state_payload(state), qos=1, retain=True)
-            period = 1.0 / bridge.rate
-            due = anyio.current_time() + slot_phase(bridge.topic, period)
+            period = 1.0 / ctx.rate
+            due = anyio.current_time() + slot_phase(ctx.topic, period)
             probe = self.probe
             if probe is not None:
                 probe.start()
@@ -330,7 +328,7 @@ class Publisher:
     async def _publish_queued(self) -> None:
         """The link states, then the events, that came since the last call, in order;
         if the device is lost for good, end as its streams did."""
-        device = self._bridge.device
+        device = self._ctx.device
         states, events = self._states, self._events
         lost = False
         while states:
@@ -358,8 +356,8 @@ class Publisher:
                 nothing for the client's ``timeout`` (as a ``publish`` waiting that long
                 raises).
         """
-        bridge = self._bridge
-        client = bridge.client
+        ctx = self._ctx
+        client = ctx.client
         if unwritten(client):
             self.telemetry_skipped += 1
             now = anyio.current_time()
@@ -373,14 +371,14 @@ class Publisher:
         self._stalled_since = None
         latest = self._latest
         messages = []
-        for stream in bridge.profile.remote.streams:
+        for stream in ctx.profile.remote.streams:
             message = latest.pop(stream, None)
             if message is None:
                 continue
             body = {"type": type(message).__name__, **outbound(message)}
             if "voltage" in body:  # the pack's voltage: its state of charge beside
-                body.update(battery_fields(bridge.device))
-            messages.append((f"{bridge.topic}/telemetry/{stream}", json.dumps(body).encode()))
+                body.update(battery_fields(ctx.device))
+            messages.append((f"{ctx.topic}/telemetry/{stream}", json.dumps(body).encode()))
         send_latest(client, messages)
 
     def _send_probe(self, probe: PathProbe) -> float:
@@ -390,9 +388,9 @@ class Publisher:
         left = 0.0 if due is None else due - time.monotonic()
         if left > 0:
             return left
-        bridge = self._bridge
-        payload = json.dumps({"owner": bridge.owner, "probe": probe.send()}).encode()
-        send_latest(bridge.client, [(f"{bridge.topic}/probe", payload)])
+        ctx = self._ctx
+        payload = json.dumps({"owner": ctx.owner, "probe": probe.send()}).encode()
+        send_latest(ctx.client, [(f"{ctx.topic}/probe", payload)])
         return probe.period
 
     # --- what was refused ----------------------------------------------------------------
@@ -417,7 +415,7 @@ class Publisher:
                 self._reports.append(report)
             while self._reports:
                 report = self._reports.popleft()
-                _log.info("%s: refused %s", self._bridge.topic, report.summary())
+                _log.info("%s: refused %s", self._ctx.topic, report.summary())
                 body: dict[str, Any] = {
                     "topic": report.where,
                     "error": report.why,
