@@ -333,3 +333,50 @@ def test_no_module_outside_core_touches_a_device_private_attribute(module: str) 
         and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))
     ]
     assert found == []
+
+
+#: The most lines of code one class may have (a class past it does several things: a
+#: surface's access, its protocol and its state were one 573-line class).
+MAX_CLASS_LINES = 300
+
+
+def _code_lines(module: str) -> list[tuple[str, int]]:
+    """``(class, lines of code)`` of each class in ``module``: lines that are not
+    blank, not comments and not docstrings."""
+    source = MODULES[module].read_text(encoding="utf-8")
+    tree = ast.parse(source)
+    docs: set[int] = set()
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (
+            isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+            and body
+            and isinstance(body[0], ast.Expr)
+            and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)
+        ):
+            docs.update(range(body[0].lineno, (body[0].end_lineno or body[0].lineno) + 1))
+    lines = source.splitlines()
+    sizes = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            span = range(node.lineno, (node.end_lineno or node.lineno) + 1)
+            code = [
+                n
+                for n in span
+                if n not in docs
+                and lines[n - 1].strip()
+                and not lines[n - 1].strip().startswith("#")
+            ]
+            sizes.append((node.name, len(code)))
+    return sizes
+
+
+def test_no_class_is_over_300_lines_of_code() -> None:
+    big = [
+        f"{module}.{name}: {n} lines of code"
+        for module in sorted(MODULES)
+        for name, n in _code_lines(module)
+        if n > MAX_CLASS_LINES
+    ]
+    assert big == [], "\n".join(big)

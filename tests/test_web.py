@@ -7,9 +7,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import itertools
 import json
+import math
 import re
+import subprocess
+import sys
 import time
 import urllib.error
 import urllib.request
@@ -23,7 +27,19 @@ from websockets.typing import Origin
 
 from chassis_sdk import BatteryModel, Chassis, EventKind, MotionLimits
 from chassis_sdk.core.motion import WRITE_PERIOD
+from chassis_sdk.integrations.inbound import CommandError
 from chassis_sdk.integrations.web import GamepadMapping, WebDashboard
+from chassis_sdk.integrations.web import page as protocol
+from chassis_sdk.integrations.web.page import (
+    Action,
+    Drive,
+    EStop,
+    Request,
+    Stop,
+    Terms,
+    limit,
+    offered,
+)
 from chassis_sdk.protocol import DriveVelocity
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec, PackSpec
 
@@ -115,6 +131,209 @@ def http_get(url: str, headers: dict[str, str] | None = None) -> tuple[int, dict
 
 async def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, dict[str, str], str]:
     return await asyncio.to_thread(http_get, url, headers)
+
+
+# --- the per-page protocol, sans-IO: plain values in, an action or a refusal out ----------
+
+TERMS = Terms(
+    device_name="chassis",
+    read_only=False,
+    actions=("stop", "estop", "drive", "release", "clear_faults"),
+    max_linear=0.5,
+    max_angular=1.0,
+    command_timeout=0.3,
+    rate=20.0,
+    gamepad=GamepadMapping(),
+    features={"odometry": True},
+)
+BOARD = dataclasses.replace(TERMS, device_name="board", actions=(*TERMS.actions, "led"))
+READ_ONLY = dataclasses.replace(TERMS, read_only=True, actions=("stop", "estop"))
+
+
+@pytest.mark.codec
+@pytest.mark.parametrize(
+    ("terms", "stop_only", "message", "expected"),
+    [
+        (TERMS, False, {"type": "drive", "linear": 0.3, "angular": -0.2}, Drive(0.3, -0.2)),
+        (TERMS, False, {"type": "drive", "linear": -0.5, "angular": 1}, Drive(-0.5, 1.0)),
+        (TERMS, False, {"type": "stop"}, Stop()),
+        (TERMS, False, {"type": "estop"}, EStop()),
+        (TERMS, False, {"type": "release"}, Request("release")),
+        (TERMS, False, {"type": "clear_faults"}, Request("clear_faults")),
+        (BOARD, False, {"type": "led", "on": True}, Request("led", True)),
+        (READ_ONLY, False, {"type": "stop"}, Stop()),
+        (TERMS, True, {"type": "estop"}, EStop()),
+        (
+            TERMS,
+            False,
+            {"type": "drive", "linear": 0.6, "angular": 0},
+            "linear 0.6 is beyond the limit 0.5",
+        ),
+        (
+            TERMS,
+            False,
+            {"type": "drive", "linear": 0, "angular": -1.5},
+            "angular -1.5 is beyond the limit 1",
+        ),
+        (TERMS, False, {"type": "drive", "linear": 0.1}, "angular"),
+        (TERMS, False, {"type": "drive", "linear": True, "angular": 0}, "linear"),
+        (TERMS, False, {"type": "stop", "linear": 0}, "unknown keys ['linear'] for 'stop'"),
+        (TERMS, False, {"type": "fly"}, "unknown message type 'fly'"),
+        (TERMS, False, {"linear": 0.1}, "a message needs a string 'type'"),
+        (TERMS, False, {"type": "led", "on": True}, "'led' is not offered (a chassis)"),
+        (BOARD, False, {"type": "led", "on": 1}, "led needs 'on': true or false"),
+        (
+            READ_ONLY,
+            False,
+            {"type": "drive", "linear": 0, "angular": 0},
+            "'drive' is not offered (read-only)",
+        ),
+        (
+            TERMS,
+            True,
+            {"type": "release"},
+            "'release' is not offered (stop only: the page limit is reached)",
+        ),
+    ],
+)
+def test_a_page_message_is_read_into_one_action_or_refused(
+    terms: Terms, stop_only: bool, message: dict[str, Any], expected: Action | str
+) -> None:
+    page = protocol.Page("web page 1", terms, stop_only=stop_only)
+    raw = json.dumps(message).encode()
+    if isinstance(expected, str):
+        with pytest.raises(CommandError, match=re.escape(expected)):
+            page.read(raw, now=100.0)
+    else:
+        assert page.read(raw, now=100.0) == expected
+
+
+@pytest.mark.codec
+@pytest.mark.parametrize(
+    "raw", [b"not json", b'{"type": "stop", "type": "stop"}', b"[1]", b"x" * 5000]
+)
+def test_a_message_that_is_not_one_json_object_is_refused(raw: bytes) -> None:
+    with pytest.raises(CommandError):
+        protocol.Page("web page 1", TERMS).read(raw, now=0.0)
+
+
+@pytest.mark.codec
+def test_the_page_clock_ages_a_late_message_and_refuses_a_held_up_or_reordered_one() -> None:
+    page = protocol.Page("web page 1", TERMS)  # the deadman: 0.3 s
+    steps: list[tuple[float, float, float | str]] = [
+        # (the page's t in ms, the server's clock in s, the age given or the refusal)
+        (1000, 10.0, 0.0),  # the first: the fastest so far
+        (1050, 10.06, 0.01),  # 10 ms later than the fastest delivery
+        (1100, 10.05, 0.0),  # faster still: the new least difference
+        (1200, 10.40, 0.25),  # late, within the deadman: given that old
+        (1300, 10.60, "held up 0.35 s"),  # later than the deadman
+        (1250, 10.60, "t went back"),  # before the last one taken
+        (1400, 10.36, 0.01),  # and the page drives on
+    ]
+    for t, now, expected in steps:
+        raw = json.dumps({"type": "drive", "linear": 0.1, "angular": 0, "t": t}).encode()
+        if isinstance(expected, str):
+            with pytest.raises(CommandError, match=expected):
+                page.read(raw, now)
+        else:
+            action = page.read(raw, now)
+            assert isinstance(action, Drive)
+            assert action.age == pytest.approx(expected, abs=1e-9)
+
+
+@pytest.mark.codec
+def test_a_page_is_told_its_hello_and_gets_its_notes_and_events_once() -> None:
+    page = protocol.Page("web page 9", TERMS, stop_only=True)
+    hello = page.hello("/dev/ttyUSB0", [{"kind": "ESTOP_ENGAGED"}], [(0.0, 0.0), (0.1, 0.0)])
+    assert hello["type"] == "hello"
+    assert (hello["device"], hello["port"]) == ("chassis", "/dev/ttyUSB0")
+    assert (hello["read_only"], hello["stop_only"], hello["actions"]) == (
+        True,
+        True,
+        ["stop", "estop"],
+    )
+    assert (hello["max_linear"], hello["max_angular"], hello["command_timeout"]) == (0.5, 1.0, 0.3)
+    assert hello["gamepad"]["enable_button"] == 4
+    assert hello["events"] == [{"kind": "ESTOP_ENGAGED"}]
+    assert hello["path"] == [[0.0, 0.0], [0.1, 0.0]]
+    assert protocol.Page("web page 1", TERMS).hello("p", [], [])["read_only"] is False
+    state = json.dumps({"type": "state", "time": 1.0})
+    assert page.with_news(state) == state  # nothing to tell
+    page.refused("linear 0.6 is beyond the limit 0.5", total=3)
+    page.done("estop")
+    page.events.append({"kind": "ESTOP_ENGAGED"})
+    told = json.loads(page.with_news(state))
+    assert told["notes"] == [
+        {"refused": "linear 0.6 is beyond the limit 0.5", "total": 3},
+        {"done": "estop"},
+    ]
+    assert told["events"] == [{"kind": "ESTOP_ENGAGED"}]
+    assert page.with_news(state) == state  # told once
+
+
+class _Device:
+    def release_emergency_stop(self) -> None: ...
+    def clear_faults(self) -> None: ...
+    def set_led(self) -> None: ...
+
+
+@pytest.mark.codec
+@pytest.mark.parametrize(
+    ("device", "read_only", "features", "actions"),
+    [
+        (
+            _Device(),
+            False,
+            {"led": True},
+            ("stop", "estop", "drive", "release", "clear_faults", "led"),
+        ),
+        (
+            _Device(),
+            False,
+            {"led": True, "buzzer": True},
+            ("stop", "estop", "drive", "release", "clear_faults", "led"),
+        ),
+        (_Device(), False, {}, ("stop", "estop", "drive", "release", "clear_faults")),
+        (_Device(), True, {"led": True}, ("stop", "estop")),
+        (object(), False, {"led": True}, ("stop", "estop", "drive")),
+    ],
+)
+def test_the_actions_offered_follow_the_device_and_the_mode(
+    device: object, read_only: bool, features: dict[str, bool], actions: tuple[str, ...]
+) -> None:
+    assert offered(device, read_only, features) == actions
+
+
+@pytest.mark.codec
+@pytest.mark.parametrize(
+    ("given", "device", "expected"),
+    [(None, None, 0.5), (None, 0.8, 0.8), (0.3, None, 0.3), (0.3, 0.2, 0.2), (1.0, 0.8, 0.8)],
+)
+def test_a_page_s_limit_is_the_least_of_the_given_and_the_device_s(
+    given: float | None, device: float | None, expected: float
+) -> None:
+    assert limit("max_linear", given, device, 0.5) == expected
+
+
+@pytest.mark.codec
+@pytest.mark.parametrize("given", [0, -1.0, math.nan])
+def test_a_bad_limit_is_refused(given: float) -> None:
+    with pytest.raises(ValueError, match="max_linear"):
+        limit("max_linear", given, None, 0.5)
+
+
+@pytest.mark.integration
+def test_the_per_page_protocol_loads_without_the_runtime() -> None:
+    code = (
+        "import sys, chassis_sdk.integrations.web.page\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0]"
+        " in ('asyncio', 'anyio', 'aiohttp')))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
 
 
 # --- what it serves ------------------------------------------------------------------------
@@ -221,8 +440,9 @@ async def test_the_dashboard_has_no_task_per_stream_and_pages_get_states_in_orde
         # Its own task, the state broadcast, and this page's two (its handler, its
         # sender): before, also one for the events and one per stream (9 for a chassis,
         # 10 for a board), and a velocity writer (the motion core's pacing now).
-        tasks = ["_guarded", "_run_tasks", "_send", "_socket"]
-        assert tasks_of("web/server.py") == tasks
+        assert tasks_of("web/server.py") == ["_guarded", "_run_tasks"]
+        assert tasks_of("web/sockets.py") == ["_send", "socket"]
+        assert not tasks_of("web/state.py")  # no task per stream: callbacks
         events: list[dict[str, Any]] = []
         if not board:
             await robot.emergency_stop(confirm=True)
