@@ -436,8 +436,9 @@ async def test_a_flood_of_twists_is_state_not_a_queue() -> None:
         for i in range(n - 1):
             await client.publish(1, twist(0.1 + 0.3 * (i % 2)))
         await client.publish(1, twist(0.25))
-        await until(lambda: server.commands == n, 10.0)
-        await until(lambda: robot.commanded_velocity == (0.25, 0.0), 1.0)
+        # Velocity is state: the newest of what waits is handed over, not each one.
+        await until(lambda: robot.commanded_velocity == (0.25, 0.0), 10.0)
+        assert 0 < server.commands <= n
         # A stop right after the flood is not behind it.
         start = time.monotonic()
         assert (await client.call("stop"))["success"]
@@ -487,7 +488,7 @@ async def test_a_twist_flood_reaches_the_wire_at_most_once_per_write_period() ->
         assert len(frames) <= span / WRITE_PERIOD + 2, (len(frames), span)
         assert per_second <= 51 + 2 / (end - start), per_second
         assert server.rejected == 0
-        assert server.commands == sent  # each one taken: velocity is state
+        assert 0 < server.commands <= sent  # the newest of what waited each time
 
 
 async def call_in_this_step(client: FoxgloveClient, service: str) -> asyncio.Future[bytes]:
