@@ -785,6 +785,27 @@ async def test_malformed_messages_are_refused_counted_shown_and_move_nothing() -
             await until(lambda: moving(sim), 2.0)
 
 
+def _sized(n: int) -> str:
+    """A ``stop`` message of exactly ``n`` bytes (its unknown key is refused)."""
+    base = '{"type": "stop", "pad": ""}'
+    return base[:-2] + "x" * (n - len(base)) + '"}'
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("size", [4095, 4096, 4097])
+async def test_at_most_4_kib_means_4096_bytes(size: int) -> None:
+    # 4,096 bytes are read (and refused for their unknown key); 4,097 end that socket
+    # (RFC 6455 1009). aiohttp's max_msg_size refuses a message of that size already.
+    async with served() as (_sim, _robot, web), page(web) as p:
+        await p.ws.send(_sized(size))
+        if size <= 4096:
+            await p.wait(lambda: bool(p.refusals()))
+            assert "unknown keys" in p.refusals()[0]
+        else:
+            await asyncio.wait_for(p.ws.wait_closed(), 5)
+            assert p.ws.close_code == 1009
+
+
 @pytest.mark.integration
 async def test_read_only_takes_only_stop_and_estop() -> None:
     async with (

@@ -120,8 +120,10 @@ class PageSockets:
         else:
             self._admitted += 1
         try:
+            # aiohttp refuses a message of max_msg_size bytes or more: one byte more,
+            # so that "at most 4 KiB" takes 4,096 bytes.
             ws = web.WebSocketResponse(
-                heartbeat=_HEARTBEAT, max_msg_size=MAX_MESSAGE, compress=False, autoping=True
+                heartbeat=_HEARTBEAT, max_msg_size=MAX_MESSAGE + 1, compress=False, autoping=True
             )
             await ws.prepare(request)
             self._numbered += 1
