@@ -137,3 +137,27 @@ async def test_zero_on_close_off_writes_the_zero_only_after_a_velocity(drove: bo
             await until(lambda: [d.linear_mm for d in drives(sim)] == [0, 0])
         else:
             assert drives(sim) == []
+
+
+async def test_a_release_right_after_the_estop_is_not_undone_by_a_frame_in_flight() -> None:
+    # The chassis may send a frame showing SOFTWARE_ESTOP after the host has released
+    # it (sent between the two commands), even after a frame without it. That frame is
+    # not a new e-stop: a command given after the release drives. Released at various
+    # moments after the e-stop, before and after telemetry shows it (3 of 60 refused
+    # before: the late frame began a block that ended the new command).
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        page = robot.motion.source("page", kind="web")
+        refused = []
+        for i in range(40):
+            await robot.emergency_stop()
+            page.stop()  # the page's neutral, as its E-STOP button sends
+            await asyncio.sleep(0.001 * (i % 15))
+            await robot.release_emergency_stop()
+            await asyncio.sleep(0.001 * (i % 7))
+            refusal = page.set_velocity(0.2, 0.0)
+            await asyncio.sleep(0.06)  # three telemetry frames
+            if refusal is not None or robot.motion.driver != "page":
+                refused.append((i, refusal))
+            page.stop()
+        assert refused == []
+        await until(lambda: drives(sim)[-1].linear_mm == 0)

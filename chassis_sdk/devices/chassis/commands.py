@@ -58,12 +58,12 @@ class ChassisCommands(Device[Any, ReplyId]):
         """
         self._ensure_connected()
         self._motion.set_blocks("software", ())
-        latest = self._telemetry.latest
-        if latest is not None and ChassisStatus.SOFTWARE_ESTOP in latest.status:
-            self._releasing = time.monotonic() + _RELEASE_GRACE
-            self._motion.set_blocks(
-                "device", tuple(f for f in self.motion_blocked() if f != "SOFTWARE_ESTOP")
-            )
+        # Frames still showing the e-stop (sent before the release took effect) are not
+        # a new one for a moment: see Chassis._on_status.
+        self._releasing = time.monotonic() + _RELEASE_GRACE
+        self._motion.set_blocks(
+            "device", tuple(f for f in self.motion_blocked() if f != "SOFTWARE_ESTOP")
+        )
         await self._send_confirmed(
             self._encoder.emergency_stop(False),
             ChassisStatus.SOFTWARE_ESTOP,

@@ -207,15 +207,15 @@ class Chassis(ChassisCommands, FromConfig):
             self._integrate((left + right) / 2, (right - left) / self._wheel_track, ts)
 
     def _on_status(self, t: Telemetry) -> None:
-        """Tell the motion core what the chassis reports blocks motion. Just after
-        `release_emergency_stop`, a frame may still show ``SOFTWARE_ESTOP`` (sent before
-        the release arrived): it is not a block until a frame shows it clear, or until
-        the release has had ``_RELEASE_GRACE`` s to take effect."""
+        """Tell the motion core what the chassis reports blocks motion. For
+        ``_RELEASE_GRACE`` s after `release_emergency_stop`, ``SOFTWARE_ESTOP`` in a
+        frame is taken for one sent before the release took effect (the chassis may
+        send a frame between the e-stop and its release, even after one without it),
+        not for a new e-stop: only this host engages it. Still shown after that, it
+        blocks."""
         flags = self.motion_blocked()
         if self._releasing:
-            if "SOFTWARE_ESTOP" not in flags:
-                self._releasing = 0.0
-            elif t.timestamp < self._releasing:
+            if t.timestamp < self._releasing:
                 flags = tuple(f for f in flags if f != "SOFTWARE_ESTOP")
             else:
                 self._releasing = 0.0
