@@ -651,7 +651,8 @@ async def test_a_command_drives_and_the_deadman_stops_it(surface: Surface) -> No
             assert velocities(sim, sent)[-1][1] == 0
 
 
-@surfaces()  # not timing: a loaded machine writes fewer frames, never more
+@pytest.mark.timing  # a flood from another process: not a load for parallel tests
+@surfaces()
 async def test_velocity_reaches_the_wire_at_most_once_per_period_under_a_flood(
     surface: Surface,
 ) -> None:
@@ -805,7 +806,7 @@ def _rss() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-@pytest.mark.slow
+@pytest.mark.timing  # two floods from other processes: a load not to put on parallel tests
 @surfaces("junk", but=("api",))
 async def test_memory_stays_bounded_under_a_flood(surface: Surface) -> None:
     # Velocity is state and refusals are counted, not kept: what a flood leaves behind

@@ -48,7 +48,8 @@ MARKERS = {
     "browser": "drives Debian's Chromium headless through Playwright",
     "mqtt": "runs a real mosquitto broker on loopback",
     "ros2": "speaks DDS: Cyclone DDS participants or the Fast DDS peer",
-    "timing": "asserts on wall-clock time: run serially (pytest -m timing), never under xdist",
+    "timing": "asserts on wall-clock time, or floods the machine from other processes: run "
+    "serially (pytest -m timing), never under xdist",
     "slow": "takes more than about 5 s on its own",
     "codec": "sans-IO codecs: vectors, round trips, the contract, compiled vs pure",
     "uvloop": "about uvloop itself: CI's uvloop stage runs it (skips where uvloop is absent)",
