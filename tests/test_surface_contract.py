@@ -432,10 +432,10 @@ class _Ros2Client(Client):
 class Ros2(Surface):
     name = "ros2"
     marks = (pytest.mark.ros2, pytest.mark.netns)
-    # One source per bridge (DDS does not tell the bridge's reader its writers apart
-    # cheaply: no "two_clients"); a read-only bridge subscribes to nothing; ROS 2 has no
-    # stop of its own (a zero Twist is a velocity: the e-stop topic is its stop).
-    offers = frozenset({"estop", "junk", "held_up", "streaming"})
+    # Each cmd_vel writer is a source (its publication handle); a read-only bridge
+    # subscribes to nothing; ROS 2 has no stop of its own (a zero Twist is a velocity:
+    # the e-stop topic is its stop).
+    offers = frozenset({"estop", "junk", "held_up", "two_clients", "streaming"})
     kind = "ros2"
 
     @contextlib.asynccontextmanager

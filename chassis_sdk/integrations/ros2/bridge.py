@@ -31,10 +31,10 @@ It keeps the contract of every surface that can move the robot (the MQTT bridge'
   the robot within the deadman, and when no ``cmd_vel`` writer is left (DDS tells the
   reader: liveliness and matching) the robot stops at once;
 - velocity is state, not a queue: every valid sample goes to the device's motion core
-  as the bridge's one source (kind ``"ros2"``: DDS does not tell its writers apart
-  cheaply, so every ``cmd_vel`` writer is that one source); the core writes the newest
-  at most once per ``WRITE_PERIOD`` (20 ms), and a stamped sample holds only for what
-  is left of ``command_timeout`` after its stamp;
+  through its writer's source (kind ``"ros2"``, one per ``cmd_vel`` writer, told apart
+  by the sample's publication handle: two writers do not drive against each other);
+  the core writes the newest at most once per ``WRITE_PERIOD`` (20 ms), and a stamped
+  sample holds only for what is left of ``command_timeout`` after its stamp;
 - a sample that is non-finite, out of the device's range, stamped older than the
   deadman, or that will not decode is refused, counted and reported in the log (the
   first at once, then at most one summary a second) and in ``/diagnostics``: never

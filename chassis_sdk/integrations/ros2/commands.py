@@ -1,13 +1,15 @@
 """What the ROS 2 bridge takes in: ``cmd_vel`` (``Twist``, or ``TwistStamped``) and
 ``emergency_stop`` (``Bool``), each sample checked (finite, fresh by its stamp, within
-the limits) and given to the device's motion core through the bridge's one source
-(kind ``"ros2"``, streaming), or to its e-stop. Refusals go to the bridge's reporter."""
+the limits) and given to the device's motion core through its writer's source (kind
+``"ros2"``, streaming: one per DDS writer, told apart by the sample's publication
+handle), or to its e-stop. Refusals go to the bridge's reporter."""
 
 from __future__ import annotations
 
 import contextlib
 import logging
 import math
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -22,6 +24,9 @@ from ..inbound import CommandError, check_fresh
 from .dds import Reader
 
 __all__ = ["Inbound"]
+
+#: Seconds a writer that does not drive may be silent before its source is forgotten.
+_IDLE = 5.0
 
 _log = logging.getLogger("chassis_sdk.integrations.ros2")
 
@@ -61,6 +66,11 @@ class Inbound:
         #: Stops because the last ``cmd_vel`` writer went away.
         self.writer_gone_stops = 0
         self._stop_now = False
+        # Each cmd_vel writer's source, by its DDS publication handle, and when it was
+        # last heard from.
+        self._sources: dict[int, MotionSource] = {}
+        self._heard: dict[int, float] = {}
+        self._writers_seen = 0
         # A device without an e-stop of its own: the e-stop topic blocks motion in the
         # core while engaged (this bridge's block, cleared when it ends).
         self._estop_block = False
@@ -95,25 +105,61 @@ class Inbound:
         return linear, angular, max(0.0, age)  # a stamp just ahead (within the skew): now
 
     async def commands_from(self, reader: Reader[Any]) -> None:
-        """Act on ``cmd_vel``: each valid sample to the motion core through the bridge's
-        one source (the core paces the writes and keeps the newest); a stop at once when
-        the last writer leaves, if ``cmd_vel`` was driving (the reader wakes this loop for
-        both)."""
+        """Act on ``cmd_vel``: each valid sample to the motion core through its writer's
+        source (the core arbitrates between writers, paces the writes and keeps the
+        newest); a stop at once when the last writer leaves, if one was driving (the
+        reader wakes this loop for both)."""
         where = TOPICS["cmd_vel"].qualified(self.namespace)
-        source = self.device.motion.source(f"ros2 {where}", kind="ros2", streaming=True)
-        with source:  # the bridge ending: the robot stops if cmd_vel was driving
+        try:
             while True:
                 await reader.wait()
                 await anyio.lowlevel.checkpoint()  # a flood of refusals still lets others run
                 for sample in reader.take():
-                    self._command(where, source, sample)
+                    self._command(where, self._source_of(where, sample), sample)
                 if self._stop_now:
                     self._stop_now = False
-                    if source.driving:
+                    if self._close_sources():
                         self.writer_gone_stops += 1
                         _log.info("%s: no writer left; the robot is stopped", where)
-                        with contextlib.suppress(ChassisError):
-                            source.stop()
+        finally:
+            self._close_sources()  # the bridge ending: the robot stops if one was driving
+
+    def _source_of(self, where: str, sample: Any) -> MotionSource:
+        """The source of the writer that wrote ``sample`` (DDS's publication handle): each
+        ``cmd_vel`` writer (Nav2, a teleop node) is a client of its own in the core."""
+        info = getattr(sample, "sample_info", None)
+        handle = int(getattr(info, "publication_handle", 0) or 0)
+        source = self._sources.get(handle)
+        if source is None:
+            self._forget_idle()
+            self._writers_seen += 1
+            source = self.device.motion.source(
+                f"ros2 {where} writer {self._writers_seen}", kind="ros2", streaming=True
+            )
+            self._sources[handle] = source
+        self._heard[handle] = time.monotonic()
+        return source
+
+    def _forget_idle(self) -> None:
+        """Close the sources of writers silent for `_IDLE` s that do not drive (a writer
+        that left while others stay): memory stays bounded however many come and go."""
+        now = time.monotonic()
+        for handle, heard in list(self._heard.items()):
+            source = self._sources[handle]
+            if now - heard > _IDLE and not source.driving:
+                source.close()
+                del self._sources[handle], self._heard[handle]
+
+    def _close_sources(self) -> bool:
+        """Close every writer's source; True if one was driving (the robot is stopped)."""
+        driving = False
+        for source in self._sources.values():
+            driving |= source.driving
+            with contextlib.suppress(ChassisError):
+                source.close()
+        self._sources.clear()
+        self._heard.clear()
+        return driving
 
     def _command(self, where: str, source: MotionSource, sample: Any) -> None:
         """One sample: refused (counted, reported) or offered to the core."""
