@@ -233,16 +233,12 @@ class Arbiter:
 
     # --- commands --------------------------------------------------------------------------
 
-    def velocity(
-        self, source: Source, *, neutral: bool, age: float = 0.0, take_over: bool = False
-    ) -> Refusal | bool:
+    def velocity(self, source: Source, *, neutral: bool, take_over: bool = False) -> Refusal | bool:
         """May ``source``'s velocity act now?
 
         Args:
             source: Who asks.
             neutral: The velocity is zero (a neutral clears the need for one).
-            age: How old the command already is (s), for the caller's check of
-                staleness; not used here.
             take_over: Take the lease from a source of any priority.
 
         Returns:
@@ -250,7 +246,6 @@ class Arbiter:
             from a source that does not drive, or during a block). A `Refusal`: refuse
             it, and report it (counted here).
         """
-        del age
         if source.closed:
             raise RuntimeError(f"source {source.name!r} is closed")
         now = self._clock()
@@ -294,11 +289,6 @@ class Arbiter:
         self._until = -math.inf
         if source is not None:
             source._needs_neutral = False
-
-    def expired(self) -> None:
-        """The command in force ended on its own (deadman, duration): the lease lapses."""
-        self._holder = None
-        self._until = -math.inf
 
     def stale(self, source: Source, detail: str) -> Refusal:
         """Refuse ``source``'s command as older than its deadman (counted)."""
