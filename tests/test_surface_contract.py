@@ -39,7 +39,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 
 from chassis_sdk import Chassis, MotionBlockedError
-from chassis_sdk.cli.teleop_command import _drive as teleop_drive
+from chassis_sdk.cli.teleop_command import drive_from_terminal
 from chassis_sdk.core.motion import WRITE_PERIOD
 from chassis_sdk.integrations.foxglove import FoxgloveServer
 from chassis_sdk.integrations.ros2.dds import Discovery
@@ -503,7 +503,9 @@ class Teleop(Surface):
         keys = KeyTeleop(max_linear=0.5, max_angular=1.0, speed=0.4)  # w: 0.2 m/s
         try:
             async with anyio.create_task_group() as tg:
-                tg.start_soon(teleop_drive, robot, keys, None, slave, Namespace(seconds=None))
+                tg.start_soon(
+                    drive_from_terminal, robot, keys, None, slave, Namespace(seconds=None)
+                )
                 self.master = master
                 yield
                 tg.cancel_scope.cancel()

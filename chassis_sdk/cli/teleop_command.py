@@ -39,7 +39,7 @@ from .common import driven, out
 if TYPE_CHECKING:
     from ..core.motion import MotionSource
 
-__all__ = ["REFRESH", "teleop"]
+__all__ = ["REFRESH", "drive_from_terminal", "teleop"]
 
 #: How often a held command is written again (s): well inside the deadman.
 REFRESH = 0.05
@@ -182,15 +182,19 @@ async def teleop(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     try:
         with cbreak(fd):
             async with driven(device, port, args) as dev:
-                await _drive(dev, keys, pad, fd, args)
+                await drive_from_terminal(dev, keys, pad, fd, args)
     finally:
         if pad is not None:
             pad.close()
 
 
-async def _drive(
+async def drive_from_terminal(
     dev: Any, keys: KeyTeleop, pad: Pad | None, fd: int, args: argparse.Namespace
 ) -> None:
+    """Drive ``dev`` from the terminal on ``fd`` (already in cbreak or raw mode) and
+    ``pad`` until quit, the terminal or the pad goes away, or ``args.seconds`` pass: the
+    keys through ``keys``, both through the device's motion core as one source of kind
+    ``"teleop"`` (``"gamepad"`` with a pad). The robot is stopped when it returns."""
     wake = asyncio.Event()
     term = Terminal(fd, wake)
     if pad is not None:
