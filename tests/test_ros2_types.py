@@ -121,6 +121,29 @@ def test_odometry_is_rosbags_bytes() -> None:
     assert ours.serialize()[:4] == b"\x00\x01\x00\x00"  # plain CDR, little endian
 
 
+@pytest.mark.parametrize(
+    ("stamps", "published", "repeated"),
+    [
+        ((1.0, 1.05, 1.1), [1.0, 1.05, 1.1], 0),
+        # two frames of one read share its receive time: the second gives nothing
+        ((1.0, 1.0, 1.05), [1.0, 1.05], 1),
+        ((1.0, 1.05, 1.02, 1.1), [1.0, 1.05, 1.1], 1),  # never backwards either
+    ],
+)
+def test_odometry_stamps_only_go_forward(
+    stamps: tuple[float, ...], published: list[float], repeated: int
+) -> None:
+    translator = r.Translator(r.Ros2Options(), ["odometry"])
+    sent: list[float] = []
+    for t in stamps:
+        out = translator.messages("odometry", SimpleNamespace(**{**vars(ODOM), "timestamp": t}))
+        if out:
+            assert [key for key, _ in out] == ["odom", "tf"]
+            sent.append(t)
+    assert sent == published
+    assert translator.repeated_odometry == repeated
+
+
 def test_odometry_takes_given_covariances() -> None:
     pose = r.covariance((1, 2, 3, 4, 5, 6))
     twist = r.covariance((0.5, 0, 0, 0, 0, 0.5))

@@ -904,6 +904,11 @@ class Translator:
     ``battery_state``; without a ``battery`` stream, ``telemetry`` that carries a
     ``voltage`` gives ``battery_state`` at most once per `BATTERY_PERIOD`.
 
+    Odometry stamps only go forward: a reading stamped no later than the last one
+    published (two frames that came in one read share its receive time) gives nothing
+    and is counted in `repeated_odometry`. Its pose is the one already sent (no time
+    passed), and tf2 would drop it with a ``TF_REPEATED_DATA`` warning for each.
+
     Args:
         options: The names, frames and covariances.
         streams: The device's stream names (``Notifier.stream_names``).
@@ -930,6 +935,9 @@ class Translator:
         self._pose_cov = covariance(options.pose_covariance or DEFAULT_POSE_COVARIANCE)
         self._twist_cov = covariance(options.twist_covariance or DEFAULT_TWIST_COVARIANCE)
         self._last_battery = -math.inf
+        self._last_odometry = -math.inf
+        #: Odometry readings not published: stamped no later than the previous one.
+        self.repeated_odometry = 0
         table: dict[str, tuple[tuple[str, ...], Any]] = {}
         if "odometry" in names:
             table["odometry"] = (("odom", "tf") if options.tf else ("odom",), self._odometry)
@@ -962,6 +970,10 @@ class Translator:
         return static_transforms_message(self.static, epoch)
 
     def _odometry(self, sample: Any, epoch: float) -> list[tuple[str, Any]]:
+        if sample.timestamp <= self._last_odometry:
+            self.repeated_odometry += 1
+            return []
+        self._last_odometry = sample.timestamp
         o = self.options
         out: list[tuple[str, Any]] = [
             (
