@@ -43,6 +43,8 @@ from .errors import (
     ChassisError,
     ConnectionLostError,
     MotionBlockedError,
+    MovePreemptedError,
+    MoveTimeoutError,
     NotConnectedError,
     PortOpenError,
     ProtocolError,
@@ -55,7 +57,7 @@ if TYPE_CHECKING:
     from .core.diagnosis import Diagnosis
     from .core.dispatch import Listener, ListenerStats, Subscription
     from .core.events import EventKind, RobotEvent
-    from .core.motion import MotionLimits
+    from .core.motion import MotionLimits, MoveResult
     from .core.notifier import Notifier
     from .core.odometry import Odometry
     from .core.run import run
@@ -104,6 +106,7 @@ _LAZY = {
     "Odometry": ".core.odometry",
     "run": ".core.run",
     "MotionLimits": ".core.motion",
+    "MoveResult": ".core.motion",
     "Board": ".devices.board.device",
     "Profile": ".devices.config",
     "ProfileError": ".devices.config",
@@ -160,6 +163,9 @@ __all__ = [
     "MotionLimits",
     "Motor",
     "MotorStatus",
+    "MovePreemptedError",
+    "MoveResult",
+    "MoveTimeoutError",
     "NotConnectedError",
     "Notifier",
     "Odometry",

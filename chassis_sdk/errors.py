@@ -13,10 +13,14 @@ Errors are split by whose fault they are, as h11 does:
 
 from __future__ import annotations
 
+from typing import Any
+
 __all__ = [
     "ChassisError",
     "ConnectionLostError",
     "MotionBlockedError",
+    "MovePreemptedError",
+    "MoveTimeoutError",
     "NotConnectedError",
     "PortOpenError",
     "ProtocolError",
@@ -56,6 +60,35 @@ class MotionBlockedError(ChassisError):
     def __init__(self, message: str, reasons: tuple[str, ...] = ()) -> None:
         super().__init__(message)
         self.reasons = reasons
+
+
+class MoveTimeoutError(ChassisError, TimeoutError):
+    """A goal (``drive_distance``, ``rotate``, ``go_to``) did not finish in its
+    ``timeout``; the robot was stopped.
+
+    Attributes:
+        result: Where it got (a [`MoveResult`][chassis_sdk.MoveResult], ``ended="timeout"``).
+    """
+
+    def __init__(self, message: str, result: Any) -> None:
+        super().__init__(message)
+        #: A `MoveResult` (typed ``Any`` here: the errors import nothing of the runtime).
+        self.result = result
+
+
+class MovePreemptedError(ChassisError):
+    """A goal was ended by another source: one of higher priority took over, a stop
+    came from elsewhere, or a newer goal began. It leaves the robot to whoever took
+    over.
+
+    Attributes:
+        result: Where it got (a [`MoveResult`][chassis_sdk.MoveResult], ``ended="preempted"``).
+    """
+
+    def __init__(self, message: str, result: Any) -> None:
+        super().__init__(message)
+        #: A `MoveResult` (typed ``Any`` here: the errors import nothing of the runtime).
+        self.result = result
 
 
 class PortOpenError(ChassisError, ConnectionError):

@@ -96,7 +96,7 @@ if TYPE_CHECKING:
 
     from .core.diagnosis import Diagnosis
     from .core.events import RobotEvent
-    from .core.motion import MotionLimits
+    from .core.motion import MotionLimits, MoveResult
     from .core.odometry import Odometry
     from .core.stats import LinkStats
     from .core.supervisor import ConnectionState
@@ -662,6 +662,56 @@ class BlockingDevice(Generic[D]):
 
     def verify(self, timeout: float = 3.0) -> None:
         return self._call_own(timeout, self._device.verify, timeout)
+
+    def drive_distance(
+        self,
+        distance: float,
+        speed: float | None = None,
+        *,
+        tolerance: float | None = None,
+        timeout: float | None = None,
+    ) -> MoveResult:
+        return self._call_own(
+            timeout,
+            self._device.drive_distance,
+            distance,
+            speed,
+            tolerance=tolerance,
+            timeout=timeout,
+        )
+
+    def rotate(
+        self,
+        angle: float,
+        rate: float | None = None,
+        *,
+        tolerance: float | None = None,
+        timeout: float | None = None,
+    ) -> MoveResult:
+        return self._call_own(
+            timeout, self._device.rotate, angle, rate, tolerance=tolerance, timeout=timeout
+        )
+
+    def go_to(
+        self,
+        x: float,
+        y: float,
+        heading: float | None = None,
+        *,
+        speed: float | None = None,
+        tolerance: float | None = None,
+        timeout: float | None = None,
+    ) -> MoveResult:
+        return self._call_own(
+            timeout,
+            self._device.go_to,
+            x,
+            y,
+            heading,
+            speed=speed,
+            tolerance=tolerance,
+            timeout=timeout,
+        )
 
     def wait_connected(self, timeout: float | None = None) -> None:
         return self._call_own(timeout, self._device.wait_connected, timeout)

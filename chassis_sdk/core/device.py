@@ -34,6 +34,8 @@ from .diagnosis import Diagnosis, Findings
 from .dispatch import Subscription
 from .events import EventKind, RobotEvent
 from .motion import Axes, FrameBuilder, Motion, MotionLimits
+from .motion.goal import MoveResult
+from .motion.goals import Goals
 from .observation import Reports
 from .odometry import Odometry
 from .session import Recorder, Session, set_recorder
@@ -126,6 +128,7 @@ class Device(Session[M, K]):
             logger=log,
         )
         self._watchdog = self._motion.watchdog
+        self._goals = Goals(self)
         super().__init__(
             port,
             baudrate=baudrate,
@@ -231,6 +234,70 @@ class Device(Session[M, K]):
         axes: Axes,
     ) -> None:
         self._motion.drive(target[0], target[1], build, duration, axes)
+
+    async def drive_distance(
+        self,
+        distance: float,
+        speed: float | None = None,
+        *,
+        tolerance: float | None = None,
+        timeout: float | None = None,
+    ) -> MoveResult:
+        """Drive ``distance`` metres straight ahead (negative: backwards), closed on
+        odometry, and stop; the heading is held on the line.
+
+        The speed follows a trapezoid within `limits` (its accelerations and top
+        speeds honoured): ``speed`` m/s at most (default 0.3), slowing to end within
+        ``tolerance`` (default 1 cm) without overshooting. The goal is a source of the
+        motion core (kind ``"goal"``, below the application's own velocities: a
+        `set_velocity` ends it); a newer goal replaces it.
+
+        Returns:
+            The [`MoveResult`][chassis_sdk.MoveResult]: the pose at rest, the signed
+            distance left, the duration, ``ended="done"``.
+
+        Raises:
+            TypeError, ValueError: A bad argument; nothing is written.
+            MoveTimeoutError: Not done within ``timeout`` s; the robot is stopped.
+            MotionBlockedError: An e-stop, a bumper, a driver fault, a lost link or
+                no odometry ended it (or it could not start).
+            MovePreemptedError: Another source took over, or a stop came.
+            NotConnectedError: The port is not open.
+
+        Cancelling the awaiting task writes a zero at once; nothing of the goal acts
+        afterwards.
+        """
+        return await self._goals.drive_distance(distance, speed, tolerance, timeout)
+
+    async def rotate(
+        self,
+        angle: float,
+        rate: float | None = None,
+        *,
+        tolerance: float | None = None,
+        timeout: float | None = None,
+    ) -> MoveResult:
+        """Turn in place by ``angle`` radians (counter-clockwise positive, any size),
+        closed on odometry's heading, at most ``rate`` rad/s (default 0.8), within
+        ``tolerance`` (default 1°). Ends, returns and raises as `drive_distance`
+        (``error`` in radians)."""
+        return await self._goals.rotate(angle, rate, tolerance, timeout)
+
+    async def go_to(
+        self,
+        x: float,
+        y: float,
+        heading: float | None = None,
+        *,
+        speed: float | None = None,
+        tolerance: float | None = None,
+        timeout: float | None = None,
+    ) -> MoveResult:
+        """Go to the point ``(x, y)`` of the odometry frame (`reset_odometry` sets
+        it): face it, drive the line to it, then turn to ``heading`` (radians) if
+        given. Within ``tolerance`` (default 1 cm; the heading within 1°). Ends,
+        returns and raises as `drive_distance` (``error``: metres to the point)."""
+        return await self._goals.go_to(x, y, heading, speed, tolerance, timeout)
 
     @property
     def motion(self) -> Motion:

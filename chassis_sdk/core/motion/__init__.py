@@ -5,7 +5,9 @@
 * `arbiter`: who may move the robot now (pure: no I/O, an injected clock);
 * `watchdog`: the command in force, written at most once per `WRITE_PERIOD`;
 * `drive`: `Motion`, a device's arbiter and watchdog together, and `MotionSource`, the
-  handle each surface drives through.
+  handle each surface drives through;
+* `goal`: goals as plans (drive a distance, turn, go to a pose), pure; `goals`: running
+  one on a device as a source (`Goals`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ if TYPE_CHECKING:
         Source,
     )
     from .drive import Motion, MotionSource, frame_builder
+    from .goal import MoveEnd, MoveResult
+    from .goals import Goals
     from .watchdog import Axes, FrameBuilder, MotionCommand, MotionLimits, VelocityWatchdog
 
 _LAZY = {
@@ -38,6 +42,9 @@ _LAZY = {
     "Motion": ".drive",
     "MotionSource": ".drive",
     "frame_builder": ".drive",
+    "MoveEnd": ".goal",
+    "MoveResult": ".goal",
+    "Goals": ".goals",
     "Axes": ".watchdog",
     "FrameBuilder": ".watchdog",
     "MotionCommand": ".watchdog",
@@ -52,10 +59,13 @@ __all__ = [
     "Arbiter",
     "Axes",
     "FrameBuilder",
+    "Goals",
     "Motion",
     "MotionCommand",
     "MotionLimits",
     "MotionSource",
+    "MoveEnd",
+    "MoveResult",
     "Refusal",
     "RefusalReason",
     "Source",

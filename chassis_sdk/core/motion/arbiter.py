@@ -59,8 +59,9 @@ WRITE_JITTER: Final = 0.005
 
 #: The default order between kinds of source, highest first, as twist_mux orders its
 #: inputs: an operator at the robot (terminal teleop, a gamepad) above one at a
-#: dashboard or viewer above the application's own calls and goals above ROS 2 above
-#: MQTT. Reflexes act as blocks and stops, above all of them. Change it per device with
+#: dashboard or viewer above the application's own calls above goals (so a velocity
+#: from the application ends its goal) above ROS 2 above MQTT. Reflexes act as blocks
+#: and stops, above all of them. Change it per device with
 #: ``robot.motion.priorities[kind] = n``.
 DEFAULT_PRIORITIES: Final[Mapping[str, int]] = {
     "teleop": 100,
@@ -68,7 +69,7 @@ DEFAULT_PRIORITIES: Final[Mapping[str, int]] = {
     "web": 80,
     "foxglove": 80,
     "api": 70,
-    "goal": 70,
+    "goal": 65,
     "ros2": 60,
     "mqtt": 40,
 }
@@ -104,15 +105,20 @@ class Source:
         name: Unique among the arbiter's sources (``"web page 2"``).
         kind: What it is, for its priority (``"web"``, ``"ros2"``, ``"api"``...).
         streaming: Whether it repeats its command (must send a neutral after a block).
+        ended_by: Why its last lease ended before its command did (``"stopped by
+            api"``, ``"taken by web page"``, ``"blocked by FRONT_BUMPER"``), ``None``
+            while it drives or after it ended its command itself; a goal reads it to
+            end at once, and never acts again after it.
     """
 
-    __slots__ = ("_last", "_needs_neutral", "closed", "kind", "name", "streaming")
+    __slots__ = ("_last", "_needs_neutral", "closed", "ended_by", "kind", "name", "streaming")
 
     def __init__(self, name: str, kind: str, streaming: bool) -> None:
         self.name = name
         self.kind = kind
         self.streaming = streaming
         self.closed = False
+        self.ended_by: str | None = None
         self._needs_neutral = False
         self._last = -math.inf  # when it last offered a velocity
 
@@ -226,6 +232,7 @@ class Arbiter:
             self._blocks.pop(origin, None)
         began = bool(set(now) - before)
         if began:
+            self._end_lease(f"blocked by {', '.join(self.blocks)}")
             self._holder = None
             for source in self._sources.values():
                 source._needs_neutral = source.streaming
@@ -280,15 +287,27 @@ class Arbiter:
     def granted(self, source: Source, until: float) -> None:
         """``source``'s velocity was taken: it holds the lease until ``until``
         (``clock()`` time; the command's deadline, ``math.inf`` for none)."""
+        if self.holder is not source:
+            self._end_lease(f"taken by {source.name}")
+        source.ended_by = None
         self._holder = source
         self._until = until
 
     def stop(self, source: Source | None = None) -> None:
         """A stop (always acts): the lease ends; a stop is ``source``'s neutral."""
+        holder = self.holder
+        if holder is not None and holder is not source:
+            self._end_lease("stopped" if source is None else f"stopped by {source.name}")
         self._holder = None
         self._until = -math.inf
         if source is not None:
             source._needs_neutral = False
+
+    def _end_lease(self, why: str) -> None:
+        """The lease in force (if any) ends for ``why``, not by its holder's wish."""
+        holder = self.holder
+        if holder is not None:
+            holder.ended_by = why
 
     def stale(self, source: Source, detail: str) -> Refusal:
         """Refuse ``source``'s command as older than its deadman (counted)."""

@@ -210,6 +210,10 @@ class Motion:
         holder = self.arbiter.holder
         return None if holder is None else holder.name
 
+    def check_open(self) -> None:
+        """Raise ``NotConnectedError`` unless the port is open."""
+        self._ensure_open()
+
     # --- commands ----------------------------------------------------------------------------
 
     def offer(
