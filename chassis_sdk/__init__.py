@@ -58,6 +58,7 @@ if TYPE_CHECKING:
     from .core.dispatch import Listener, ListenerStats, Subscription
     from .core.events import EventKind, RobotEvent
     from .core.motion import MotionLimits, MoveResult
+    from .core.motion.safety import Geofence, Reflex, SafetyPolicy
     from .core.notifier import Notifier
     from .core.odometry import Odometry
     from .core.run import run
@@ -107,6 +108,9 @@ _LAZY = {
     "run": ".core.run",
     "MotionLimits": ".core.motion",
     "MoveResult": ".core.motion",
+    "Geofence": ".core.motion.safety",
+    "Reflex": ".core.motion.safety",
+    "SafetyPolicy": ".core.motion.safety",
     "Board": ".devices.board.device",
     "Profile": ".devices.config",
     "ProfileError": ".devices.config",
@@ -154,6 +158,7 @@ __all__ = [
     "DriverError",
     "DriverStatus",
     "EventKind",
+    "Geofence",
     "ImuSample",
     "ImuScale",
     "LinkStats",
@@ -174,8 +179,10 @@ __all__ = [
     "Profile",
     "ProfileError",
     "ProtocolError",
+    "Reflex",
     "RequestTimeoutError",
     "RobotEvent",
+    "SafetyPolicy",
     "Servo",
     "Subscription",
     "Telemetry",

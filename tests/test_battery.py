@@ -604,7 +604,7 @@ async def test_monitor_json_carries_the_percentage_null_until_known_and_the_even
     model = BatteryModel("li-ion", cells=7, warmup=1.0, min_readings=3)
     async with ChassisSimulator(ChassisSpec(pack=pack)) as sim:
         got = await monitored(capsys, "chassis", sim.port, r'"kind": "BATTERY_CRITICAL"',
-                              as_json=True, battery=model)  # fmt: skip
+                              as_json=True, battery=model, read_only=True)  # fmt: skip
         truth = sim.firmware.battery_charge
     rows = [json.loads(line) for line in got.lines]
     frames = [r for r in rows if r["type"] == "Telemetry"]

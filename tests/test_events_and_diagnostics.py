@@ -133,7 +133,9 @@ async def test_every_chassis_event_kind_once_per_edge() -> None:
         (E.ESTOP_ENGAGED, "hardware"), (E.ESTOP_RELEASED, "hardware"),
         (E.ESTOP_ENGAGED, "remote"), (E.ESTOP_RELEASED, "remote"),
         (E.ESTOP_ENGAGED, "software"), (E.ESTOP_RELEASED, "software"),
-        (E.BUMPER_HIT, "front"), (E.BUMPER_HIT, "rear"),
+        # each hit, then what the reflex did about it (stop, the default)
+        (E.BUMPER_HIT, "front"), (E.REFLEX, "front_bumper"),
+        (E.BUMPER_HIT, "rear"), (E.REFLEX, "rear_bumper"),
         (E.DRIVER_OFFLINE, "front"), (E.DRIVER_ONLINE, "front"),
         (E.DRIVER_ERROR, "rear_right"),
         (E.BUMPER_CLEARED, "front"), (E.BUMPER_CLEARED, "rear"),

@@ -5,6 +5,7 @@ what it commands. The same goals on the simulators, through a real transport, ar
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -92,7 +93,7 @@ def run(plan: Plan, robot: Robot, limit: float = 60.0) -> tuple[list[tuple[float
 
 def sign_changes(values: list[float]) -> int:
     signs = [math.copysign(1, v) for v in values if abs(v) > 1e-9]
-    return sum(1 for a, b in zip(signs, signs[1:], strict=False) if a != b)
+    return sum(1 for a, b in itertools.pairwise(signs) if a != b)
 
 
 @pytest.mark.parametrize(
@@ -188,7 +189,7 @@ def test_a_plan_ends_within_tolerance_without_oscillating(
     if not isinstance(p, Line):
         assert sign_changes([w for v, w in commands if v == 0.0]) <= 1, what
     # The ramps: speeding up at most the acceleration a period (the creep is the floor).
-    for before, after in zip(linear, linear[1:], strict=False):
+    for before, after in itertools.pairwise(linear):
         if abs(after) > abs(before) and abs(after) > DEFAULT_LINEAR.creep:
             assert abs(after) - abs(before) <= DEFAULT_LINEAR.acceleration * PERIOD + 1e-9
 

@@ -36,6 +36,8 @@ from .events import EventKind, RobotEvent
 from .motion import Axes, FrameBuilder, Motion, MotionLimits
 from .motion.goal import MoveResult
 from .motion.goals import Goals
+from .motion.reflexes import ReflexRunner, back_off_on
+from .motion.safety import SafetyPolicy
 from .observation import Reports
 from .odometry import Odometry
 from .session import Recorder, Session, set_recorder
@@ -98,6 +100,7 @@ class Device(Session[M, K]):
         logger: logging.Logger | None = None,
         record: str | os.PathLike[str] | None = None,
         read_only: bool = False,
+        safety: SafetyPolicy | None = None,
     ) -> None:
         if not isinstance(port, str):
             raise TypeError(f"port must be a device path or URL string, got {port!r}")
@@ -129,6 +132,19 @@ class Device(Session[M, K]):
         )
         self._watchdog = self._motion.watchdog
         self._goals = Goals(self)
+        reflexes = self._reflexes = ReflexRunner(
+            self._motion,
+            SafetyPolicy() if safety is None else safety,
+            lambda event: self._emit(event),
+            back_off=self._back_off,
+            pose=lambda: self._reports.latest_odometry,
+            acting=not read_only,
+            logger=log,
+        )
+        self._watchdog.guard = lambda now: reflexes.link(self.last_frame_age, now)
+        background = [("watchdog", self._watchdog.run)]
+        if reflexes.needs_task:
+            background.append(("reflexes", reflexes.run))
         super().__init__(
             port,
             baudrate=baudrate,
@@ -141,7 +157,7 @@ class Device(Session[M, K]):
             close_linger=close_linger,
             logger=log,
             record=record,
-            background=[("watchdog", self._watchdog.run)],
+            background=background,
             read_only=read_only,
         )
         self.limits = limits
@@ -150,6 +166,7 @@ class Device(Session[M, K]):
             port, log, self._stream("events"), odometry, battery_low, battery
         )
         reports.calibration = self._calibration
+        reports.reflexes = reflexes
         self._emit, self._battery = reports.emit, reports.battery
         self._charge, self._integrate = reports.charge, reports.integrate
         self._pose = reports.pose
@@ -298,6 +315,24 @@ class Device(Session[M, K]):
         given. Within ``tolerance`` (default 1 cm; the heading within 1°). Ends,
         returns and raises as `drive_distance` (``error``: metres to the point)."""
         return await self._goals.go_to(x, y, heading, speed, tolerance, timeout)
+
+    async def _back_off(self, side: str, distance: float, speed: float) -> None:
+        """A bumper reflex's back-off: ``_release_bumper``, then the distance away."""
+        await back_off_on(self._motion, self._goals, side, distance, speed, self._release_bumper)
+
+    async def _release_bumper(self, side: str) -> None:
+        """Clear ``side``'s (``"front"``, ``"rear"``) bumper latch; a device with
+        bumpers implements it (the base has none: nothing to clear)."""
+        await anyio.lowlevel.checkpoint()
+
+    @property
+    def safety(self) -> SafetyPolicy:
+        """The [`SafetyPolicy`][chassis_sdk.SafetyPolicy] its reflexes follow."""
+        return self._reflexes.policy
+
+    def clear_reflexes(self) -> None:
+        """Forget the reflexes' hazards (each triggers again when next seen)."""
+        self._reflexes.clear()
 
     @property
     def motion(self) -> Motion:

@@ -49,6 +49,14 @@ class EventKind(enum.Enum):
     LINK_STALE = "link_stale"  #: no valid frame for ``link_timeout``
     LINK_LOST = "link_lost"  #: the port dropped
     LINK_RESTORED = "link_restored"  #: frames (or the port) are back
+    #: a reflex acted: source: the hazard (``"front_bumper"``, ``"stall"``, ``"tilt"``,
+    #: ``"geofence"``, ``"battery"``, ``"link"``); ``action`` what it did; ``values``
+    #: what was measured
+    REFLEX = "reflex"
+    #: the hazard of a reflex is over (a ``slow`` cap or a lasting block ends)
+    REFLEX_ENDED = "reflex_ended"
+    #: the safety policy ignores a hazard (``allow_unsafe``): source: the hazard
+    SAFETY_OVERRIDDEN = "safety_overridden"
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,6 +72,9 @@ class RobotEvent:
             ``BATTERY_CRITICAL``.
         percentage: The state of charge (percent), for the events of a
             ``BatteryModel`` (``None`` for those of ``battery_low``, a voltage).
+        action: What a reflex did (``"stop"``, ``"back_off"``, ``"slow"``,
+            ``"ignore"``), for ``REFLEX``, ``REFLEX_ENDED`` and ``SAFETY_OVERRIDDEN``.
+        values: What a reflex measured, as (name, value) pairs (``(("tilt", 31.2),)``).
     """
 
     kind: EventKind
@@ -72,6 +83,8 @@ class RobotEvent:
     state: enum.Enum | None = None
     voltage: float | None = None
     percentage: float | None = None
+    action: str | None = None
+    values: tuple[tuple[str, float], ...] = ()
 
     @property
     def docking(self) -> enum.Enum | None:

@@ -4,6 +4,7 @@ from its velocities, its battery watch and its state of charge."""
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 from .battery import BatteryLevel, BatteryModel
 from .calibration import Calibration
@@ -14,7 +15,13 @@ from .odometry import Odometry, OdometryIntegrator
 from .supervisor import ConnectionState
 from .transport import backend_name
 
+if TYPE_CHECKING:
+    from .motion.reflexes import ReflexRunner
+
 __all__ = ["Reports"]
+
+#: The battery model's levels the reflexes are told of.
+_LEVELS = (EventKind.BATTERY_CRITICAL, EventKind.BATTERY_OK)
 
 
 class Reports:
@@ -47,11 +54,26 @@ class Reports:
         self.battery_model = battery
         #: The device's calibration, applied to every velocity sample (`integrate`).
         self.calibration = Calibration()
+        #: The device's reflexes, told of every velocity sample, battery reading and
+        #: battery level (``None``: none).
+        self.reflexes: ReflexRunner | None = None
+
+    @property
+    def watches_voltage(self) -> bool:
+        """Whether battery readings are wanted (``battery_low``, or a reflex's)."""
+        r = self.reflexes
+        return self.battery_monitor.threshold is not None or (r is not None and r.watches_voltage)
 
     def emit(self, event: RobotEvent) -> None:
-        """Log ``event`` and publish it on ``events``."""
+        """Log ``event`` and publish it on ``events`` (a battery level also to the
+        reflexes)."""
         self._log.info("%s: %s", self._port, event)
         self.events.publish(event)
+        r = self.reflexes
+        if r is not None and event.kind in _LEVELS and event.voltage is not None:
+            r.battery_level(
+                event.kind is EventKind.BATTERY_CRITICAL, event.voltage, event.timestamp
+            )
 
     def battery(self, voltage: float, timestamp: float) -> None:
         """A battery reading: an event if it crosses the threshold."""
@@ -60,6 +82,9 @@ class Reports:
             event = monitor.update(voltage, timestamp)
             if event is not None:
                 self.emit(event)
+        r = self.reflexes
+        if r is not None and r.watches_voltage:
+            r.voltage(voltage, timestamp)
 
     def charge(
         self, voltage: float, current: float | None, timestamp: float, loaded: bool = False
@@ -107,6 +132,9 @@ class Reports:
         else:  # nobody listens: integrated and built when asked (latest_odometry)
             self.pose.defer(linear, angular, timestamp, heading)
             stream.latest = None
+        r = self.reflexes
+        if r is not None:
+            r.moved(linear, timestamp)
 
     @property
     def latest_odometry(self) -> Odometry | None:

@@ -16,12 +16,14 @@ source.close()                            # gone: stops the robot if it was driv
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Iterable
 from typing import TypeVar
 
 from ...errors import MotionBlockedError, NotConnectedError
+from ..alarm import Alarm
 from ..refusals import Refusals
 from ..validation import check_duration, check_real
 from .arbiter import Arbiter, Refusal, Source
@@ -171,6 +173,10 @@ class Motion:
         self._clock = clock
         #: Refusals, for the log: the first at once, then a summary a second.
         self.refusals = Refusals(1.0, clock=clock)
+        self._limits = MotionLimits()
+        self._caps: dict[str, float] = {}
+        #: Woken whenever what blocks motion changes.
+        self.blocks_changed = Alarm()
         #: Whether closing the device writes a zero even if it never wrote a velocity
         #: (True, the default: the robot is left stopped whatever moved it). A surface
         #: that only lets its clients stop (a read-only dashboard) sets False, so it
@@ -297,9 +303,12 @@ class Motion:
     def set_blocks(self, origin: str, reasons: Iterable[str]) -> None:
         """What ``origin`` says blocks motion now (see `Arbiter.set_blocks`); a block that
         begins ends the command in force."""
+        before = self.arbiter.blocks
         if self.arbiter.set_blocks(origin, reasons):
             self._log.info("motion blocked by %s", ", ".join(self.arbiter.blocks))
             self.halt()
+        if self.arbiter.blocks != before:
+            self.blocks_changed.wake()
 
     def _refused(self, refusal: Refusal) -> Refusal:
         if refusal.source == self.api.name:
@@ -311,13 +320,36 @@ class Motion:
 
     @property
     def limits(self) -> MotionLimits:
-        return self.watchdog.limits
+        """The device's limits, as set (the caps of `set_cap` are not in them)."""
+        return self._limits
 
     @limits.setter
     def limits(self, limits: MotionLimits | None) -> None:
         if limits is not None and not isinstance(limits, MotionLimits):
             raise TypeError(f"limits must be a MotionLimits or None, got {limits!r}")
-        self.watchdog.limits = limits if limits is not None else MotionLimits()
+        self._limits = limits if limits is not None else MotionLimits()
+        self._apply_limits()
+
+    def set_cap(self, origin: str, speed: float | None) -> None:
+        """Cap every command's linear speed at ``speed`` (m/s) for ``origin`` (a
+        reflex's ``slow``), or lift ``origin``'s cap (``None``); the lowest cap holds,
+        and the angular speed is capped in proportion (``speed`` over half a metre)."""
+        if speed is None:
+            self._caps.pop(origin, None)
+        else:
+            self._caps[origin] = speed
+        self._apply_limits()
+
+    def _apply_limits(self) -> None:
+        limits = self._limits
+        if self._caps:
+            cap = min(self._caps.values())
+            linear = cap if limits.max_linear is None else min(cap, limits.max_linear)
+            angular = cap / 0.5
+            if limits.max_angular is not None:
+                angular = min(angular, limits.max_angular)
+            limits = dataclasses.replace(limits, max_linear=linear, max_angular=angular)
+        self.watchdog.limits = limits
 
     @property
     def commanded(self) -> tuple[float, float] | None:

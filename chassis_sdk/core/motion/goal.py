@@ -52,10 +52,11 @@ class Pose(Protocol):
     def timestamp(self) -> float: ...
 
 
-#: How a goal ended: within tolerance; its task cancelled; its timeout; a block (an
-#: e-stop, a bumper, a lost link); a source of higher priority, or a stop from another
-#: source; a reflex.
-MoveEnd = Literal["done", "cancelled", "timeout", "blocked", "preempted", "reflex"]
+#: How a goal ended, where a `MoveResult` tells it: within tolerance (returned), its
+#: timeout (`MoveTimeoutError.result`), another source, a stop or a newer goal
+#: (`MovePreemptedError.result`). A block (an e-stop, a bumper, a reflex) raises
+#: `MotionBlockedError`; cancelling raises ``CancelledError``.
+MoveEnd = Literal["done", "timeout", "preempted"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,8 +69,7 @@ class MoveResult:
         error: What was left: metres for ``drive_distance`` (signed, along the line)
             and ``go_to`` (to the point), radians for ``rotate`` (signed).
         duration: Seconds from the call to the end.
-        ended: ``"done"``, ``"cancelled"``, ``"timeout"``, ``"blocked"``,
-            ``"preempted"`` or ``"reflex"``.
+        ended: ``"done"``, ``"timeout"`` or ``"preempted"``.
         heading_error: Radians left to the goal's heading (``go_to`` with a heading,
             ``rotate``), else 0.
     """

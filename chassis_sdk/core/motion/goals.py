@@ -110,7 +110,13 @@ class Goals:
         return linear, angular
 
     async def drive_distance(
-        self, distance: float, speed: float | None, tolerance: float | None, timeout: float | None
+        self,
+        distance: float,
+        speed: float | None,
+        tolerance: float | None,
+        timeout: float | None,
+        *,
+        kind: str = "goal",
     ) -> MoveResult:
         distance = check_real(distance, "distance", unit="m")
         linear, angular = self._profiles(speed, None)
@@ -121,7 +127,8 @@ class Goals:
             start = (first.x, first.y)
             return Line(start, first.heading, distance, linear, angular, tol)
 
-        return await self._run("drive_distance", plan, timeout)
+        name = "drive_distance" if kind == "goal" else f"{kind} back_off"
+        return await self._run(name, plan, timeout, kind)
 
     async def rotate(
         self, angle: float, rate: float | None, tolerance: float | None, timeout: float | None
@@ -153,7 +160,7 @@ class Goals:
     # --- running one -----------------------------------------------------------------------
 
     async def _run(
-        self, name: str, make: Callable[[Odometry], Plan], timeout: float | None
+        self, name: str, make: Callable[[Odometry], Plan], timeout: float | None, kind: str = "goal"
     ) -> MoveResult:
         motion = self._device.motion
         motion.check_open()
@@ -161,7 +168,7 @@ class Goals:
             names = ", ".join(motion.blocks)
             raise MotionBlockedError(f"{name} refused: blocked by {names}", motion.blocks)
         state = _State(self._clock)
-        source = motion.source(name, kind="goal", streaming=False)
+        source = motion.source(name, kind=kind, streaming=False)
         try:
             with anyio.move_on_after(math.inf if timeout is None else timeout) as scope:
                 await self._drive(source, make, state)

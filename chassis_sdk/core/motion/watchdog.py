@@ -184,6 +184,9 @@ class VelocityWatchdog:
         self.deferred = 0
         #: Whether any velocity frame (a zero included) was written.
         self.wrote = False
+        #: Called at each resend with the time, before writing: False if it ended the
+        #: command (a reflex on a silent link); ``None``: nothing to check.
+        self.guard: Callable[[float], bool] | None = None
 
     @property
     def active(self) -> MotionCommand | None:
@@ -303,6 +306,9 @@ class VelocityWatchdog:
             self.expiries += 1
             self._log.debug("velocity command %s expired; writing zero", active.description)
             self._write_quietly(active.zero, math.inf)
+            return
+        guard = self.guard
+        if guard is not None and not guard(now):
             return
         self._next += self.interval
         if self._next <= now:  # the loop was blocked: skip the missed slots

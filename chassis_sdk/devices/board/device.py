@@ -77,6 +77,9 @@ class Board(Device[BoardMessage, _Key], FromConfig):
     angular factor; ``chassis-sdk calibrate PORT angular`` fits that factor from the
     gyro for the velocity heading.
 
+    ``safety=SafetyPolicy(...)`` sets its reflexes (a tilt or an impact seen by the
+    IMU stops it by default; see docs/motion.md).
+
     Example:
         ```python
         async def main() -> None:
@@ -126,6 +129,8 @@ class Board(Device[BoardMessage, _Key], FromConfig):
         if self._imu_scale is not None and m.raw is not None:
             m = m.scaled(self._imu_scale)
         self._imu.publish(m)
+        a = m.accel
+        self._reflexes.imu(a.x, a.y, a.z, m.timestamp)
         if self._gyro_heading is not None:
             last, self._last_imu_time = self._last_imu_time, m.timestamp
             if last is not None and 0 < m.timestamp - last <= self._pose.max_gap:

@@ -81,7 +81,7 @@ class ChassisCommands(Device[Any, ReplyId]):
         confirm: bool = False,
         timeout: float = 1.0,
     ) -> None:
-        """Clear latched faults (0x05).
+        """Clear latched faults (0x05), and forget the reflexes' hazards.
 
         Args:
             driver: Clear a latched driver fault.
@@ -109,6 +109,7 @@ class ChassisCommands(Device[Any, ReplyId]):
         if not selected:
             raise ValueError("clear_faults() with nothing to clear: select at least one")
         await self._send(self._encoder.clear_faults(selected))
+        self.clear_reflexes()
         if confirm:
             await self._confirm(lambda t: not t.status & bits, timeout, f"{bits!r} clear")
 

@@ -24,6 +24,7 @@ from .health import (
 )
 from .messages import (
     ChassisInfo,
+    ChassisStatus,
     CommandId,
     DriverStatus,
     DriveVelocity,
@@ -133,6 +134,9 @@ class Chassis(ChassisCommands, FromConfig):
         read_only: A viewer: nothing is ever written to the device, not even the
             zero of `close`; commands and requests raise ``ChassisError``. For a
             monitor, a recorder or a read-only bridge of a robot someone else drives.
+        safety: The [`SafetyPolicy`][chassis_sdk.SafetyPolicy] its reflexes follow
+            (bumper, stall, tilt, geofence, battery, link: each ``stop`` by default;
+            see docs/motion.md). ``None``: the default policy.
 
     Raises:
         TypeError: ``read_only`` is not a bool.
@@ -192,8 +196,16 @@ class Chassis(ChassisCommands, FromConfig):
         if t.status != edges.bits or t.docking is not edges.state:
             for event in edges.update(t.status, t.docking, ts):
                 self._emit(event)
+            # After the edges: the hit, then what the reflex did about it (the block
+            # above already wrote the zero).
+            status = t.status
+            self._reflexes.bumpers(
+                bool(status & ChassisStatus.FRONT_BUMPER),
+                bool(status & ChassisStatus.REAR_BUMPER),
+                ts,
+            )
         reports = self._reports
-        if reports.battery_monitor.threshold is not None:
+        if reports.watches_voltage:
             self._battery(t.voltage, ts)
         if reports.battery_model is not None and ts - self._power_at > _POWER_FRESH:
             w = t.wheels
@@ -229,6 +241,11 @@ class Chassis(ChassisCommands, FromConfig):
             # (a driver's sign is the torque's direction, not the pack's).
             current = sum(abs(c) for c in p.currents)
             self._charge(_pack_voltage(p), current, p.timestamp)
+
+    async def _release_bumper(self, side: str) -> None:
+        await self.clear_faults(
+            driver=False, front_bumper=side == "front", rear_bumper=side == "rear"
+        )
 
     def _on_link_up(self) -> None:
         self._decoder.sequence.reset()
