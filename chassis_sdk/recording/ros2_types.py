@@ -904,16 +904,18 @@ class Translator:
     ``battery_state``; without a ``battery`` stream, ``telemetry`` that carries a
     ``voltage`` gives ``battery_state`` at most once per `BATTERY_PERIOD`.
 
-    Odometry stamps only go forward: a reading stamped no later than the last one
-    published (two frames that came in one read share its receive time) gives nothing
-    and is counted in `repeated_odometry`. Its pose is the one already sent (no time
-    passed), and tf2 would drop it with a ``TF_REPEATED_DATA`` warning for each.
+    With ``forward_only`` (the live bridge), odometry stamps only go forward: a reading
+    stamped no later than the last one published (two frames that came in one read
+    share its receive time) gives nothing and is counted in `repeated_odometry`. Its
+    pose is the one already sent (no time passed), and tf2 would drop it with a
+    ``TF_REPEATED_DATA`` warning for each. A recording keeps every reading.
 
     Args:
         options: The names, frames and covariances.
         streams: The device's stream names (``Notifier.stream_names``).
         battery: The device's ``battery_model`` (``None``: none): ``battery_state``
             then carries its state of charge (see `charge_message`).
+        forward_only: Drop odometry stamped no later than the last (see above).
 
     Raises:
         TypeError: ``battery`` is not a ``BatteryModel`` or ``None``.
@@ -925,6 +927,7 @@ class Translator:
         streams: Iterable[str],
         *,
         battery: BatteryModel | None = None,
+        forward_only: bool = False,
     ) -> None:
         if battery is not None and not isinstance(battery, BatteryModel):
             raise TypeError(f"battery must be a BatteryModel or None, got {battery!r}")
@@ -936,6 +939,7 @@ class Translator:
         self._twist_cov = covariance(options.twist_covariance or DEFAULT_TWIST_COVARIANCE)
         self._last_battery = -math.inf
         self._last_odometry = -math.inf
+        self._forward_only = forward_only
         #: Odometry readings not published: stamped no later than the previous one.
         self.repeated_odometry = 0
         table: dict[str, tuple[tuple[str, ...], Any]] = {}
@@ -970,10 +974,11 @@ class Translator:
         return static_transforms_message(self.static, epoch)
 
     def _odometry(self, sample: Any, epoch: float) -> list[tuple[str, Any]]:
-        if sample.timestamp <= self._last_odometry:
-            self.repeated_odometry += 1
-            return []
-        self._last_odometry = sample.timestamp
+        if self._forward_only:
+            if sample.timestamp <= self._last_odometry:
+                self.repeated_odometry += 1
+                return []
+            self._last_odometry = sample.timestamp
         o = self.options
         out: list[tuple[str, Any]] = [
             (

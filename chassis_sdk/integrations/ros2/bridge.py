@@ -181,7 +181,9 @@ class Ros2Bridge:
             streams = notifier.stream_names
         #: What the device's readings give: the topics and each reading's messages.
         # The device's battery model (if any) gives BatteryState.percentage.
-        self.translator = Translator(self.options, streams, battery=device.battery_model)
+        self.translator = Translator(
+            self.options, streams, battery=device.battery_model, forward_only=True
+        )
         self._refusals = Refusals(1.0)
         #: What comes in: ``cmd_vel`` and ``emergency_stop``, through the motion core.
         self.inbound = Inbound(
