@@ -207,12 +207,13 @@ class ProgressLine:
         self._important = important
 
     def done(self, text: str) -> None:
-        """End the live line and print the result."""
+        """End the live line and print the result (nothing if ``text`` is empty)."""
         if self._live is not None:
             self._live.stop()
         elif self._tty:
             print("\r\033[K", end="")
-        out(text)
+        if text:
+            out(text)
 
 
 def progress_line(label: str) -> ProgressLine:
