@@ -109,13 +109,18 @@ async def bridged(
             await task
 
 
-async def request(obs: Observer, robot_id: str, name: str) -> Any:
-    """One MQTT 5 request/response round trip, matched by correlation data."""
+async def request(
+    obs: Observer, robot_id: str, name: str, payload: Any = b"", timeout: float = 5.0
+) -> Any:
+    """One MQTT 5 request/response round trip, matched by correlation data (``payload``:
+    bytes, or what JSON makes of it)."""
     reply_to = f"replies/{robot_id}/{name}"
     await obs.client.subscribe(reply_to)
     props = Properties(PacketTypes.PUBLISH)  # type: ignore[no-untyped-call]
     props.ResponseTopic = reply_to
     props.CorrelationData = b"req-42"
-    await obs.client.publish(f"robots/{robot_id}/request/{name}", b"", properties=props)
-    await obs.wait(lambda: bool([p for t, p, _ in obs.seen if t == reply_to]))
+    data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
+    before = len([1 for t, _, _ in obs.seen if t == reply_to])
+    await obs.client.publish(f"robots/{robot_id}/request/{name}", data, properties=props)
+    await obs.wait(lambda: len([1 for t, _, _ in obs.seen if t == reply_to]) > before, timeout)
     return [p for t, p, _ in obs.seen if t == reply_to][-1]

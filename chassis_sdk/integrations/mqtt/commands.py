@@ -52,6 +52,7 @@ from ..inbound import (
     command_time,
 )
 from .context import CommandContext
+from .goals import GOALS, RemoteGoals
 from .inbox import Lanes, PathProbe
 from .ownership import Ownership
 from .publish import Publisher, epoch_now
@@ -168,6 +169,8 @@ class Commands:
         #: (`Publisher.run` sends them).
         self.path = PathProbe(PROBE_PERIOD, keep=context.deadman + 1.0)
         self._source: MotionSource | None = None
+        #: The goals (``request/move|turn|goto``, ``cmd/cancel``).
+        self.goals = RemoteGoals(context)
         # asyncio's event, not anyio's: this wake-up is cleared by the loop it wakes
         # (anyio's cannot be).
         self._request_ready = asyncio.Event()
@@ -182,7 +185,9 @@ class Commands:
         return source
 
     def close(self) -> None:
-        """Remove the bridge's source (the robot stops if it was driving)."""
+        """Remove the bridge's source (the robot stops if it was driving) and cancel
+        its goal."""
+        self.goals.close()
         if self._source is not None:
             self._source.close()
 
@@ -249,6 +254,10 @@ class Commands:
             return False
         if message.retain:
             raise CommandError("a retained command is never acted on (it would be stale)")
+        if name == "cancel":  # as a stop: at once, in the read callback
+            if not self.goals.cancel():
+                raise CommandError("cancel: no goal is running")
+            return False
         since, neutral = None, False
         if name == "velocity":
             # Junk and stale ones never take the slot; nor does one held up on its way.
@@ -260,7 +269,7 @@ class Commands:
         elif name == "estop":
             lane = "engage" if self._estop_of(message) else "release"
         else:
-            raise CommandError(f"unknown command {name[:40]!r}: velocity, stop or estop")
+            raise CommandError(f"unknown command {name[:40]!r}: velocity, stop, estop or cancel")
         if not self._ownership.echoed.is_set():
             # Routed before our ONLINE, in the broker's order: it may have reached the
             # bridge that owned the robot id until then. Those after it are held until
@@ -406,9 +415,19 @@ class Commands:
         if correlation is not None:
             reply.CorrelationData = correlation
         known = ctx.profile.remote.requests
+        if name in GOALS:
+            if ctx.read_only:
+                raise CommandError(f"{name}: this bridge is read-only")
+            args = self.goals.parse(name, message.payload)
+
+            async def answer(body: dict[str, Any]) -> None:
+                await ctx.client.publish(response, json.dumps(body).encode(), properties=reply)
+
+            self.goals.start(name, args, answer)
+            return
         if name not in known:
             body: dict[str, Any] = {
-                "error": f"unknown request {name[:40]!r}; known: {', '.join(known)}"
+                "error": f"unknown request {name[:40]!r}; known: {', '.join((*known, *GOALS))}"
             }
         else:
             try:
