@@ -412,6 +412,31 @@ async def test_odometry_tf_battery_and_diagnostics_from_a_chassis() -> None:
 @pytest.mark.ros2
 @pytest.mark.netns
 @pytest.mark.timeout(60)
+async def test_a_reflex_shows_in_diagnostics() -> None:
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, diagnostics_period=0.1) as (_b, _),
+    ):
+        diag = Graph().reader("rt/diagnostics", m.DiagnosticArray)
+        await robot.set_velocity(0.2, 0.0, duration=3.0)
+        sim.firmware.press_bumper(front=True)
+        got: list[Any] = []
+
+        def shown() -> bool:
+            got.extend(s for s in diag.take(N=100) if hasattr(s, "__idl_typename__"))
+            return any("last reflex" in {v.key for v in s.status[0].values} for s in got)
+
+        await until(shown, 10.0)
+    values = {v.key: v.value for s in got for v in s.status[0].values}
+    assert values["reflexes"] == "bumper 1"
+    assert values["last reflex"] == "reflex (front_bumper) -> stop"
+
+
+@pytest.mark.integration
+@pytest.mark.ros2
+@pytest.mark.netns
+@pytest.mark.timeout(60)
 async def test_battery_state_percentage_is_the_models_charge_once_known() -> None:
     from chassis_sdk import BatteryModel
 

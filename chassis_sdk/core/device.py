@@ -330,6 +330,16 @@ class Device(Session[M, K]):
         """The [`SafetyPolicy`][chassis_sdk.SafetyPolicy] its reflexes follow."""
         return self._reflexes.policy
 
+    @property
+    def last_reflex(self) -> RobotEvent | None:
+        """The last reflex that acted (its ``REFLEX`` event), or ``None``."""
+        return self._reflexes.last
+
+    @property
+    def reflexes_acted(self) -> dict[str, int]:
+        """How many times each hazard's reflex acted since the start (``{"stall": 1}``)."""
+        return dict(self._reflexes.count)
+
     def clear_reflexes(self) -> None:
         """Forget the reflexes' hazards (each triggers again when next seen)."""
         self._reflexes.clear()

@@ -21,10 +21,11 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from .validation import check_real
 
-__all__ = ["BatteryMonitor", "Edge", "EdgeDetector", "EventKind", "RobotEvent"]
+__all__ = ["BatteryMonitor", "Edge", "EdgeDetector", "EventKind", "Measure", "RobotEvent"]
 
 
 class EventKind(enum.Enum):
@@ -59,6 +60,13 @@ class EventKind(enum.Enum):
     SAFETY_OVERRIDDEN = "safety_overridden"
 
 
+class Measure(NamedTuple):
+    """One value a reflex measured (``Measure("tilt", 31.2)``; JSON: an object)."""
+
+    name: str
+    value: float
+
+
 @dataclass(frozen=True, slots=True)
 class RobotEvent:
     """One edge.
@@ -74,7 +82,7 @@ class RobotEvent:
             ``BatteryModel`` (``None`` for those of ``battery_low``, a voltage).
         action: What a reflex did (``"stop"``, ``"back_off"``, ``"slow"``,
             ``"ignore"``), for ``REFLEX``, ``REFLEX_ENDED`` and ``SAFETY_OVERRIDDEN``.
-        values: What a reflex measured, as (name, value) pairs (``(("tilt", 31.2),)``).
+        values: What a reflex measured (``(Measure("tilt", 31.2),)``).
     """
 
     kind: EventKind
@@ -84,7 +92,7 @@ class RobotEvent:
     voltage: float | None = None
     percentage: float | None = None
     action: str | None = None
-    values: tuple[tuple[str, float], ...] = ()
+    values: tuple[Measure, ...] = ()
 
     @property
     def docking(self) -> enum.Enum | None:
@@ -101,6 +109,10 @@ class RobotEvent:
             text += f": {self.voltage:.1f} V"
         if self.percentage is not None:
             text += f", {self.percentage:.0f} %"
+        if self.action is not None:
+            text += f" -> {self.action}"
+        if self.values:
+            text += " (" + ", ".join(f"{k} {v:.3g}" for k, v in self.values) + ")"
         return text
 
 

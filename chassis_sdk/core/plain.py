@@ -20,7 +20,8 @@ _CONVERTERS: dict[type, Callable[[Any], Any]] = {}
 
 def plain(value: object) -> Any:
     """``value`` as JSON-ready data: dataclasses and NamedTuples as objects, enums by
-    name, dates as ISO text, anything else as it is."""
+    name, dates as ISO text, a tuple or list of those as a list, anything else as it
+    is."""
     cls = type(value)
     convert = _CONVERTERS.get(cls)
     if convert is None:
@@ -71,7 +72,17 @@ def _converter(cls: type) -> Callable[[Any], Any]:
         return _fields_converter(cls.__qualname__, tuple(cls._fields), tuple_like=True)
     if issubclass(cls, datetime.date):
         return lambda value: value.isoformat()
+    if cls is tuple or cls is list:
+        return _sequence
     return _same
+
+
+def _sequence(value: Any) -> Any:
+    """A tuple or list: as it is if of plain items (judged by the first: every message
+    holds one kind), else a list of their plain forms (a reflex's measures)."""
+    if not value or value[0].__class__ in _ATOMS:
+        return value
+    return [plain(item) for item in value]
 
 
 def jsonable(msg: object) -> dict[str, Any]:

@@ -29,7 +29,7 @@ import anyio
 
 from ...errors import ChassisError
 from ..alarm import Alarm
-from ..events import EventKind, RobotEvent
+from ..events import EventKind, Measure, RobotEvent
 from .safety import Reflexes, SafetyPolicy, Trigger
 
 if TYPE_CHECKING:
@@ -93,8 +93,8 @@ class ReflexRunner:
         motion.priorities.setdefault("reflex", REFLEX_PRIORITY)
         #: Reflexes acted on since the start, by hazard.
         self.count: dict[str, int] = {}
-        #: The last trigger that began, or ``None``.
-        self.last: Trigger | None = None
+        #: The last reflex, as its event, or ``None``.
+        self.last: RobotEvent | None = None
 
     def announce(self, now: float) -> None:
         """Say, once at the start, which hazards the policy ignores."""
@@ -156,7 +156,6 @@ class ReflexRunner:
                 self._ended(trigger)
 
     def _began(self, t: Trigger) -> None:
-        self.last = t
         self.count[t.hazard] = self.count.get(t.hazard, 0) + 1
         action = t.reflex.action
         motion = self._motion
@@ -178,9 +177,10 @@ class ReflexRunner:
             action,
             f" ({what})" if what else "",
         )
-        self._emit(
-            RobotEvent(EventKind.REFLEX, _name(t), t.timestamp, action=action, values=t.values)
-        )
+        values = tuple(Measure(k, v) for k, v in t.values)
+        event = RobotEvent(EventKind.REFLEX, _name(t), t.timestamp, action=action, values=values)
+        self.last = event
+        self._emit(event)
 
     def clear(self) -> None:
         """Forget every hazard: lift their blocks and caps (each triggers again when

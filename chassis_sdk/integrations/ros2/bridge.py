@@ -409,6 +409,10 @@ class Ros2Bridge:
             ("checksum errors", str(stats.checksum_errors)),
             ("reconnects", str(stats.reconnects)),
         ]
+        acted = device.reflexes_acted
+        if acted:  # the reflexes that acted, and the last (what, what it did, measured)
+            values.append(("reflexes", ", ".join(f"{k} {n}" for k, n in sorted(acted.items()))))
+            values.append(("last reflex", str(device.last_reflex)))
         if not device.is_connected:
             return msg.DIAGNOSTIC_STALE, f"not connected ({device.connection_state.value})", values
         if self.read_only:
