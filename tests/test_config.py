@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from chassis_sdk import open_robot
+from chassis_sdk import Geofence, Reflex, open_robot
 from chassis_sdk.cli import build_parser, main, parse
 from chassis_sdk.cli.profile import subparsers
 from chassis_sdk.core.battery import BatteryModel
@@ -95,6 +95,12 @@ def test_a_named_file_that_is_missing_is_an_error_not_no_profile(
 
 #: (file text, what the one-line error must say): every line names the file and key.
 MALFORMED = [
+    ("[safety]\nstall = 'ignore'\n", r"\[safety\] ignoring the stall needs allow_unsafe"),
+    ("[safety]\nstall = 'back_off'\n", r"\[safety\] stall cannot back_off"),
+    (
+        "[safety]\ngeofence_rectangle = [1, 2]\ngeofence_circle = [0, 0, 1]\n",
+        r"\[safety\] one geofence, not geofence_rectangle and geofence_circle",
+    ),
     ("[limts]\nmax_linear = 1\n", r"unknown table \[limts\]; did you mean 'limits'\?"),
     ("port = 'x'\n", r"port = 'x' is outside any table"),
     ("[robot]\nprot = 'x'\n", r"\[robot\] prot: unknown key; did you mean 'port'\?"),
@@ -253,6 +259,22 @@ def test_the_docs_document_every_key_and_every_command_table() -> None:
             assert f"| `{key}` |" in docs, (table, key)
     for command in COMMAND_TABLES:
         assert f"[{command}]" in docs, command
+
+
+def test_the_safety_table_is_the_devices_policy(home: Path) -> None:
+    path = write(
+        home / "robot.toml",
+        "[safety]\nbumper = 'back_off'\nback_off_distance = 0.2\nbattery = 'slow'\n"
+        "slow_speed = 0.15\nbattery_critical = 22.0\ngeofence_circle = [1.0, 0.0, 3.0]\n",
+    )
+    policy = load_profile(path).safety
+    assert policy is not None
+    assert policy.bumper == Reflex("back_off", distance=0.2, speed=0.15)
+    assert policy.battery.action == "slow"
+    assert policy.battery_critical == 22.0
+    assert policy.fence == Geofence(centre=(1.0, 0.0), radius=3.0)
+    assert policy.stall == Reflex()
+    assert load_profile(path).device_options()["safety"] == policy
 
 
 # --- the API and the commands use it -------------------------------------------------

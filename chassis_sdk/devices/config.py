@@ -12,6 +12,12 @@ user's configuration directory (``~/.config/chassis-sdk/`` on Linux). Its tables
 * ``[deadman]``: ``command_timeout``;
 * ``[calibration]``: the fields of [`Calibration`][chassis_sdk.Calibration];
 * ``[battery]``: the options of [`BatteryModel`][chassis_sdk.BatteryModel];
+* ``[safety]``: the reflexes ([`SafetyPolicy`][chassis_sdk.SafetyPolicy]): per hazard
+  (``bumper``, ``stall``, ``tilt``, ``geofence``, ``battery``, ``link``) an action
+  (``"stop"``, ``"back_off"``, ``"slow"``, ``"ignore"``), ``back_off_distance``,
+  ``slow_speed``, the thresholds, ``allow_unsafe``, and a geofence as
+  ``geofence_rectangle = [W, H]``, ``geofence_circle = [X, Y, R]`` or
+  ``geofence_polygon = [[X, Y], ...]``;
 * one table per ``chassis-sdk`` command (``[web]``, ``[ros2]``, ``[bridge]``, ...) whose
   keys are that command's long options (``--max-linear`` is ``max_linear``), checked by
   the command line against the command's own parser.
@@ -43,6 +49,7 @@ from typing import TYPE_CHECKING, Any, Literal, Self, TypeAlias, get_args, get_o
 from ..core.battery import BatteryModel
 from ..core.calibration import Calibration
 from ..core.motion import MotionLimits
+from ..core.motion.safety import HAZARDS, Geofence, Reflex, SafetyPolicy
 
 if TYPE_CHECKING:
     from ..core.device import Device
@@ -84,6 +91,9 @@ COMMAND_TABLES = frozenset(
         "export",
         "info",
         "monitor",
+        "move",
+        "turn",
+        "goto",
         "plot",
         "ports",
         "record",
@@ -175,6 +185,28 @@ def _device_tables() -> dict[str, dict[str, _Key]]:
         },
         "calibration": _dataclass_keys(Calibration),
         "battery": _signature_keys(BatteryModel),
+        "safety": _safety_keys(),
+    }
+
+
+def _safety_keys() -> dict[str, _Key]:
+    hazards = {
+        hazard: _Key(str, "stop", f"what the {hazard} reflex does: {', '.join(actions)}")
+        for hazard, actions in HAZARDS.items()
+    }
+    thresholds = {
+        name: key
+        for name, key in _dataclass_keys(SafetyPolicy).items()
+        if name not in HAZARDS and name != "fence"
+    }
+    return {
+        **hazards,
+        "back_off_distance": _Key(float, 0.1, "how far a bumper's back_off drives (m)"),
+        "slow_speed": _Key(float, 0.1, "the speed cap of slow (m/s)"),
+        **thresholds,
+        "geofence_rectangle": _Key(list[float], None, "[width, height] (m) centred on the start"),
+        "geofence_circle": _Key(list[float], None, "[x, y, radius] (m)"),
+        "geofence_polygon": _Key(list[Any], None, "[[x, y], ...] (m), at least three points"),
     }
 
 
@@ -233,6 +265,33 @@ class Profile:
             values["curve"] = [tuple(point) for point in values["curve"]]
         return BatteryModel(**values)
 
+    @property
+    def safety(self) -> SafetyPolicy | None:
+        """``[safety]`` as a `SafetyPolicy` (``None`` when the table is absent)."""
+        values = dict(self.table("safety"))
+        if not values:
+            return None
+        distance = values.pop("back_off_distance", 0.1)
+        speed = values.pop("slow_speed", 0.1)
+        fences = [
+            k for k in ("geofence_rectangle", "geofence_circle", "geofence_polygon") if k in values
+        ]
+        if len(fences) > 1:
+            raise ValueError(f"one geofence, not {' and '.join(fences)}")
+        fence: Geofence | None = None
+        if "geofence_rectangle" in values:
+            width, height = values.pop("geofence_rectangle")
+            fence = Geofence.rectangle(width, height)
+        elif "geofence_circle" in values:
+            x, y, radius = values.pop("geofence_circle")
+            fence = Geofence(centre=(x, y), radius=radius)
+        elif "geofence_polygon" in values:
+            fence = Geofence(tuple((float(x), float(y)) for x, y in values.pop("geofence_polygon")))
+        for hazard in HAZARDS:
+            if hazard in values:
+                values[hazard] = Reflex(values[hazard], distance=distance, speed=speed)
+        return SafetyPolicy(fence=fence, **values)
+
     def device_options(self) -> dict[str, Any]:
         """The keyword options of a device constructor the profile sets (nothing for
         what it leaves out, so each constructor's default holds)."""
@@ -249,6 +308,8 @@ class Profile:
             options["calibration"] = calibration
         if (battery := self.battery()) is not None:
             options["battery"] = battery
+        if (safety := self.safety) is not None:
+            options["safety"] = safety
         return options
 
 
@@ -375,6 +436,7 @@ def _check_objects(tables: Mapping[str, Mapping[str, Any]], path: Path | str) ->
         ("limits", lambda: profile.limits),
         ("calibration", lambda: profile.calibration),
         ("battery", profile.battery),
+        ("safety", lambda: profile.safety),
     ]
     for name, build in checks:
         try:
