@@ -93,7 +93,7 @@ TABLE_KEYS: Mapping[str, frozenset[str]] = {
         "max_linear max_angular command_timeout",
         "serve": "foxglove_port host read_only allow_origin token_file record max_linear "
         "max_angular command_timeout",
-        "sim": "tcp noise bit_flips drop reply_delay",
+        "sim": "tcp noise bit_flips drop reply_delay world",
         "teleop": "max_linear max_angular command_timeout key_timeout speed joystick "
         "enable_button linear_axis angular_axis joy_scale_linear joy_scale_angular "
         "joy_deadzone joy_timeout",

@@ -24,6 +24,7 @@ from typing import Self
 
 from ..core.alarm import Alarm
 from ..core.firmware import Firmware
+from .control import apply
 from .faults import FaultCounts, LineFaults, damage
 from .lines import PtyLine, TcpLine
 
@@ -158,6 +159,15 @@ class SimulatorServer:
             handle.cancel()
         self._delayed.clear()
         return server
+
+    def command(self, line: str) -> str:
+        """Carry out one runtime command on the firmware now (``"bumper front"``,
+        ``"stall 2"``, ``"help"``...: see `chassis_sdk.sim.control`) and return its
+        one-line answer (``ok: ...`` or ``error: ...``; empty for a blank line). Never
+        raises for a bad line."""
+        answer = apply(self.firmware, line, time.monotonic())
+        self._alarm.wake()  # what is due next may have changed (a reset)
+        return answer
 
     def reset_firmware(self, downtime: float = 0.5) -> None:
         """Reboot the firmware now (see the model's ``reset``); the line stays up."""

@@ -9,9 +9,17 @@ PWM and servo commands accepted, and the same 0.5 s firmware command timeout as 
 chassis.
 
 It can be miscalibrated as a real base is (``BoardSpec.wheel_diameter_error``,
-``BoardSpec.turn_slip``): the velocity feedback reports what the encoders count, while
-the gyro (which does not slip) and the true pose (`BoardFirmware.pose`,
-`BoardFirmware.odometer`) follow where the robot really went.
+``BoardSpec.turn_slip``, a random slip ``BoardSpec.slip_noise``): the velocity feedback
+reports what the encoders count, while the gyro (which does not slip) and the true pose
+(`BoardFirmware.true_pose`, `BoardFirmware.odometer`) follow where the robot really
+went.
+
+With a world (``BoardFirmware(world=...)``, a `chassis_sdk.sim.World` or anything that
+has its ``sweep``), the robot is a box (``BoardSpec.footprint``) that stops at the
+walls: running into one stops the wheels (the velocity feedback reads 0 while a
+velocity is commanded) and the IMU's next sample shows the impact, a spike of
+deceleration on x. ``stall_wheels`` holds the wheels still for a while; ``set_tilt``
+tilts the board (the accelerometer shows gravity off the z axis).
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
+from typing import Protocol
 
 from ...core.firmware import FirmwareModel, next_slot
 from ...core.pack import Pack, PackSpec
@@ -41,7 +50,7 @@ from .messages import (
 )
 from .protocol import BoardCommandDecoder, BoardEncoder
 
-__all__ = ["BoardFirmware", "BoardSpec"]
+__all__ = ["BoardFirmware", "BoardSpec", "Obstacles"]
 
 _G = 9.80665
 
@@ -70,10 +79,35 @@ class BoardSpec:
     #: Skid slip in turns: the robot turns ``1 - turn_slip`` times what the wheels
     #: say (after the diameter error); the gyro reports the true rate.
     turn_slip: float = 0.0
+    #: Random slip: each physics step the true motion (forward and turning, each on its
+    #: own) is ``1 + N(0, slip_noise)`` times what the wheels say (0.01: 1 %); 0: none.
+    #: Drawn from its own generator (seeded by ``seed``): the IMU's noise stays the same.
+    slip_noise: float = 0.0
+    #: The robot's box in a world, ``(length, width)`` in metres.
+    footprint: tuple[float, float] = (0.3, 0.25)
 
     def __post_init__(self) -> None:
         check_real(self.wheel_diameter_error, "wheel_diameter_error", low=-0.5, high=0.5)
         check_real(self.turn_slip, "turn_slip", low=0, high=0.9)
+        check_real(self.slip_noise, "slip_noise", low=0, high=0.5)
+        length, width = self.footprint
+        check_real(length, "footprint length", low=0, low_open=True, unit="m")
+        check_real(width, "footprint width", low=0, low_open=True, unit="m")
+
+
+class Obstacles(Protocol):
+    """What the firmware asks of a world (`chassis_sdk.sim.World` is one): moving a
+    ``length`` x ``width`` box from pose ``start`` towards ``end`` (x, y m, heading
+    rad), where it stops, and where on the box it touched a wall (x forward, y left,
+    metres) or ``None``."""
+
+    def sweep(
+        self,
+        start: tuple[float, float, float],
+        end: tuple[float, float, float],
+        length: float,
+        width: float,
+    ) -> tuple[tuple[float, float, float], tuple[float, float] | None]: ...
 
 
 class BoardFirmware(FirmwareModel[BoardCommand]):
@@ -81,12 +115,28 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
 
     A reset (`reset`) comes up with the LED and buzzer off, the motors stopped
     and a "board ready" log line.
+
+    Args:
+        spec: Rates, dynamics, miscalibration.
+        world: Walls to run into (see `world`); ``None``: open space.
+
+    Raises:
+        ValueError: The robot at the origin touches a wall of ``world``.
     """
 
-    def __init__(self, spec: BoardSpec | None = None) -> None:
+    def __init__(self, spec: BoardSpec | None = None, *, world: Obstacles | None = None) -> None:
         super().__init__()
         self.spec = spec or BoardSpec()
         self._rng = random.Random(self.spec.seed)
+        self._slip_rng = random.Random(f"slip:{self.spec.seed}")
+        #: Collisions with the world's walls so far.
+        self.impacts = 0
+        #: The board's tilt (pitch nose up, roll left side up; degrees), which the
+        #: accelerometer shows (`set_tilt`).
+        self.tilt = (0.0, 0.0)
+        self._impact = 0.0  # m/s² on x for the next IMU sample
+        self._touching = False  # against a wall at the latest step
+        self._stalled_until = -math.inf  # a jammed drive is physical: a reset keeps it
         self._battery = self.spec.battery_full  # the battery outlives a reset
         #: The pack model (``spec.pack``), or ``None``; its ``charge`` is the truth.
         self.pack = None if self.spec.pack is None else Pack(self.spec.pack)
@@ -95,7 +145,39 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
         self.pose = (0.0, 0.0, 0.0)
         #: The true distance travelled (m, forward and back both count).
         self.odometer = 0.0
+        self._world: Obstacles | None = None
+        self.world = world
         self._power_on()
+
+    @property
+    def world(self) -> Obstacles | None:
+        """The walls the robot runs into (``None``: open space). Setting it checks that
+        the robot, where it truly is, touches no wall.
+
+        Raises:
+            ValueError: (setting) The robot's box touches a wall of the new world.
+        """
+        return self._world
+
+    @world.setter
+    def world(self, world: Obstacles | None) -> None:
+        if world is not None:
+            length, width = self.spec.footprint
+            _, touch = world.sweep(self.pose, self.pose, length, width)
+            if touch is not None:
+                x, y, _ = self.pose
+                raise ValueError(
+                    f"the board's robot ({length:g} x {width:g} m) at ({x:g}, {y:g}) "
+                    "touches a wall of this world: make the world bigger"
+                )
+        self._world = world
+
+    @property
+    def true_pose(self) -> tuple[float, float, float]:
+        """Where the robot truly is: x, y (m) and heading (rad, unwrapped) from its
+        start pose, with the wheels' miscalibration and slip, stopped by walls. The
+        velocity feedback (and the host's odometry) reports what the encoders count."""
+        return self.pose
 
     def _power_on(self) -> None:
         self._decoder = BoardCommandDecoder()
@@ -160,6 +242,28 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
         """Queue a log line for the next poll."""
         self._pending_logs.append(text)
 
+    def stall_wheels(self, now: float, seconds: float) -> None:
+        """Hold the wheels still from ``now`` for ``seconds`` (0 ends a stall): they are
+        commanded but do not turn (the velocity feedback reads 0), as a jammed drive
+        would. A reset does not end it."""
+        self._stalled_until = now + max(0.0, seconds)
+
+    def stalled(self, now: float) -> bool:
+        """True while `stall_wheels` holds the wheels at ``now``."""
+        return now < self._stalled_until
+
+    def set_tilt(self, pitch: float, roll: float = 0.0) -> None:
+        """Tilt the board ``pitch`` degrees nose up and ``roll`` degrees left side up
+        (both 0: level); the accelerometer shows gravity accordingly.
+
+        Raises:
+            ValueError: An angle is not a finite number from -180 to 180.
+        """
+        self.tilt = (
+            check_real(pitch, "pitch", low=-180, high=180, unit="°"),
+            check_real(roll, "roll", low=-180, high=180, unit="°"),
+        )
+
     # --- commands -----------------------------------------------------------------------------
 
     def _execute(self, cmd: BoardCommand, now: float) -> bytes:
@@ -206,19 +310,31 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
                 self.log("command timeout: stopping")
             self.target = (0.0, 0.0)
         tv, tw = self.target
-        dv = _clamp(tv - self.linear, self.spec.max_linear_acceleration * dt)
-        dw = _clamp(tw - self.angular, self.spec.max_angular_acceleration * dt)
+        if self.stalled(now):
+            dv, dw = -self.linear, -self.angular  # held: the wheels do not turn
+        else:
+            dv = _clamp(tv - self.linear, self.spec.max_linear_acceleration * dt)
+            dw = _clamp(tw - self.angular, self.spec.max_angular_acceleration * dt)
         self.linear += dv
         self.angular += dw
         self._linear_accel = dv / dt
         v, w = self.true_linear, self.true_angular
+        if self.spec.slip_noise and (v or w):
+            gauss, sigma = self._slip_rng.gauss, self.spec.slip_noise
+            v, w = v * (1.0 + gauss(0.0, sigma)), w * (1.0 + gauss(0.0, sigma))
         mid = self.heading + w * elapsed / 2
-        x, y, h = self.pose
-        self.pose = (
-            x + v * elapsed * math.cos(mid),
-            y + v * elapsed * math.sin(mid),
-            h + w * elapsed,
-        )
+        x, y, h = start = self.pose
+        end = (x + v * elapsed * math.cos(mid), y + v * elapsed * math.sin(mid), h + w * elapsed)
+        touching = False
+        if self._world is not None and end != start:
+            end, touch = self._world.sweep(start, end, *self.spec.footprint)
+            touching = touch is not None
+            if touching:
+                self._hit(v)
+                v = math.hypot(end[0] - x, end[1] - y) / elapsed
+                w = (end[2] - h) / elapsed
+        self._touching = touching
+        self.pose = end
         self.odometer += abs(v) * elapsed
         self.heading = (self.heading + w * elapsed) % (2 * math.pi)
         moving = abs(self.linear) > 1e-6 or abs(self.angular) > 1e-6
@@ -226,6 +342,16 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
             self.pack.draw(self._load(), dt)
         elif moving:
             self._battery -= 0.0002 * dt
+
+    def _hit(self, true_linear: float) -> None:
+        """The robot ran into a wall: the wheels stop at once; a new contact (not one
+        pushed against since the last step) shows on the IMU as the deceleration of
+        stopping from ``true_linear`` within one IMU period."""
+        if not self._touching:
+            self.impacts += 1
+            self._impact = -true_linear / self.spec.imu_period
+        self.linear = self.angular = 0.0
+        self._linear_accel = 0.0
 
     @property
     def true_linear(self) -> float:
@@ -261,10 +387,15 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
         # Centripetal acceleration v*w points to the left (+y) when turning left.
         true = 1.0 + self.spec.wheel_diameter_error
         v, w = self.true_linear, self.true_angular
+        pitch, roll = (math.radians(a) for a in self.tilt)
+        # Gravity as the accelerometer feels it (an upward push) on the tilted board;
+        # level: (0, 0, 1) g, as before.
+        up = (math.sin(pitch), math.cos(pitch) * math.sin(roll), math.cos(pitch) * math.cos(roll))
+        impact, self._impact = self._impact, 0.0
         accel = Vector3(
-            self._linear_accel * true / _G + g(0, an),
-            v * w / _G + g(0, an),
-            1.0 + g(0, an),
+            (self._linear_accel * true + impact) / _G + up[0] + g(0, an),
+            v * w / _G + up[1] + g(0, an),
+            up[2] + g(0, an),
         )
         gyro = Vector3(g(0, gn), g(0, gn), math.degrees(w) + g(0, gn))
         mag = Vector3(

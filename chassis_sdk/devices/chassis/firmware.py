@@ -12,16 +12,24 @@ command timeout: the wheels stop if no 0x02 arrives for 0.5 s, which is why the 
 watchdog exists.
 
 It can be miscalibrated as a real base is (``ChassisSpec.wheel_diameter_error``,
-``ChassisSpec.turn_slip``): the telemetry reports what the encoders count, the true
-pose (`ChassisFirmware.pose`, `ChassisFirmware.odometer`) is where the
-robot really went, for tests to hold a calibration against.
+``ChassisSpec.turn_slip``, and a random slip, ``ChassisSpec.slip_noise``): the
+telemetry reports what the encoders count, the true pose (`ChassisFirmware.true_pose`,
+`ChassisFirmware.odometer`) is where the robot really went, for tests to hold a
+calibration or a goal's accuracy against.
+
+With a world (``ChassisFirmware(world=...)``, a `chassis_sdk.sim.World` or anything
+that has its ``sweep``), the robot is a box (``ChassisSpec.footprint``) that stops at
+the walls: running into one latches the bumper of the end that hit it and stops the
+wheels at once. ``stall_wheels`` holds the wheels still for a while (commanded, not
+turning), as a jammed drive would.
 """
 
 from __future__ import annotations
 
 import math
+import random
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Protocol
 
 from ...core.firmware import FirmwareModel, next_slot
 from ...core.pack import Pack, PackSpec
@@ -50,7 +58,7 @@ from .messages import (
 )
 from .protocol import ChassisCommandDecoder, ChassisEncoder
 
-__all__ = ["ChassisFirmware", "ChassisSpec"]
+__all__ = ["ChassisFirmware", "ChassisSpec", "Obstacles"]
 
 _WHEELS = ("front_left", "front_right", "rear_left", "rear_right")
 _DRIVER_ERROR_BITS = (
@@ -98,10 +106,38 @@ class ChassisSpec:
     #: Skid slip in turns: the robot turns ``1 - turn_slip`` times what the wheels'
     #: speed difference over the track says (0.2: 20 % less).
     turn_slip: float = 0.0
+    #: Random slip: each physics step the true motion (forward and turning, each on its
+    #: own) is ``1 + N(0, slip_noise)`` times what the wheels say (0.01: 1 %); 0: none.
+    slip_noise: float = 0.0
+    #: Seed of the random slip, for repeatable runs.
+    seed: int = 0
+    #: The robot's box in a world, ``(length, width)`` in metres; ``None``: the
+    #: wheelbase plus a wheel's diameter long, the track width wide.
+    footprint: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         check_real(self.wheel_diameter_error, "wheel_diameter_error", low=-0.5, high=0.5)
         check_real(self.turn_slip, "turn_slip", low=0, high=0.9)
+        check_real(self.slip_noise, "slip_noise", low=0, high=0.5)
+        if self.footprint is not None:
+            length, width = self.footprint
+            check_real(length, "footprint length", low=0, low_open=True, unit="m")
+            check_real(width, "footprint width", low=0, low_open=True, unit="m")
+
+
+class Obstacles(Protocol):
+    """What the firmware asks of a world (`chassis_sdk.sim.World` is one): moving a
+    ``length`` x ``width`` box from pose ``start`` towards ``end`` (x, y m, heading
+    rad), where it stops, and where on the box it touched a wall (x forward, y left,
+    metres) or ``None``."""
+
+    def sweep(
+        self,
+        start: tuple[float, float, float],
+        end: tuple[float, float, float],
+        length: float,
+        width: float,
+    ) -> tuple[tuple[float, float, float], tuple[float, float] | None]: ...
 
 
 #: The status bit of each level ``ChassisFirmware.status`` lists, in its order.
@@ -120,17 +156,44 @@ _STATUS_BITS = (
 
 
 def _advance(
-    pose: tuple[float, float, float], wheels: list[float], spec: ChassisSpec, dt: float
+    pose: tuple[float, float, float],
+    wheels: list[float],
+    spec: ChassisSpec,
+    dt: float,
+    slip: tuple[float, float] = (1.0, 1.0),
 ) -> tuple[float, float, float]:
     """The true pose after ``dt`` at these (encoder) wheel speeds (midpoint rule), with
-    the spec's miscalibration, for tests to hold odometry against."""
+    the spec's miscalibration and this step's random ``slip`` (forward, turning
+    factors), for tests to hold odometry against."""
     left, right = (wheels[0] + wheels[2]) / 2, (wheels[1] + wheels[3]) / 2
     true = 1.0 + spec.wheel_diameter_error
-    v = (left + right) / 2 * true
-    w = (right - left) / spec.info.track_width * true * (1.0 - spec.turn_slip)
+    v = (left + right) / 2 * true * slip[0]
+    w = (right - left) / spec.info.track_width * true * (1.0 - spec.turn_slip) * slip[1]
     x, y, heading = pose
     mid = heading + w * dt / 2
     return (x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), heading + w * dt)
+
+
+def _slip(rng: random.Random, sigma: float, wheels: list[float]) -> tuple[float, float]:
+    """A step's random slip factors (forward, turning), or none (``sigma`` 0 or the
+    wheels still: then nothing is drawn)."""
+    if not sigma or not any(wheels):
+        return (1.0, 1.0)
+    return (1.0 + rng.gauss(0.0, sigma), 1.0 + rng.gauss(0.0, sigma))
+
+
+def _check_fits(
+    world: Obstacles | None, pose: tuple[float, float, float], footprint: tuple[float, float]
+) -> None:
+    """Raise ``ValueError`` if the robot's box at ``pose`` touches a wall of ``world``."""
+    if world is None:
+        return
+    length, width = footprint
+    if world.sweep(pose, pose, length, width)[1] is not None:
+        raise ValueError(
+            f"the chassis ({length:g} x {width:g} m) at ({pose[0]:g}, {pose[1]:g}) touches "
+            "a wall of this world: make the world bigger"
+        )
 
 
 class ChassisFirmware(FirmwareModel[HostCommand]):
@@ -138,13 +201,25 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
 
     Tests and the CLI reach into it to trigger faults: `press_bumper`,
     `set_driver_fault`, `set_driver_offline`, `set_hardware_estop`,
-    `set_remote_estop`, `set_battery`, `reset`; `hold_bumper` and
+    `set_remote_estop`, `set_battery`, `stall_wheels`, `reset`; `hold_bumper` and
     `ignored` make it refuse what the host asks (for tests of confirmation).
+
+    Args:
+        spec: Device parameters (versions, geometry, rates, miscalibration).
+        world: Walls to run into (see `world`); ``None``: open space.
+
+    Raises:
+        ValueError: The robot at the origin touches a wall of ``world``.
     """
 
-    def __init__(self, spec: ChassisSpec | None = None) -> None:
+    def __init__(self, spec: ChassisSpec | None = None, *, world: Obstacles | None = None) -> None:
         super().__init__()
         self.spec = spec or ChassisSpec()
+        self._slip_rng = random.Random(self.spec.seed)
+        #: Collisions with the world's walls so far (each latched a bumper).
+        self.impacts = 0
+        self._stalled_until = -math.inf  # a jammed drive is physical: a reset keeps it
+        self._held = False  # stalled at the latest physics step
         self.hardware_estop = False
         self.remote_estop = False
         self.remote_online = False
@@ -162,7 +237,39 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         self.pose = (0.0, 0.0, 0.0)
         #: The true distance travelled (m, forward and back both count).
         self.odometer = 0.0
+        self._world: Obstacles | None = None
+        self.world = world
         self._power_on()
+
+    @property
+    def world(self) -> Obstacles | None:
+        """The walls the robot runs into (``None``: open space). Setting it checks that
+        the robot, where it truly is, touches no wall.
+
+        Raises:
+            ValueError: (setting) The robot's box touches a wall of the new world.
+        """
+        return self._world
+
+    @world.setter
+    def world(self, world: Obstacles | None) -> None:
+        _check_fits(world, self.pose, self.footprint)
+        self._world = world
+
+    @property
+    def footprint(self) -> tuple[float, float]:
+        """The robot's box, ``(length, width)`` in metres (``ChassisSpec.footprint``)."""
+        if self.spec.footprint is not None:
+            return self.spec.footprint
+        info = self.spec.info
+        return (info.wheelbase + info.wheel_diameter, info.track_width)
+
+    @property
+    def true_pose(self) -> tuple[float, float, float]:
+        """Where the robot truly is: x, y (m) and heading (rad, unwrapped) from its
+        start pose, with the wheels' miscalibration and slip, stopped by walls. The
+        telemetry (and the host's odometry) reports what the encoders count instead."""
+        return self.pose
 
     def _power_on(self) -> None:
         """The state after power-up (the hardware e-stop button is physical: it stays)."""
@@ -216,6 +323,15 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         if held:
             self.press_bumper(front)
 
+    def release_bumper(self, front: bool = True) -> None:
+        """Let a bumper go and clear its latch, as if it had never been pressed (the
+        simulator operator's undo; the host's way is 0x05)."""
+        self.bumpers_held[0 if front else 1] = False
+        if front:
+            self.front_bumper = False
+        else:
+            self.rear_bumper = False
+
     def set_driver_offline(self, front: bool, offline: bool = True) -> None:
         """Take the front or rear motor-driver board off the bus (or put it back)."""
         self.drivers_offline[0 if front else 1] = offline
@@ -226,6 +342,17 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
         self._battery_open = voltage
         if self.pack is not None:
             self.pack.set_open_voltage(voltage)
+
+    def stall_wheels(self, now: float, seconds: float) -> None:
+        """Hold the wheels still from ``now`` for ``seconds`` (0 ends a stall): they are
+        commanded but do not turn (the telemetry's speeds are 0, the motors draw their
+        stall current), as a jammed drive or a wheel against a kerb would. No status
+        bit says so; a reset does not end it."""
+        self._stalled_until = now + max(0.0, seconds)
+
+    def stalled(self, now: float) -> bool:
+        """True while `stall_wheels` holds the wheels at ``now``."""
+        return now < self._stalled_until
 
     # --- sans-IO interface --------------------------------------------------------------------
 
@@ -371,20 +498,29 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
             self.target = [0.0, 0.0, 0.0, 0.0]
         max_accel = self.spec.max_acceleration
         max_dv = max_accel * dt
+        stalled = self._held = self.stalled(now)
         for i in range(4):
             goal = self.target[i] if may_move else 0.0
             dv = max(-max_dv, min(max_dv, goal - self.wheels[i]))
             if not may_move and (self.software_estop or self.hardware_estop or self.remote_estop):
                 dv = goal - self.wheels[i]  # an emergency stop brakes at once
+            if stalled:
+                dv = -self.wheels[i]  # held: the wheels do not turn whatever is asked
             self.wheels[i] += dv
             # The current follows what the motor drives, at most the rated acceleration:
             # an emergency stop's instant halt is the brake's, and dividing it by a step
             # microseconds long drew thousands of amperes and a negative voltage.
-            self._accel[i] = max(-max_accel, min(max_accel, dv / dt))
+            self._accel[i] = 0.0 if stalled else max(-max_accel, min(max_accel, dv / dt))
             self._peak[i] = max(self._peak[i], abs(self._current(i)))
-        x, y, _ = self.pose
-        self.pose = _advance(self.pose, self.wheels, self.spec, elapsed)
-        self.odometer += math.hypot(self.pose[0] - x, self.pose[1] - y)
+        start = self.pose
+        slip = _slip(self._slip_rng, self.spec.slip_noise, self.wheels)
+        end = _advance(start, self.wheels, self.spec, elapsed, slip)
+        if self._world is not None and end != start:
+            end, touch = self._world.sweep(start, end, *self.footprint)
+            if touch is not None:
+                self._hit(touch)
+        self.pose = end
+        self.odometer += math.hypot(end[0] - start[0], end[1] - start[1])
         if self.pack is not None:
             self.pack.draw(self._total_current(), dt)
         elif any(abs(w) > 1e-6 for w in self.wheels):
@@ -394,8 +530,20 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
             walk = _DOCKING_WALK
             self.docking_state = walk[step] if step < len(walk) else DockingState.DOCKED
 
+    def _hit(self, touch: tuple[float, float]) -> None:
+        """The robot ran into a wall: the bumper of the end that leads (or, turning on
+        the spot, of the end that touched) latches, and the wheels stop at once."""
+        linear = sum(self.wheels) / 4
+        front = linear > 0 if abs(linear) > 1e-9 else touch[0] >= 0
+        self.press_bumper(front)
+        self.impacts += 1
+        self.wheels = [0.0, 0.0, 0.0, 0.0]
+        self._accel = [0.0, 0.0, 0.0, 0.0]
+
     def _current(self, i: int) -> float:
-        return 0.3 + 3.0 * abs(self.wheels[i]) + 4.0 * abs(self._accel[i])
+        # A stalled motor draws its stall current, growing with what it is asked for.
+        stall = 6.0 * abs(self.target[i]) if self._held else 0.0
+        return 0.3 + 3.0 * abs(self.wheels[i]) + 4.0 * abs(self._accel[i]) + stall
 
     def _total_current(self) -> float:
         return sum(self._current(i) for i in range(4))
