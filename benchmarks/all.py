@@ -42,6 +42,8 @@ SCRIPTS = [
     "scaling.py",
     "ros2.py",
     "web.py",
+    "reflexes.py",
+    "goal_accuracy.py",
 ]
 #: How each script that can writes its figures to a file.
 JSON_FLAG = {
@@ -52,6 +54,7 @@ JSON_FLAG = {
     "scaling.py": "--json",
     "ros2.py": "--json",
     "web.py": "--json",
+    "reflexes.py": "--json-file",
 }
 #: The scripts whose figures the goals table shows: run ``--runs`` times.
 REPEATED = ("decoder_throughput.py", "latency.py", "mqtt_fleet.py", "recording.py", "scaling.py")

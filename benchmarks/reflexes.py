@@ -2,7 +2,7 @@
 process (issue 42's targets).
 
     python benchmarks/reflexes.py            # every transport, side by side
-    python benchmarks/reflexes.py --quick    # fewer samples (CI)
+    python benchmarks/reflexes.py --quick    # fewer samples, the default transport (CI)
 
 Three figures:
 
@@ -267,7 +267,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         QUICK.append("--quick")
-        N_HAZARDS, N_CANCELS, HOUR = 150, 40, 600.0
+        N_HAZARDS, N_CANCELS, HOUR = 100, 20, 600.0
     frames = N_HAZARDS * EVERY + 10
     if args.one:
         if args.backend and args.backend != "floor":
@@ -278,7 +278,10 @@ def main() -> None:
             job = cancels(N_CANCELS)
         print(json.dumps(asyncio.run(job)))
         return
-    backends = [args.backend] if args.backend and args.backend != "floor" else BACKENDS
+    if args.backend and args.backend != "floor":
+        backends = [args.backend]
+    else:
+        backends = BACKENDS[:1] if args.quick else BACKENDS
     report: dict[str, Any] = {"floor": run_one("reaction", "floor"), "sdk": {}}
     floor = report["floor"]["reaction"]
     print(f"reflex reaction (bumper frame written -> first zero frame read), ms; "
