@@ -71,7 +71,7 @@ class Firmware:
         tty.setraw(self.slave)
         self.proc = await asyncio.create_subprocess_exec(
             sys.executable, str(FIRMWARE), str(master), pass_fds=(master,),
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, limit=1 << 26,
         )  # fmt: skip
         os.close(master)
         return self
@@ -179,7 +179,7 @@ async def cancels(n: int) -> dict[str, Any]:
     from chassis_sdk import Chassis
 
     rng = random.Random(42)
-    frames = int((n * 0.16 + 1.0) / PERIOD) * 2 + 100
+    frames = int((n * 0.2 + 1.0) / PERIOD)  # telemetry for as long as the cancels take
     async with Firmware() as fw, Chassis(os.ttyname(fw.slave)) as robot:
         running = asyncio.create_task(fw.run(frames, 0))
         await robot.odometry().__anext__()

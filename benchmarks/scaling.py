@@ -1,6 +1,6 @@
 """CPU and lag against the number of chassis in one process, on every transport and
 both event loops and both deliveries, beside the raw-reader floor (about 15 minutes;
---quick: about 2).
+--quick: 32 chassis, about 1).
 
     pip install ".[all,fast,serialx,uvloop]" --group bench
     python benchmarks/scaling.py [--quick] [--plot docs/img/scaling.svg]
@@ -262,7 +262,7 @@ def plot(rows: list[dict[str, Any]], path: str) -> None:
 def main() -> None:
     global WARMUP
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="1 and 32 chassis, 1.5 s windows")
+    parser.add_argument("--quick", action="store_true", help="32 chassis, 1.5 s windows")
     parser.add_argument("--counts", help="comma-separated N (default 1,8,...,512)")
     parser.add_argument("--plot", metavar="FILE", help="draw CPU and lag against N (.svg/.png)")
     parser.add_argument("--json", metavar="FILE", help="write every row to FILE")
@@ -281,7 +281,7 @@ def main() -> None:
         with asyncio.Runner(loop_factory=factory) as runner:
             print(json.dumps(runner.run(measure(args.one, args.window, args.kind, args.delivery))))
         return
-    counts = [1, 32] if args.quick else COUNTS
+    counts = [32] if args.quick else COUNTS
     if args.counts:
         counts = [int(c) for c in args.counts.split(",")]
     window = 1.5 if args.quick else args.window

@@ -211,3 +211,33 @@ def test_the_blocking_twins() -> None:
         assert robot.go_to(0.0, 0.0, timeout=15.0).error <= 0.01
         with pytest.raises(MoveTimeoutError):
             robot.drive_distance(2.0, timeout=0.2)
+
+
+async def test_a_stall_ends_the_goal_with_the_reflexs_block() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        await until(lambda: robot.latest_odometry is not None)
+        task = asyncio.create_task(robot.drive_distance(3.0))
+        await until(lambda: moving(sim))
+        stalled = time.monotonic()
+        assert sim.command("stall 3").startswith("ok")
+        with pytest.raises(MotionBlockedError, match="REFLEX_STALL") as caught:
+            await task
+        assert caught.value.reasons == ("REFLEX_STALL",)
+        await until(lambda: drives_since(sim, stalled)[-1][1] == 0, 1.0)
+
+
+async def test_a_goal_into_a_wall_of_the_world_ends_at_the_bumper() -> None:
+    from chassis_sdk.sim import World
+
+    async with ChassisSimulator(world=World.arena(2.0, 2.0)) as sim, Chassis(sim.port) as robot:
+        await until(lambda: robot.latest_odometry is not None)
+        with pytest.raises(MotionBlockedError, match="FRONT_BUMPER"):
+            await robot.drive_distance(3.0, 0.3, timeout=15.0)
+        x, _, _ = sim.firmware.true_pose
+        length, _ = sim.firmware.footprint
+        assert x + length / 2 == pytest.approx(1.0, abs=0.05)  # its front at the wall (x = 1)
+        await until(lambda: all(abs(w) < 1e-3 for w in sim.firmware.wheels))
+        await robot.clear_faults(confirm=True)
+        await until(lambda: robot.motion.blocks == ())
+        back = await robot.drive_distance(-0.3, timeout=10.0)  # backing away is free
+        assert back.ended == "done"
