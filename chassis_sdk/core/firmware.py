@@ -13,8 +13,9 @@ from collections import deque
 from typing import Generic, Protocol, TypeVar
 
 from .framing import DecoderStats, FrameDecoder
+from .validation import check_real
 
-__all__ = ["Firmware", "FirmwareModel", "next_slot"]
+__all__ = ["Firmware", "FirmwareModel", "Obstacles", "check_fits", "check_motion", "next_slot"]
 
 
 def next_slot(previous: float, period: float, now: float) -> float:
@@ -25,6 +26,56 @@ def next_slot(previous: float, period: float, now: float) -> float:
     """
     nxt = previous + period
     return nxt if nxt > now else now + period
+
+
+class Obstacles(Protocol):
+    """What a firmware model asks of a world (`chassis_sdk.sim.World` is one): moving a
+    ``length`` x ``width`` box from pose ``start`` towards ``end`` (x, y m, heading
+    rad), where it stops, and where on the box it touched a wall (x forward, y left,
+    metres) or ``None``."""
+
+    def sweep(
+        self,
+        start: tuple[float, float, float],
+        end: tuple[float, float, float],
+        length: float,
+        width: float,
+    ) -> tuple[tuple[float, float, float], tuple[float, float] | None]: ...
+
+
+def check_fits(
+    what: str,
+    world: Obstacles | None,
+    pose: tuple[float, float, float],
+    footprint: tuple[float, float],
+) -> None:
+    """Raise ``ValueError`` if ``what``'s box (``footprint``: length, width) at ``pose``
+    touches a wall of ``world``."""
+    if world is None:
+        return
+    length, width = footprint
+    if world.sweep(pose, pose, length, width)[1] is not None:
+        raise ValueError(
+            f"{what} ({length:g} x {width:g} m) at ({pose[0]:g}, {pose[1]:g}) touches "
+            "a wall of this world: make the world bigger"
+        )
+
+
+def check_motion(
+    wheel_diameter_error: float,
+    turn_slip: float,
+    slip_noise: float,
+    footprint: tuple[float, float] | None,
+) -> None:
+    """The checks of a simulated base's motion errors and box (a spec's
+    ``__post_init__``): ``ValueError`` for one out of range."""
+    check_real(wheel_diameter_error, "wheel_diameter_error", low=-0.5, high=0.5)
+    check_real(turn_slip, "turn_slip", low=0, high=0.9)
+    check_real(slip_noise, "slip_noise", low=0, high=0.5)
+    if footprint is not None:
+        length, width = footprint
+        check_real(length, "footprint length", low=0, low_open=True, unit="m")
+        check_real(width, "footprint width", low=0, low_open=True, unit="m")
 
 
 class Firmware(Protocol):

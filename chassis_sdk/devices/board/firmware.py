@@ -27,9 +27,8 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
-from typing import Protocol
 
-from ...core.firmware import FirmwareModel, next_slot
+from ...core.firmware import FirmwareModel, Obstacles, check_fits, check_motion, next_slot
 from ...core.pack import Pack, PackSpec
 from ...core.validation import check_real
 from .messages import (
@@ -87,27 +86,7 @@ class BoardSpec:
     footprint: tuple[float, float] = (0.3, 0.25)
 
     def __post_init__(self) -> None:
-        check_real(self.wheel_diameter_error, "wheel_diameter_error", low=-0.5, high=0.5)
-        check_real(self.turn_slip, "turn_slip", low=0, high=0.9)
-        check_real(self.slip_noise, "slip_noise", low=0, high=0.5)
-        length, width = self.footprint
-        check_real(length, "footprint length", low=0, low_open=True, unit="m")
-        check_real(width, "footprint width", low=0, low_open=True, unit="m")
-
-
-class Obstacles(Protocol):
-    """What the firmware asks of a world (`chassis_sdk.sim.World` is one): moving a
-    ``length`` x ``width`` box from pose ``start`` towards ``end`` (x, y m, heading
-    rad), where it stops, and where on the box it touched a wall (x forward, y left,
-    metres) or ``None``."""
-
-    def sweep(
-        self,
-        start: tuple[float, float, float],
-        end: tuple[float, float, float],
-        length: float,
-        width: float,
-    ) -> tuple[tuple[float, float, float], tuple[float, float] | None]: ...
+        check_motion(self.wheel_diameter_error, self.turn_slip, self.slip_noise, self.footprint)
 
 
 class BoardFirmware(FirmwareModel[BoardCommand]):
@@ -161,15 +140,7 @@ class BoardFirmware(FirmwareModel[BoardCommand]):
 
     @world.setter
     def world(self, world: Obstacles | None) -> None:
-        if world is not None:
-            length, width = self.spec.footprint
-            _, touch = world.sweep(self.pose, self.pose, length, width)
-            if touch is not None:
-                x, y, _ = self.pose
-                raise ValueError(
-                    f"the board's robot ({length:g} x {width:g} m) at ({x:g}, {y:g}) "
-                    "touches a wall of this world: make the world bigger"
-                )
+        check_fits("the board's robot", world, self.pose, self.spec.footprint)
         self._world = world
 
     @property

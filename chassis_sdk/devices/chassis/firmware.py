@@ -29,11 +29,10 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Literal
 
-from ...core.firmware import FirmwareModel, next_slot
+from ...core.firmware import FirmwareModel, Obstacles, check_fits, check_motion, next_slot
 from ...core.pack import Pack, PackSpec
-from ...core.validation import check_real
 from .messages import (
     ChassisInfo,
     ChassisMessage,
@@ -116,28 +115,7 @@ class ChassisSpec:
     footprint: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        check_real(self.wheel_diameter_error, "wheel_diameter_error", low=-0.5, high=0.5)
-        check_real(self.turn_slip, "turn_slip", low=0, high=0.9)
-        check_real(self.slip_noise, "slip_noise", low=0, high=0.5)
-        if self.footprint is not None:
-            length, width = self.footprint
-            check_real(length, "footprint length", low=0, low_open=True, unit="m")
-            check_real(width, "footprint width", low=0, low_open=True, unit="m")
-
-
-class Obstacles(Protocol):
-    """What the firmware asks of a world (`chassis_sdk.sim.World` is one): moving a
-    ``length`` x ``width`` box from pose ``start`` towards ``end`` (x, y m, heading
-    rad), where it stops, and where on the box it touched a wall (x forward, y left,
-    metres) or ``None``."""
-
-    def sweep(
-        self,
-        start: tuple[float, float, float],
-        end: tuple[float, float, float],
-        length: float,
-        width: float,
-    ) -> tuple[tuple[float, float, float], tuple[float, float] | None]: ...
+        check_motion(self.wheel_diameter_error, self.turn_slip, self.slip_noise, self.footprint)
 
 
 #: The status bit of each level ``ChassisFirmware.status`` lists, in its order.
@@ -180,20 +158,6 @@ def _slip(rng: random.Random, sigma: float, wheels: list[float]) -> tuple[float,
     if not sigma or not any(wheels):
         return (1.0, 1.0)
     return (1.0 + rng.gauss(0.0, sigma), 1.0 + rng.gauss(0.0, sigma))
-
-
-def _check_fits(
-    world: Obstacles | None, pose: tuple[float, float, float], footprint: tuple[float, float]
-) -> None:
-    """Raise ``ValueError`` if the robot's box at ``pose`` touches a wall of ``world``."""
-    if world is None:
-        return
-    length, width = footprint
-    if world.sweep(pose, pose, length, width)[1] is not None:
-        raise ValueError(
-            f"the chassis ({length:g} x {width:g} m) at ({pose[0]:g}, {pose[1]:g}) touches "
-            "a wall of this world: make the world bigger"
-        )
 
 
 class ChassisFirmware(FirmwareModel[HostCommand]):
@@ -253,7 +217,7 @@ class ChassisFirmware(FirmwareModel[HostCommand]):
 
     @world.setter
     def world(self, world: Obstacles | None) -> None:
-        _check_fits(world, self.pose, self.footprint)
+        check_fits("the chassis", world, self.pose, self.footprint)
         self._world = world
 
     @property
