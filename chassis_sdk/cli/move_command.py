@@ -49,7 +49,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument("metres", type=finite("metres"), help="how far (m)")
     p.add_argument("--speed", type=positive("speed"), help="m/s (default 0.3, within limits)")
     p.add_argument("--tolerance", type=positive("tolerance"), help="m (default 0.01)")
-    p.set_defaults(func=_start, goal="move")
+    p.set_defaults(func=_start_move)
 
     p = sub.add_parser(
         "turn",
@@ -60,7 +60,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument("degrees", type=finite("degrees"), help="how far (°)")
     p.add_argument("--rate", type=positive("rate"), help="°/s (default 45, within limits)")
     p.add_argument("--tolerance", type=positive("tolerance"), help="° (default 1)")
-    p.set_defaults(func=_start, goal="turn")
+    p.set_defaults(func=_start_turn)
 
     p = sub.add_parser(
         "goto",
@@ -74,7 +74,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument("heading", type=finite("heading"), nargs="?", help="° (optional)")
     p.add_argument("--speed", type=positive("speed"), help="m/s (default 0.3, within limits)")
     p.add_argument("--tolerance", type=positive("tolerance"), help="m (default 0.01)")
-    p.set_defaults(func=_start, goal="goto")
+    p.set_defaults(func=_start_goto)
 
 
 def _common(p: argparse.ArgumentParser, names: Sequence[str]) -> None:
@@ -89,7 +89,19 @@ def _common(p: argparse.ArgumentParser, names: Sequence[str]) -> None:
     )
 
 
-def _start(args: argparse.Namespace) -> Job:
+# One function per command (as every command has: none falls through to another).
+def _start_move(args: argparse.Namespace) -> Job:
+    args.goal = "move"
+    return move(profile(args.device), require_port(args), args)
+
+
+def _start_turn(args: argparse.Namespace) -> Job:
+    args.goal = "turn"
+    return move(profile(args.device), require_port(args), args)
+
+
+def _start_goto(args: argparse.Namespace) -> Job:
+    args.goal = "goto"
     return move(profile(args.device), require_port(args), args)
 
 
