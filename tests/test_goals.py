@@ -241,3 +241,29 @@ async def test_a_goal_into_a_wall_of_the_world_ends_at_the_bumper() -> None:
         await until(lambda: robot.motion.blocks == ())
         back = await robot.drive_distance(-0.3, timeout=10.0)  # backing away is free
         assert back.ended == "done"
+
+
+async def test_a_stop_before_the_goals_first_sample_ends_it_unstarted() -> None:
+    # The goal was called, then a stop came before its first odometry sample (an MQTT
+    # request then a stop within a period): it must not drive afterwards.
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        await until(lambda: robot.latest_odometry is not None)
+        since = time.monotonic()
+        task = asyncio.create_task(robot.drive_distance(1.0))
+        await asyncio.sleep(0)  # it runs up to its first sample
+        await robot.stop()
+        with pytest.raises(MovePreemptedError, match="stopped"):
+            await task
+        await asyncio.sleep(QUIET)
+        assert [mm for _, mm, _ in drives_since(sim, since) if mm] == []
+
+
+async def test_a_goal_already_there_stops_nobody_else() -> None:
+    async with ChassisSimulator() as sim, Chassis(sim.port) as robot:
+        await until(lambda: robot.latest_odometry is not None)
+        page = robot.motion.source("web page", kind="web")
+        assert page.set_velocity(0.0, 0.5, duration=2.0) is None  # a page turns it
+        result = await robot.rotate(0.0)  # there already: done, and it stops nothing
+        assert result.ended == "done"
+        assert page.driving
+        assert drives_since(sim, 0.0)[-1][2] == pytest.approx(0.5)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -102,13 +103,36 @@ ROWS: list[tuple[str, SafetyPolicy, list[tuple[Any, ...]], list[tuple[str, str, 
         [],
     ),
     (
+        "two samples of one read (one time) lean nothing: no time passed between them",
+        SafetyPolicy(),
+        [
+            ("imu", 0.0, 0.0, 1.0, 0.0),
+            ("imu", 0.0, 0.0, 1.0, 0.6),
+            ("imu", -0.4, 0.0, 1.0, 0.61),
+            ("imu", -0.4, 0.0, 1.0, 0.61),
+            ("imu", 0.0, 0.0, 1.0, 0.62),
+        ],
+        [],
+    ),
+    (
+        "an IMU in counts (100 a g): half a g of vibration is no impact, 3 g is",
+        SafetyPolicy(),
+        [
+            ("imu", 0.0, 0.0, 100.0, 0.0),
+            ("imu", 50.0, 0.0, 100.0, 0.01),
+            ("imu", 0.0, 0.0, 100.0, 0.02),
+            ("imu", 300.0, 0.0, 100.0, 0.03),
+        ],
+        [("tilt", "", True)],
+    ),
+    (
         "an impact: 3 g in one sample",
         SafetyPolicy(),
         [("imu", 0.0, 0.0, 1.0, 0.0), ("imu", 3.0, 0.0, 1.0, 0.01)],
         [("tilt", "", True)],
     ),
     (
-        "the geofence: leaving it, and coming back",
+        "the geofence: leaving it, 19 cm further out (again), and coming back",
         SafetyPolicy(fence=Geofence.rectangle(2.0, 2.0)),
         [
             ("pose", 0.5, 0.5, 0.0),
@@ -116,7 +140,20 @@ ROWS: list[tuple[str, SafetyPolicy, list[tuple[Any, ...]], list[tuple[str, str, 
             ("pose", 1.2, 0.5, 0.2),
             ("pose", 0.9, 0.5, 0.3),
         ],
-        [("geofence", "", True), ("geofence", "", False)],
+        [("geofence", "", True), ("geofence", "", True), ("geofence", "", False)],
+    ),
+    (
+        "outside, going further out triggers again; coming back never does",
+        SafetyPolicy(fence=Geofence.rectangle(2.0, 2.0)),
+        [
+            ("pose", 1.05, 0.0, 0.0),
+            ("pose", 1.04, 0.0, 0.1),
+            ("pose", 1.055, 0.0, 0.2),
+            ("pose", 1.07, 0.0, 0.3),
+            ("pose", 1.08, 0.0, 0.4),
+            ("pose", 0.9, 0.0, 0.5),
+        ],
+        [("geofence", "", True), ("geofence", "", True), ("geofence", "", False)],
     ),
     (
         "a circular geofence",
@@ -218,8 +255,18 @@ class Rig:
             clock=lambda: self.t,
         )
         self.runner = ReflexRunner(
-            self.motion, policy, self.events.append, logger=logging.getLogger("test")
+            self.motion,
+            policy,
+            self.events.append,
+            pose=lambda: self.odometry,
+            logger=logging.getLogger("test"),
         )
+        self.odometry: Any = None
+
+    def pose(self, x: float, y: float, now: float) -> None:
+        """A velocity sample (at rest) with the odometry at ``(x, y)``."""
+        self.odometry = SimpleNamespace(x=x, y=y)
+        self.runner.moved(0.0, now)
 
     def _write(self, frame: bytes, expires: float) -> None:
         a, b = (float(x) for x in frame.decode().split(","))
@@ -275,11 +322,25 @@ def test_slow_caps_every_command_while_the_battery_is_critical() -> None:
     assert rig.writes[-1][1] == (0.5, 0.0)
 
 
-def test_clear_forgets_and_lifts_every_block() -> None:
-    rig = Rig(SafetyPolicy(battery_critical=22.0))
+def test_clear_rearms_what_acts_once_and_keeps_what_lasts() -> None:
+    rig = Rig(SafetyPolicy(battery_critical=22.0, fence=Geofence.rectangle(2.0, 2.0)))
     rig.runner.voltage(21.0, 0.0)
+    rig.pose(1.5, 0.0, 0.0)
     assert rig.motion.blocks == ("REFLEX_BATTERY",)
+    assert rig.runner.count == {"battery": 1, "geofence": 1}
     rig.runner.clear()
-    assert rig.motion.blocks == ()
-    rig.runner.voltage(21.0, 1.0)  # seen again: it triggers again
-    assert rig.motion.blocks == ("REFLEX_BATTERY",)
+    assert rig.motion.blocks == ("REFLEX_BATTERY",)  # still critical: still blocked
+    rig.pose(1.5, 0.0, 1.0)  # still outside: seen again, it triggers again
+    assert rig.runner.count == {"battery": 1, "geofence": 2}
+
+
+def test_a_silent_link_stops_every_new_command() -> None:
+    rig = Rig(SafetyPolicy())
+    api = rig.motion.api
+    for attempt in (1, 2):
+        assert api.set_velocity(0.3, 0.0) is None
+        assert rig.runner.link(0.3, rig.t) is False  # the resend's guard: stopped
+        assert rig.motion.watchdog.active is None
+        assert rig.writes[-1][1] == (0.0, 0.0)
+        assert rig.runner.count == {"link": attempt}
+        rig.t += 0.1

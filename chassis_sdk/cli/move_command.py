@@ -25,7 +25,7 @@ from .arguments import (
     positive,
     require_port,
 )
-from .common import first_frame, out, progress_line
+from .common import first, first_frame, out, progress_line
 from .profile import device_options
 
 if TYPE_CHECKING:
@@ -197,22 +197,22 @@ async def _run(
     args: argparse.Namespace,
     what: str,
 ) -> MoveResult:
-    odometry = dev.odometry()
-    start = await anext(odometry)
-    line = progress_line(f"{args.goal} {what}")
-    tell = _progress(args.goal, start, args)
-    result: MoveResult | None = None
-    async with anyio.create_task_group() as tg:
+    async with dev.odometry() as odometry:
+        start = await first(odometry, 3.0, "odometry")
+        line = progress_line(f"{args.goal} {what}")
+        tell = _progress(args.goal, start, args)
+        result: MoveResult | None = None
+        async with anyio.create_task_group() as tg:
 
-        async def follow() -> None:
-            async for sample in odometry:
-                line(tell(sample))
+            async def follow() -> None:
+                async for sample in odometry:
+                    line(tell(sample))
 
-        tg.start_soon(follow)
-        try:
-            result = await call(dev)
-        finally:
-            tg.cancel_scope.cancel()
-            line.done("")
+            tg.start_soon(follow)
+            try:
+                result = await call(dev)
+            finally:
+                tg.cancel_scope.cancel()
+                line.done("")
     assert result is not None
     return result

@@ -206,6 +206,7 @@ class Device(Session[M, K]):
             self._motion.set_blocks("link", ("LINK_LOST",))
         elif new is ConnectionState.CONNECTED:
             self._motion.set_blocks("link", ())
+            self._reflexes.announce(time.monotonic())  # once: what the policy ignores
         kind = _LINK_EVENTS.get(new)
         if kind is not None and (new is not ConnectionState.CONNECTED or old is not _CONNECTING):
             self._emit(RobotEvent(kind, "", time.monotonic()))
@@ -259,6 +260,7 @@ class Device(Session[M, K]):
         *,
         tolerance: float | None = None,
         timeout: float | None = None,
+        kind: str = "goal",
     ) -> MoveResult:
         """Drive ``distance`` metres straight ahead (negative: backwards), closed on
         odometry, and stop; the heading is held on the line.
@@ -267,7 +269,9 @@ class Device(Session[M, K]):
         speeds honoured): ``speed`` m/s at most (default 0.3), slowing to end within
         ``tolerance`` (default 1 cm) without overshooting. The goal is a source of the
         motion core (kind ``"goal"``, below the application's own velocities: a
-        `set_velocity` ends it); a newer goal replaces it.
+        `set_velocity` ends it); a newer goal of the same ``kind`` replaces it. A
+        surface that runs goals for its clients gives its own ``kind`` (``"mqtt"``),
+        so its goals rank as its velocities do.
 
         Returns:
             The [`MoveResult`][chassis_sdk.MoveResult]: the pose at rest, the signed
@@ -284,7 +288,7 @@ class Device(Session[M, K]):
         Cancelling the awaiting task writes a zero at once; nothing of the goal acts
         afterwards.
         """
-        return await self._goals.drive_distance(distance, speed, tolerance, timeout)
+        return await self._goals.drive_distance(distance, speed, tolerance, timeout, kind=kind)
 
     async def rotate(
         self,
@@ -293,12 +297,13 @@ class Device(Session[M, K]):
         *,
         tolerance: float | None = None,
         timeout: float | None = None,
+        kind: str = "goal",
     ) -> MoveResult:
         """Turn in place by ``angle`` radians (counter-clockwise positive, any size),
         closed on odometry's heading, at most ``rate`` rad/s (default 0.8), within
         ``tolerance`` (default 1°). Ends, returns and raises as `drive_distance`
         (``error`` in radians)."""
-        return await self._goals.rotate(angle, rate, tolerance, timeout)
+        return await self._goals.rotate(angle, rate, tolerance, timeout, kind=kind)
 
     async def go_to(
         self,
@@ -309,16 +314,19 @@ class Device(Session[M, K]):
         speed: float | None = None,
         tolerance: float | None = None,
         timeout: float | None = None,
+        kind: str = "goal",
     ) -> MoveResult:
         """Go to the point ``(x, y)`` of the odometry frame (`reset_odometry` sets
         it): face it, drive the line to it, then turn to ``heading`` (radians) if
         given. Within ``tolerance`` (default 1 cm; the heading within 1°). Ends,
         returns and raises as `drive_distance` (``error``: metres to the point)."""
-        return await self._goals.go_to(x, y, heading, speed, tolerance, timeout)
+        return await self._goals.go_to(x, y, heading, speed, tolerance, timeout, kind=kind)
 
-    async def _back_off(self, side: str, distance: float, speed: float) -> None:
+    async def _back_off(self, side: str, distance: float, speed: float, epoch: int) -> None:
         """A bumper reflex's back-off: ``_release_bumper``, then the distance away."""
-        await back_off_on(self._motion, self._goals, side, distance, speed, self._release_bumper)
+        await back_off_on(
+            self._motion, self._goals, side, distance, speed, self._release_bumper, epoch
+        )
 
     async def _release_bumper(self, side: str) -> None:
         """Clear ``side``'s (``"front"``, ``"rear"``) bumper latch; a device with
@@ -341,7 +349,9 @@ class Device(Session[M, K]):
         return dict(self._reflexes.count)
 
     def clear_reflexes(self) -> None:
-        """Forget the reflexes' hazards (each triggers again when next seen)."""
+        """Re-arm the reflexes that act once (a stall, the geofence, the link): each
+        triggers again when next seen. A tilt or a critical battery blocks for as long
+        as it lasts."""
         self._reflexes.clear()
 
     @property

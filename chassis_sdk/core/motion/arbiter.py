@@ -161,6 +161,9 @@ class Arbiter:
         self._blocks: dict[str, tuple[str, ...]] = {}
         #: Refusals counted by (source name, reason), since the start.
         self.refused: Counter[tuple[str, RefusalReason]] = Counter()
+        #: Stops (from any source) and blocks that began, counted: a goal that sees it
+        #: change since it was called ends, whether or not it held the lease yet.
+        self.epoch = 0
 
     # --- sources ---------------------------------------------------------------------------
 
@@ -232,6 +235,7 @@ class Arbiter:
             self._blocks.pop(origin, None)
         began = bool(set(now) - before)
         if began:
+            self.epoch += 1
             self._end_lease(f"blocked by {', '.join(self.blocks)}")
             self._holder = None
             for source in self._sources.values():
@@ -295,6 +299,7 @@ class Arbiter:
 
     def stop(self, source: Source | None = None) -> None:
         """A stop (always acts): the lease ends; a stop is ``source``'s neutral."""
+        self.epoch += 1
         holder = self.holder
         if holder is not None and holder is not source:
             self._end_lease("stopped" if source is None else f"stopped by {source.name}")

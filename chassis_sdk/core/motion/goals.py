@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Final, Protocol
 
 import anyio
 
-from ...errors import MotionBlockedError, MovePreemptedError, MoveTimeoutError
+from ...errors import MotionBlockedError, MovePreemptedError, MoveTimeoutError, NotConnectedError
 from ..validation import check_real
 from .goal import DEFAULT_ANGULAR, DEFAULT_LINEAR, Line, MoveEnd, MoveResult, Plan, Profile, Turn
 from .goal import go_to as go_to_plan
@@ -127,17 +127,23 @@ class Goals:
             start = (first.x, first.y)
             return Line(start, first.heading, distance, linear, angular, tol)
 
-        name = "drive_distance" if kind == "goal" else f"{kind} back_off"
-        return await self._run(name, plan, timeout, kind)
+        return await self._run("drive_distance", plan, timeout, kind)
 
     async def rotate(
-        self, angle: float, rate: float | None, tolerance: float | None, timeout: float | None
+        self,
+        angle: float,
+        rate: float | None,
+        tolerance: float | None,
+        timeout: float | None,
+        *,
+        kind: str = "goal",
     ) -> MoveResult:
         angle = check_real(angle, "angle", unit="rad")
         _, angular = self._profiles(None, rate)
         tol = _tolerance(tolerance, DEFAULT_ANGLE_TOLERANCE, "rad")
         timeout = _timeout(timeout)
-        return await self._run("rotate", lambda _: Turn(angular, tol, angle=angle), timeout)
+        plan = lambda _: Turn(angular, tol, angle=angle)  # noqa: E731
+        return await self._run("rotate", plan, timeout, kind)
 
     async def go_to(
         self,
@@ -147,6 +153,8 @@ class Goals:
         speed: float | None,
         tolerance: float | None,
         timeout: float | None,
+        *,
+        kind: str = "goal",
     ) -> MoveResult:
         x, y = check_real(x, "x", unit="m"), check_real(y, "y", unit="m")
         if heading is not None:
@@ -155,7 +163,7 @@ class Goals:
         tol = _tolerance(tolerance, DEFAULT_TOLERANCE, "m")
         timeout = _timeout(timeout)
         plan = go_to_plan(x, y, heading, linear, angular, tol, DEFAULT_ANGLE_TOLERANCE)
-        return await self._run("go_to", lambda _: plan, timeout)
+        return await self._run("go_to", lambda _: plan, timeout, kind)
 
     # --- running one -----------------------------------------------------------------------
 
@@ -167,8 +175,9 @@ class Goals:
         if motion.blocks:
             names = ", ".join(motion.blocks)
             raise MotionBlockedError(f"{name} refused: blocked by {names}", motion.blocks)
-        state = _State(self._clock)
-        source = motion.source(name, kind=kind, streaming=False)
+        state = _State(self._clock, motion.arbiter.epoch)
+        label = name if kind == "goal" else f"{kind} {name}"
+        source = motion.source(label, kind=kind, streaming=False)
         try:
             with anyio.move_on_after(math.inf if timeout is None else timeout) as scope:
                 await self._drive(source, make, state)
@@ -178,7 +187,8 @@ class Goals:
                 raise MoveTimeoutError(
                     f"{name} did not finish in {timeout:g} s ({_left(name, result)})", result
                 )
-            source.stop()
+            if source.driving:
+                source.stop()
             await self._settle(state)
             return state.result("done")
         finally:
@@ -187,21 +197,30 @@ class Goals:
     async def _drive(
         self, source: MotionSource, make: Callable[[Odometry], Plan], state: _State
     ) -> None:
-        arbiter = self._device.motion.arbiter
+        motion = self._device.motion
+        arbiter = motion.arbiter
         plan: Plan | None = None
         take_over = False
         async with self._device.odometry() as samples:
             while True:
                 with anyio.move_on_after(ODOMETRY_SILENCE):
-                    pose = await samples.__anext__()
+                    try:
+                        pose = await samples.__anext__()
+                    except StopAsyncIteration:
+                        raise NotConnectedError("the device was closed during the goal") from None
                     state.pose = pose
+                    # A stop from any source, or a block that began, since the call
+                    # ends it, whether or not it held the lease yet.
+                    why = source.source.ended_by
+                    if why is None and arbiter.epoch != state.epoch:
+                        why = "stopped"
+                    if why is not None:
+                        raise state.ended(why, motion.blocks)
                     if plan is None:
                         plan = state.plan = make(pose)
-                        # A newer goal takes over from an older one (the newest call wins).
+                        # A newer goal of the same kind takes over from an older one.
                         holder = arbiter.holder
-                        take_over = holder is not None and holder.kind == "goal"
-                    elif source.source.ended_by is not None:
-                        raise state.ended(source.source.ended_by)
+                        take_over = holder is not None and holder.kind == source.source.kind
                     command = plan.step(pose)
                     if command is None:
                         return
@@ -209,11 +228,12 @@ class Goals:
                     take_over = False
                     if refusal is not None:
                         blocked = refusal.reason == "blocked"
-                        raise state.ended(refusal.detail, refusal.blocks if blocked else None)
+                        raise state.ended(refusal.detail, refusal.blocks if blocked else ())
+                    state.epoch = arbiter.epoch  # its own offers change nothing
                     continue
                 why = source.source.ended_by
-                if why is not None:
-                    raise state.ended(why)
+                if why is not None or arbiter.epoch != state.epoch:
+                    raise state.ended(why or "stopped", motion.blocks)
                 raise MotionBlockedError(
                     f"goal ended: no odometry for {ODOMETRY_SILENCE:g} s", ("NO_ODOMETRY",)
                 )
@@ -231,11 +251,13 @@ class Goals:
 class _State:
     """What a running goal has seen."""
 
-    __slots__ = ("began", "clock", "plan", "pose")
+    __slots__ = ("began", "clock", "epoch", "plan", "pose")
 
-    def __init__(self, clock: Callable[[], float]) -> None:
+    def __init__(self, clock: Callable[[], float], epoch: int) -> None:
         self.clock = clock
         self.began = clock()
+        #: The arbiter's epoch when it began (see `Arbiter.epoch`).
+        self.epoch = epoch
         self.plan: Plan | None = None
         self.pose: Odometry | None = None
 
@@ -246,12 +268,13 @@ class _State:
         error, heading = self.plan.error(pose)
         return MoveResult(pose, error, duration, ended, heading)
 
-    def ended(self, why: str, blocks: tuple[str, ...] | None = None) -> Exception:
-        """The error for a goal ended by ``why``: a block, or another source."""
-        if blocks is None and why.startswith("blocked by "):
+    def ended(self, why: str, blocks: tuple[str, ...] = ()) -> Exception:
+        """The error for a goal ended by ``why``: a block (``blocks``, what blocks
+        motion now, wins over a stop that came with it), or another source."""
+        if not blocks and why.startswith("blocked by "):
             blocks = tuple(why.removeprefix("blocked by ").split(", "))
-        if blocks is not None:
-            return MotionBlockedError(f"goal ended: {why}", blocks)
+        if blocks:
+            return MotionBlockedError(f"goal ended: blocked by {', '.join(blocks)}", blocks)
         return MovePreemptedError(f"goal ended: {why}", self.result("preempted"))
 
 

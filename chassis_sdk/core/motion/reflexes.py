@@ -72,7 +72,7 @@ class ReflexRunner:
         policy: SafetyPolicy,
         emit: Callable[[RobotEvent], None],
         *,
-        back_off: Callable[[str, float, float], Awaitable[None]] | None = None,
+        back_off: Callable[[str, float, float, int], Awaitable[None]] | None = None,
         pose: Callable[[], Odometry | None] = lambda: None,
         acting: bool = True,
         logger: logging.Logger,
@@ -87,7 +87,10 @@ class ReflexRunner:
         self.acting = acting
         self._fence = policy.fence is not None
         self._model_critical = False
-        self._backing: deque[Trigger] = deque(maxlen=2)
+        self._measured = 0.0  # the last measured linear speed (m/s)
+        self._link_command: object = None
+        self._announced = False
+        self._backing: deque[tuple[Trigger, int]] = deque(maxlen=2)
         self._wake = Alarm()
         self._log = logger
         motion.priorities.setdefault("reflex", REFLEX_PRIORITY)
@@ -97,9 +100,10 @@ class ReflexRunner:
         self.last: RobotEvent | None = None
 
     def announce(self, now: float) -> None:
-        """Say, once at the start, which hazards the policy ignores."""
+        """Say, once (at the first connection), which hazards the policy ignores."""
         ignored = self.policy.ignored
-        if ignored:
+        if ignored and self.acting and not self._announced:
+            self._announced = True
             self._log.warning("safety: ignoring %s (allow_unsafe)", ", ".join(ignored))
             for hazard in ignored:
                 self._emit(RobotEvent(EventKind.SAFETY_OVERRIDDEN, hazard, now, action="ignore"))
@@ -112,10 +116,15 @@ class ReflexRunner:
     def moved(self, measured: float, now: float) -> None:
         """A velocity sample (m/s): the stall watch while a command is in force, and
         the geofence."""
+        self._measured = measured
         watchdog = self._motion.watchdog
         rules = self.rules
-        if watchdog.active is not None or rules.stalling:
-            commanded = watchdog.written[0] if watchdog.active is not None else 0.0
+        active = watchdog.active
+        if active is not None or rules.stalling:
+            commanded = 0.0
+            if active is not None:
+                written = watchdog.written  # wheel mode: (left, right), their mean
+                commanded = written[0] if active.axes != "wheels" else sum(written) / 2
             self._act(rules.speeds(commanded, measured, now))
         if self._fence:
             odometry = self._pose_of()
@@ -140,20 +149,27 @@ class ReflexRunner:
 
     def link(self, silence: float | None, now: float) -> bool:
         """At a resend: False if the link's reflex stopped the command."""
-        moving = self._motion.watchdog.active is not None
+        active = self._motion.watchdog.active
+        if active is not self._link_command:  # a new command: watched afresh
+            self._link_command = active
+            self.rules.rearm("link")
+        moving = active is not None
         self._act(self.rules.link(silence, moving, now))
         return self._motion.watchdog.active is not None or not moving
 
     # --- acting ------------------------------------------------------------------------------
 
     def _act(self, triggers: list[Trigger]) -> None:
-        if not self.acting:
+        if not self.acting or not triggers:
             return
-        for trigger in triggers:
-            if trigger.began:
-                self._began(trigger)
-            else:
-                self._ended(trigger)
+        try:
+            for trigger in triggers:
+                if trigger.began:
+                    self._began(trigger)
+                else:
+                    self._ended(trigger)
+        except Exception:  # the read path must go on; the block (if any) is in place
+            self._log.exception("reflex: acting on %s failed", triggers)
 
     def _began(self, t: Trigger) -> None:
         self.count[t.hazard] = self.count.get(t.hazard, 0) + 1
@@ -167,8 +183,11 @@ class ReflexRunner:
         elif action == "slow":
             motion.set_cap(origin, t.reflex.speed)
         elif action == "back_off":
-            self._backing.append(t)
-            self._wake.wake()
+            # Only from a bumper it was driving towards, and not after a stop since.
+            towards = self._measured > 0.02 if t.source == "front" else self._measured < -0.02
+            if towards:
+                self._backing.append((t, motion.arbiter.epoch))
+                self._wake.wake()
         what = ", ".join(f"{k} {v:.3g}" for k, v in t.values)
         self._log.warning(
             "reflex: %s%s -> %s%s",
@@ -183,12 +202,11 @@ class ReflexRunner:
         self._emit(event)
 
     def clear(self) -> None:
-        """Forget every hazard: lift their blocks and caps (each triggers again when
-        next seen)."""
-        for hazard in self.rules.clear_all():
-            origin = f"reflex {hazard}"
-            self._motion.set_blocks(origin, [])
-            self._motion.set_cap(origin, None)
+        """Re-arm the reflexes that act once (stall, geofence, link): each triggers
+        again when next seen. A tilt or a critical battery blocks for as long as it
+        lasts, whatever is cleared."""
+        for hazard in _MOMENTARY:
+            self.rules.rearm(hazard)
 
     @property
     def needs_task(self) -> bool:
@@ -200,11 +218,11 @@ class ReflexRunner:
         while True:
             while not self._backing:
                 await self._wake.sleep(None)
-            t = self._backing.popleft()
+            t, epoch = self._backing.popleft()
             if self._back_off is None:
                 continue
             try:
-                await self._back_off(t.source, t.reflex.distance, t.reflex.speed)
+                await self._back_off(t.source, t.reflex.distance, t.reflex.speed, epoch)
             except Exception:  # a failed back-off leaves the robot stopped, the device up
                 self._log.exception("reflex: the back-off from the %s bumper failed", t.source)
 
@@ -235,14 +253,21 @@ async def back_off_on(
     distance: float,
     speed: float,
     release: Callable[[str], Awaitable[None]],
+    epoch: int,
 ) -> None:
     """Clear ``side``'s bumper latch (``release``), then drive ``distance`` away from it
-    at ``speed``, closed on odometry, as the ``"reflex"`` source; then stop. If the
-    latch does not clear (still pressed) or something else blocks, it stays stopped."""
+    at ``speed``, closed on odometry, as the ``"reflex"`` source; then stop. Nothing is
+    done if a stop (or another block) came since the hit (``epoch``: the arbiter's
+    then); if the latch does not clear (still pressed) or something else blocks, it
+    stays stopped."""
+    if motion.arbiter.epoch != epoch:
+        return
     await release(side)
     with anyio.move_on_after(RELEASE_WAIT):  # the next telemetry frame shows the latch gone
         while motion.blocks:
             await motion.blocks_changed.sleep(None)
+    if motion.arbiter.epoch != epoch:
+        return  # a stop came meanwhile
     with contextlib.suppress(ChassisError):  # still blocked, or ended: it stays stopped
         await goals.drive_distance(
             -distance if side == "front" else distance, speed, None, BACK_OFF_TIMEOUT, kind="reflex"

@@ -63,6 +63,9 @@ HAZARDS: Final[dict[str, tuple[str, ...]]] = {
 ACTIONS: Final = ("stop", "back_off", "slow", "ignore")
 #: The time constant (s) of the low-pass that reads gravity from the accelerometer.
 TILT_TIME: Final = 0.5
+#: Outside the geofence, going this much (m) further out than the closest it came
+#: since the last trigger triggers again.
+FENCE_SLACK: Final = 0.02
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,6 +121,16 @@ class Geofence:
         w = check_real(width, "width", low=0, low_open=True, unit="m") / 2
         h = check_real(height, "height", low=0, low_open=True, unit="m") / 2
         return cls(((-w, -h), (w, -h), (w, h), (-w, h)))
+
+    def outside_by(self, x: float, y: float) -> float:
+        """How far ``(x, y)`` is outside (m); 0 inside or on the border."""
+        if self.contains(x, y):
+            return 0.0
+        if self.radius is not None:
+            cx, cy = self.centre or (0.0, 0.0)
+            return math.hypot(x - cx, y - cy) - self.radius
+        pts = self.points
+        return min(_to_segment(x, y, a, b) for a, b in zip(pts, pts[1:] + pts[:1], strict=True))
 
     def contains(self, x: float, y: float) -> bool:
         """Whether ``(x, y)`` is inside (the border counts as inside)."""
@@ -226,6 +239,14 @@ class Trigger:
         return f"REFLEX_{self.hazard.upper()}"
 
 
+def _to_segment(x: float, y: float, a: tuple[float, float], b: tuple[float, float]) -> float:
+    """The distance from ``(x, y)`` to the segment ``a``-``b``."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    length2 = dx * dx + dy * dy
+    t = 0.0 if length2 == 0 else max(0.0, min(1.0, ((x - a[0]) * dx + (y - a[1]) * dy) / length2))
+    return math.hypot(x - a[0] - t * dx, y - a[1] - t * dy)
+
+
 def _angle(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
     """Degrees between two vectors (0 if either is zero)."""
     na, nb = math.hypot(*a), math.hypot(*b)
@@ -248,6 +269,7 @@ class Reflexes:
         self._imu_time = -math.inf
         self._first_imu: float | None = None
         self._level: tuple[float, float, float] | None = None
+        self._fence_least = math.inf
 
     @property
     def stalling(self) -> bool:
@@ -303,12 +325,12 @@ class Reflexes:
         the start (level, however the IMU is mounted); an impact is a sample that far
         from that gravity."""
         g = self._gravity
-        if g is None or now <= self._imu_time:
+        if g is None:
             g = (ax, ay, az)
-        else:
+        elif now > self._imu_time:  # samples of one read share its time: no time passed
             k = min(1.0, (now - self._imu_time) / TILT_TIME)
             g = (g[0] + k * (ax - g[0]), g[1] + k * (ay - g[1]), g[2] + k * (az - g[2]))
-        self._gravity, self._imu_time = g, now
+        self._gravity, self._imu_time = g, max(now, self._imu_time)
         if self._level is None:
             if self._first_imu is None:
                 self._first_imu = now
@@ -316,19 +338,36 @@ class Reflexes:
                 self._level = g
         p = self.policy
         tilt = 0.0 if self._level is None else _angle(g, self._level)
-        shock = math.sqrt((ax - g[0]) ** 2 + (ay - g[1]) ** 2 + (az - g[2]) ** 2)
+        # In g whatever the IMU's scale: measured against gravity's own size.
+        unit = math.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2) or 1.0
+        shock = math.sqrt((ax - g[0]) ** 2 + (ay - g[1]) ** 2 + (az - g[2]) ** 2) / unit
         on = tilt > p.tilt_angle or shock > p.impact
         if not on and not self.active("tilt"):
             return []
         return self._edge("tilt", "", on, now, (("tilt", tilt), ("impact", shock)))
 
     def pose(self, x: float, y: float, now: float) -> list[Trigger]:
-        """The odometry pose (m)."""
+        """The odometry pose (m). Leaving the fence triggers; while outside, going
+        further out than `FENCE_SLACK` beyond the closest it came since triggers again
+        (driving back in never does)."""
         fence = self.policy.fence
         if fence is None:
             return []
-        out = not fence.contains(x, y)
-        return self._edge("geofence", "", out, now, (("x", x), ("y", y)))
+        out = fence.outside_by(x, y)
+        values = (("x", x), ("y", y), ("outside", out))
+        if out <= 0.0:
+            self._fence_least = math.inf
+            return self._edge("geofence", "", False, now, values)
+        if not self.active("geofence"):
+            self._fence_least = out
+            return self._edge("geofence", "", True, now, values)
+        if out < self._fence_least:
+            self._fence_least = out
+            return []
+        if out - self._fence_least <= FENCE_SLACK:
+            return []
+        self._fence_least = out
+        return [Trigger("geofence", "", self.policy.geofence, True, now, values)]
 
     def voltage(self, volts: float, now: float, critical: bool = False) -> list[Trigger]:
         """A battery reading; ``critical``: the battery model says so. Ends 0.2 V above."""
@@ -347,10 +386,9 @@ class Reflexes:
         on = silence is not None and silence > self.policy.link_silence
         return self._edge("link", "", on, now, (("silence", silence or 0.0),))
 
-    def clear_all(self) -> list[str]:
-        """Forget every hazard that holds (each triggers again when next seen); the
-        hazards that held."""
-        held = sorted({hazard for (hazard, _), on in self._on.items() if on})
-        self._on.clear()
-        self._stalled_since = None
-        return held
+    def rearm(self, hazard: str) -> None:
+        """Forget that ``hazard`` holds: it triggers again when next seen."""
+        for key in [k for k in self._on if k[0] == hazard]:
+            del self._on[key]
+        if hazard == "stall":
+            self._stalled_since = None

@@ -418,6 +418,9 @@ class Commands:
         if name in GOALS:
             if ctx.read_only:
                 raise CommandError(f"{name}: this bridge is read-only")
+            if self._ownership.displaced_by is not None:
+                self.goals.close()
+                raise CommandError(f"{name}: another bridge owns this robot id now")
             args = self.goals.parse(name, message.payload)
 
             async def answer(body: dict[str, Any]) -> None:

@@ -75,7 +75,7 @@ class RemoteGoals:
 
     def __init__(self, context: CommandContext) -> None:
         self._ctx = context
-        self._task: asyncio.Task[None] | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
         #: Goals started, and cancelled by ``cmd/cancel``.
         self.started = 0
         self.cancelled = 0
@@ -105,25 +105,27 @@ class RemoteGoals:
     def start(
         self, name: str, args: dict[str, float], answer: Callable[[dict[str, Any]], Awaitable[None]]
     ) -> None:
-        """Start the goal ``name`` (``move``...); ``answer`` publishes its response."""
+        """Start the goal ``name`` (``move``...); ``answer`` publishes its response. A
+        goal still running is replaced (cancelled: the new one starts from rest)."""
         self.started += 1
-        self._task = asyncio.get_running_loop().create_task(
+        self.cancel()
+        task = asyncio.get_running_loop().create_task(
             self._run(name, args, answer), name=f"mqtt goal {name}"
         )
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     def cancel(self) -> bool:
         """``cmd/cancel``: end the running goal now (the robot stops). False if none."""
-        task = self._task
-        if task is None or task.done():
-            return False
-        self.cancelled += 1
-        task.cancel()
-        return True
+        live = [t for t in self._tasks if not t.done()]
+        for task in live:
+            task.cancel()
+        self.cancelled += len(live)
+        return bool(live)
 
     def close(self) -> None:
-        """The bridge ends: cancel the running goal."""
-        if self._task is not None:
-            self._task.cancel()
+        """The bridge ends (or another took the robot id over): cancel its goals."""
+        self.cancel()
 
     async def _run(
         self, name: str, args: dict[str, float], answer: Callable[[dict[str, Any]], Awaitable[None]]
@@ -171,7 +173,9 @@ class RemoteGoals:
 
 
 async def _call(device: Any, name: str, a: dict[str, float]) -> MoveResult:
-    options = {k: a[k] for k in ("tolerance", "timeout") if k in a}
+    # Its goals rank as the bridge's velocities do (kind "mqtt"), not above ROS 2.
+    options: dict[str, Any] = {k: a[k] for k in ("tolerance", "timeout") if k in a}
+    options["kind"] = "mqtt"
     if name == "move":
         result: MoveResult = await device.drive_distance(a["distance"], a.get("speed"), **options)
     elif name == "turn":
