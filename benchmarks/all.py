@@ -18,6 +18,7 @@ one file, from which ``goals.py`` makes the goals table in the docs.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import datetime
 import json
 import os
@@ -141,10 +142,45 @@ def machine() -> list[str]:
     ]
 
 
+def _run_script(
+    script: str, k: int, runs: int, extra: list[str], as_json: str | None, tmp: Path, live: bool
+) -> tuple[str, str, dict[str, object], int]:
+    """Run one script (its ``k``-th run): its name, its output with the header and the
+    load lines (printed as it goes instead when ``live``), its run record, and its exit
+    code."""
+    again = f" (run {k + 1} of {runs})" if script in REPEATED and runs > 1 else ""
+    lines = [f"== {script} {' '.join(extra)}".rstrip() + again]
+    before = _load()
+    lines.append(f"load before: {before}")
+    out = tmp / f"{script}.{k}.json"
+    flags = [JSON_FLAG[script], str(out)] if as_json and script in JSON_FLAG else []
+    command = [sys.executable, str(HERE / script), *extra, *flags]
+    if live:
+        print("\n".join(lines), flush=True)
+    began = time.monotonic()
+    done = subprocess.run(command, check=False, capture_output=not live, text=True)
+    took = time.monotonic() - began
+    after = _load()
+    text = "" if live else "\n".join(lines) + "\n" + done.stdout + done.stderr
+    text += f"load after: {after}; took {took:.0f} s\n"
+    run: dict[str, object] = {"load_before": before, "load_after": after, "seconds": round(took, 1)}
+    if out.exists():
+        run["figures"] = json.loads(out.read_text())
+    return script, text, run, done.returncode
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="every script's quick mode")
     parser.add_argument("--json", metavar="FILE", help="write the machine and every figure")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="J",
+        help="scripts run at once (default 1; CI's quick mode runs 2: it only checks that "
+        "they run and print, and their figures compete for the cores)",
+    )
     parser.add_argument(
         "--runs",
         type=int,
@@ -167,30 +203,22 @@ def main() -> int:
         print(line)
     print(flush=True)
     with tempfile.TemporaryDirectory() as tmp:
-        for k in range(runs):
-            for script in SCRIPTS if k == 0 else REPEATED:
-                again = f" (run {k + 1} of {runs})" if script in REPEATED and runs > 1 else ""
-                print(f"== {script} {' '.join(extra)}".rstrip() + again, flush=True)
-                before = _load()
-                print(f"load before: {before}", flush=True)
-                out = Path(tmp) / f"{script}.{k}.json"
-                flags = [JSON_FLAG[script], str(out)] if args.json and script in JSON_FLAG else []
-                command = [sys.executable, str(HERE / script), *extra, *flags]
-                began = time.monotonic()
-                done = subprocess.run(command, check=False)
-                took = time.monotonic() - began
-                after = _load()
-                print(f"load after: {after}; took {took:.0f} s", flush=True)
-                if done.returncode:
-                    print(f"{script} failed with exit code {done.returncode}", file=sys.stderr)
-                    return done.returncode
-                run: dict[str, object] = {
-                    "load_before": before,
-                    "load_after": after,
-                    "seconds": round(took, 1),
-                }
-                if out.exists():
-                    run["figures"] = json.loads(out.read_text())
+        order = [(k, script) for k in range(runs) for script in (SCRIPTS if k == 0 else REPEATED)]
+        with concurrent.futures.ThreadPoolExecutor(max(1, args.jobs)) as pool:
+            jobs = [
+                pool.submit(
+                    _run_script, script, k, runs, extra, args.json, Path(tmp), args.jobs == 1
+                )
+                for k, script in order
+            ]
+            for job in jobs:  # in order, each script's output whole
+                script, output, run, code = job.result()
+                print(output, end="", flush=True)
+                if code:
+                    print(f"{script} failed with exit code {code}", file=sys.stderr)
+                    for other in jobs:
+                        other.cancel()
+                    return code
                 # The first run's keys stay at the top (as before --runs); every run,
                 # the first included, is in "runs".
                 entry = scripts.setdefault(script, {**run, "runs": []})

@@ -25,7 +25,7 @@ from .support.cli import ROOT, cli, running
 from .support.foxglove_client import FoxgloveClient
 from .support.helpers import kill_while_recording, until
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.surface, pytest.mark.timeout(60)]
 
 
 def summary(path: Path) -> tuple[dict[str, tuple[str, str, str, int]], dict[str, dict[str, str]]]:

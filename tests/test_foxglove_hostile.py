@@ -33,7 +33,7 @@ from .support.cli import cli, running
 from .support.foxglove_client import _SERVICE_CALL, FoxgloveClient
 from .support.helpers import drives, until
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.surface, pytest.mark.timeout(60)]
 
 TOKEN = "s3cret-token-0123456789"
 EVIL = "http://evil.example"

@@ -23,7 +23,7 @@ from mcap.stream_reader import StreamReader
 from chassis_sdk.recording.mcap import FLUSH_INTERVAL
 from chassis_sdk.sim import ChassisSimulator
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
+pytestmark = [pytest.mark.surface, pytest.mark.integration, pytest.mark.timeout(60)]
 
 #: What a hard kill may lose beyond the flush interval: the time between two messages
 #: (the flush comes with a message), the kill's own latency, a loaded test machine.

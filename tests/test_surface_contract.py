@@ -638,7 +638,7 @@ class Flood:
 
 # --- the checks ---------------------------------------------------------------------------
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.surface, pytest.mark.integration]
 
 
 @surfaces()

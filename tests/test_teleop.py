@@ -36,6 +36,8 @@ from chassis_sdk.teleop.keys import (
     KeyTeleop,
 )
 
+pytestmark = pytest.mark.surface  # a surface over the device (terminal teleop)
+
 F, B, L, R = Key.FORWARD, Key.BACKWARD, Key.LEFT, Key.RIGHT
 
 # --- the decoder ---------------------------------------------------------------------------------

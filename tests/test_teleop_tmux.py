@@ -33,7 +33,7 @@ from tests.support.standin import (
     last_drive_is_zero,
 )
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
+pytestmark = [pytest.mark.surface, pytest.mark.integration, pytest.mark.timeout(90)]
 
 #: Slack for a pty, two processes and the loop between a deadline and the zero frame
 #: (a busy shared CI machine).

@@ -47,7 +47,7 @@ from .support.cli import cli, running
 from .support.dashboard import moving, served, until
 from .support.helpers import tasks_of
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.surface, pytest.mark.timeout(60)]
 
 TOKEN = "a-token-of-twenty-chars"
 

@@ -53,6 +53,8 @@ MARKERS = {
     "slow": "takes more than about 5 s on its own",
     "codec": "sans-IO codecs: vectors, round trips, the contract, compiled vs pure",
     "uvloop": "about uvloop itself: CI's uvloop stage runs it (skips where uvloop is absent)",
+    "surface": "a remote surface over the device (dashboard, Foxglove, teleop, the surface "
+    "contract): its timing tests run on the default transport only",
 }
 
 #: A test that takes longer than this on its own should carry ``slow``.
