@@ -215,7 +215,11 @@ def test_reflex_rules(
     [
         (lambda: SafetyPolicy(stall=Reflex("back_off")), ValueError, "stall cannot back_off"),
         (lambda: SafetyPolicy(bumper=Reflex("ignore")), ValueError, "allow_unsafe"),
-        (lambda: Reflex("run away"), ValueError, "one of stop, back_off, slow, ignore"),
+        (
+            lambda: Reflex("run away"),  # type: ignore[arg-type]
+            ValueError,
+            "one of stop, back_off, slow, ignore",
+        ),
         (lambda: Reflex("back_off", distance=-1), ValueError, "distance"),
         (lambda: SafetyPolicy(tilt_angle=95), ValueError, "tilt_angle"),
         (lambda: SafetyPolicy(battery_critical=math.nan), ValueError, "battery_critical"),
@@ -303,7 +307,7 @@ def test_a_tilt_blocks_while_it_lasts() -> None:
     assert rig.motion.blocks == ("REFLEX_TILT",)
     rig.runner.imu(0.0, 0.0, 1.0, 3.0)
     rig.runner.imu(0.0, 0.0, 1.0, 5.0)
-    assert rig.motion.blocks == ()
+    assert not rig.motion.blocks
     assert [e.kind for e in rig.events] == [EventKind.REFLEX, EventKind.REFLEX_ENDED]
 
 

@@ -183,6 +183,7 @@ async def test_a_board_tilted_past_its_angle_stops() -> None:
 
 @pytest.mark.parametrize("hazard", ["bumper", "stall", "tilt", "geofence", "battery", "link"])
 def test_ignore_is_refused_without_allow_unsafe(hazard: str) -> None:
+    ignored: dict[str, Any] = {hazard: Reflex("ignore")}
     with pytest.raises(ValueError, match="allow_unsafe"):
-        SafetyPolicy(**{hazard: Reflex("ignore")})
-    assert math.isfinite(SafetyPolicy(**{hazard: Reflex("ignore")}, allow_unsafe=True).stall_time)
+        SafetyPolicy(**ignored)
+    assert math.isfinite(SafetyPolicy(**ignored, allow_unsafe=True).stall_time)
