@@ -670,6 +670,7 @@ class BlockingDevice(Generic[D]):
         *,
         tolerance: float | None = None,
         timeout: float | None = None,
+        kind: str = "goal",
     ) -> MoveResult:
         return self._call_own(
             timeout,
@@ -678,6 +679,7 @@ class BlockingDevice(Generic[D]):
             speed,
             tolerance=tolerance,
             timeout=timeout,
+            kind=kind,
         )
 
     def rotate(
@@ -687,9 +689,16 @@ class BlockingDevice(Generic[D]):
         *,
         tolerance: float | None = None,
         timeout: float | None = None,
+        kind: str = "goal",
     ) -> MoveResult:
         return self._call_own(
-            timeout, self._device.rotate, angle, rate, tolerance=tolerance, timeout=timeout
+            timeout,
+            self._device.rotate,
+            angle,
+            rate,
+            tolerance=tolerance,
+            timeout=timeout,
+            kind=kind,
         )
 
     def go_to(
@@ -701,6 +710,7 @@ class BlockingDevice(Generic[D]):
         speed: float | None = None,
         tolerance: float | None = None,
         timeout: float | None = None,
+        kind: str = "goal",
     ) -> MoveResult:
         return self._call_own(
             timeout,
@@ -711,6 +721,7 @@ class BlockingDevice(Generic[D]):
             speed=speed,
             tolerance=tolerance,
             timeout=timeout,
+            kind=kind,
         )
 
     def wait_connected(self, timeout: float | None = None) -> None:
