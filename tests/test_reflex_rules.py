@@ -348,3 +348,14 @@ def test_a_silent_link_stops_every_new_command() -> None:
         assert rig.writes[-1][1] == (0.0, 0.0)
         assert rig.runner.count == {"link": attempt}
         rig.t += 0.1
+
+
+def test_a_resend_held_up_by_the_hosts_loop_does_not_judge_the_link() -> None:
+    rig = Rig(SafetyPolicy())
+    assert rig.motion.api.set_velocity(0.3, 0.0) is None
+    # The loop was held up 0.3 s: the frames that came meanwhile are not read yet.
+    assert rig.runner.link(0.35, rig.t, late=0.3) is True
+    assert rig.motion.watchdog.active is not None
+    assert rig.runner.count == {}
+    assert rig.runner.link(0.35, rig.t, late=0.0) is False  # on time and still silent
+    assert rig.runner.count == {"link": 1}

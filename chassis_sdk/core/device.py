@@ -141,7 +141,7 @@ class Device(Session[M, K]):
             acting=not read_only,
             logger=log,
         )
-        self._watchdog.guard = lambda now: reflexes.link(self.last_frame_age, now)
+        self._watchdog.guard = lambda now, late: reflexes.link(self.last_frame_age, now, late)
         background = [("watchdog", self._watchdog.run)]
         if reflexes.needs_task:
             background.append(("reflexes", reflexes.run))

@@ -46,6 +46,8 @@ BACK_OFF_TIMEOUT: Final = 5.0
 #: Hazards whose ``stop`` blocks only at its start (the robot must be driven clear,
 #: or the hazard is only seen while moving); the others block while they last.
 _MOMENTARY: Final = frozenset({"stall", "geofence", "link"})
+#: A resend this late (s) says the host's loop was held up, not the link: not judged.
+LOOP_STALL: Final = 0.05
 #: How long a back-off waits for the cleared latch to show in telemetry (s).
 RELEASE_WAIT: Final = 1.0
 
@@ -147,8 +149,13 @@ class ReflexRunner:
         self._model_critical = critical
         self._act(self.rules.voltage(volts, now, critical))
 
-    def link(self, silence: float | None, now: float) -> bool:
-        """At a resend: False if the link's reflex stopped the command."""
+    def link(self, silence: float | None, now: float, late: float = 0.0) -> bool:
+        """At a resend (``late`` s after it was due): False if the link's reflex
+        stopped the command. A resend later than `LOOP_STALL` is not judged: the host's
+        own loop was held up, so the frames that came meanwhile are not read yet (the
+        next resend judges)."""
+        if late > LOOP_STALL:
+            return True
         active = self._motion.watchdog.active
         if active is not self._link_command:  # a new command: watched afresh
             self._link_command = active

@@ -184,9 +184,10 @@ class VelocityWatchdog:
         self.deferred = 0
         #: Whether any velocity frame (a zero included) was written.
         self.wrote = False
-        #: Called at each resend with the time, before writing: False if it ended the
-        #: command (a reflex on a silent link); ``None``: nothing to check.
-        self.guard: Callable[[float], bool] | None = None
+        #: Called at each resend with the time and how late the resend is (s), before
+        #: writing: False if it ended the command (a reflex on a silent link);
+        #: ``None``: nothing to check.
+        self.guard: Callable[[float, float], bool] | None = None
 
     @property
     def active(self) -> MotionCommand | None:
@@ -308,7 +309,7 @@ class VelocityWatchdog:
             self._write_quietly(active.zero, math.inf)
             return
         guard = self.guard
-        if guard is not None and not guard(now):
+        if guard is not None and not guard(now, now - self._next):
             return
         self._next += self.interval
         if self._next <= now:  # the loop was blocked: skip the missed slots
