@@ -187,7 +187,7 @@ ROWS: list[tuple[str, SafetyPolicy, list[tuple[Any, ...]], list[tuple[str, str, 
     (
         "the link: silent past link_silence while moving",
         SafetyPolicy(),
-        [("link", 0.05, True, 0.0), ("link", 0.3, True, 0.3), ("link", 0.01, True, 0.4)],
+        [("link", 0.05, True, 0.0), ("link", 0.6, True, 0.6), ("link", 0.01, True, 0.7)],
         [("link", "", True), ("link", "", False)],
     ),
     (
@@ -343,7 +343,7 @@ def test_a_silent_link_stops_every_new_command() -> None:
     api = rig.motion.api
     for attempt in (1, 2):
         assert api.set_velocity(0.3, 0.0) is None
-        assert rig.runner.link(0.3, rig.t) is False  # the resend's guard: stopped
+        assert rig.runner.link(0.6, rig.t) is False  # the resend's guard: stopped
         assert rig.motion.watchdog.active is None
         assert rig.writes[-1][1] == (0.0, 0.0)
         assert rig.runner.count == {"link": attempt}
@@ -354,8 +354,8 @@ def test_a_resend_held_up_by_the_hosts_loop_does_not_judge_the_link() -> None:
     rig = Rig(SafetyPolicy())
     assert rig.motion.api.set_velocity(0.3, 0.0) is None
     # The loop was held up 0.3 s: the frames that came meanwhile are not read yet.
-    assert rig.runner.link(0.35, rig.t, late=0.3) is True
+    assert rig.runner.link(0.6, rig.t, late=0.3) is True
     assert rig.motion.watchdog.active is not None
     assert rig.runner.count == {}
-    assert rig.runner.link(0.35, rig.t, late=0.0) is False  # on time and still silent
+    assert rig.runner.link(0.6, rig.t, late=0.0) is False  # on time and still silent
     assert rig.runner.count == {"link": 1}

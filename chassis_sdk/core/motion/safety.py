@@ -184,7 +184,7 @@ class SafetyPolicy:
     #: critical level still counts).
     battery_critical: float | None = None
     #: No valid frame for this long (s) while moving is a degraded link.
-    link_silence: float = 0.25
+    link_silence: float = 0.5
     allow_unsafe: bool = False
 
     def __post_init__(self) -> None:
