@@ -346,8 +346,10 @@ async def test_a_chassis_driven_into_a_wall_sees_its_bumper_and_stopped_wheels()
         assert "FRONT_BUMPER" in robot.motion_blocked()
         assert t.wheels == (0.0, 0.0, 0.0, 0.0)
         assert t.linear == 0.0
-        _, last = sim.firmware.received[-1]
-        assert isinstance(last, DriveVelocity)
-        assert last.linear_mm == 500  # still commanded when measured 0
+        drives = [c.linear_mm for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
+        # 0.5 m/s was what it was driven at into the wall; the hit's block then writes a
+        # zero (it may be on its way through the line, or here already), and nothing else.
+        assert [mm for mm in drives if mm] == [500] * len([mm for mm in drives if mm])
+        assert drives[-1] in (0, 500)
         x, _, _ = sim.firmware.true_pose
         assert x == pytest.approx(1.0 - sim.firmware.footprint[0] / 2, abs=1e-3)
