@@ -63,7 +63,7 @@ async def test_cancel_stops_the_goal_at_once(
         await obs.publish("robots/r1/cmd/cancel", {})
         answer = await pending
         assert answer == {"error": "cancelled"}
-        assert drives(sim)[-1] == DriveVelocity(0, 0.0)
+        await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0), 1.0)
         assert obs.on("robots/r1/goal")[-1] == {"goal": "goto", "state": "cancelled"}
 
 
