@@ -342,8 +342,10 @@ def test_a_silent_link_stops_every_new_command() -> None:
     rig = Rig(SafetyPolicy())
     api = rig.motion.api
     for attempt in (1, 2):
-        assert api.set_velocity(0.3, 0.0) is None
-        assert rig.runner.link(0.6, rig.t) is False  # the resend's guard: stopped
+        assert api.set_velocity(0.3, 0.0, duration=5.0) is None
+        assert rig.runner.link(0.6, rig.t) is True  # its first resend: silence counts from here
+        rig.t += 0.55
+        assert rig.runner.link(1.15, rig.t) is False  # half a second on: stopped
         assert rig.motion.watchdog.active is None
         assert rig.writes[-1][1] == (0.0, 0.0)
         assert rig.runner.count == {"link": attempt}
@@ -352,7 +354,9 @@ def test_a_silent_link_stops_every_new_command() -> None:
 
 def test_a_resend_held_up_by_the_hosts_loop_does_not_judge_the_link() -> None:
     rig = Rig(SafetyPolicy())
-    assert rig.motion.api.set_velocity(0.3, 0.0) is None
+    assert rig.motion.api.set_velocity(0.3, 0.0, duration=5.0) is None
+    assert rig.runner.link(0.0, rig.t) is True
+    rig.t += 0.6
     # The loop was held up 0.3 s: the frames that came meanwhile are not read yet.
     assert rig.runner.link(0.6, rig.t, late=0.3) is True
     assert rig.motion.watchdog.active is not None

@@ -91,6 +91,7 @@ class ReflexRunner:
         self._model_critical = False
         self._measured = 0.0  # the last measured linear speed (m/s)
         self._link_command: object = None
+        self._link_since = 0.0
         self._announced = False
         self._backing: deque[tuple[Trigger, int]] = deque(maxlen=2)
         self._wake = Alarm()
@@ -159,7 +160,10 @@ class ReflexRunner:
         active = self._motion.watchdog.active
         if active is not self._link_command:  # a new command: watched afresh
             self._link_command = active
+            self._link_since = now
             self.rules.rearm("link")
+        if silence is not None:  # silence while moving: not before this command began
+            silence = min(silence, now - self._link_since)
         moving = active is not None
         self._act(self.rules.link(silence, moving, now))
         return self._motion.watchdog.active is not None or not moving
