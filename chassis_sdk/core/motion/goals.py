@@ -229,7 +229,6 @@ class Goals:
                     if refusal is not None:
                         blocked = refusal.reason == "blocked"
                         raise state.ended(refusal.detail, refusal.blocks if blocked else ())
-                    state.epoch = arbiter.epoch  # its own offers change nothing
                     continue
                 why = source.source.ended_by
                 if why is not None or arbiter.epoch != state.epoch:
