@@ -180,6 +180,28 @@ async def test_silence_marks_the_link_stale_once_and_a_frame_restores_it(
     assert len(stale) == 1
 
 
+@pytest.mark.timing
+async def test_a_host_held_up_past_the_link_timeout_is_not_a_stale_link() -> None:
+    """The loop blocked for twice the timeout while the device went on sending: the
+    frames wait unread, so the link is not stale (CI saw LINK_STALE at a test's start)."""
+    async with ChassisStandIn() as dev, Chassis(dev.port, link_timeout=0.2) as robot:
+        seen: list[S] = []
+
+        async def watch() -> None:
+            async for state in robot.connection_states():
+                seen.append(state)
+
+        watcher = asyncio.ensure_future(watch())
+        await anext(robot.telemetry())
+        for _ in range(3):
+            time.sleep(0.4)  # the whole host held up: nothing runs, the stand-in neither
+            seq = dev.seq
+            await robot.wait_for(lambda t: t.seq >= seq, 1.0)  # noqa: B023 (read at once)
+        watcher.cancel()
+        assert seen == []
+        assert robot.connection_state is S.CONNECTED
+
+
 async def test_device_sequence_gaps_are_counted() -> None:
     async with ChassisStandIn(tcp=True, noise=False) as dev, Chassis(dev.port) as robot:
         first: int | None = None

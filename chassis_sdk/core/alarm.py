@@ -1,10 +1,18 @@
-"""A sleep that can be cut short, shared by the watchdog and the simulators' clocks."""
+"""A sleep that can be cut short, shared by the watchdog and the simulators' clocks, and
+the bound past which a timer's lateness says the host's own loop was held up."""
 
 from __future__ import annotations
 
 import asyncio
+from typing import Final
 
-__all__ = ["Alarm"]
+__all__ = ["LOOP_STALL", "Alarm"]
+
+#: A timer this late (s) says the host's loop was held up, not that the device fell
+#: silent: the frames that came meanwhile wait, unread, in the kernel. A judge of
+#: silence that wakes this late looks again before it concludes (the link's health,
+#: the link reflex).
+LOOP_STALL: Final = 0.05
 
 
 class Alarm:

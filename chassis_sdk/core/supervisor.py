@@ -47,6 +47,7 @@ from ..errors import (
     PortOpenError,
     RequestTimeoutError,
 )
+from .alarm import LOOP_STALL
 from .backoff import Backoff
 from .dispatch import SLOW_CALLBACK, Broadcast, Listener, Subscription
 from .transport import QUEUE_LIMIT, Decoder, Link, Tap, backend_name, open_link
@@ -527,19 +528,31 @@ class LinkSupervisor(Generic[M]):
             self.states.set(ConnectionState.LOST)
 
     async def _monitor_link(self, timeout: float) -> None:
-        """Mark the link ``STALE`` when no valid frame has come for ``timeout`` s."""
+        """Mark the link ``STALE`` when no valid frame has come for ``timeout`` s.
+
+        A check that wakes more than `LOOP_STALL` after it was due does not conclude:
+        the host's own loop was held up, and the frames that came meanwhile are not read
+        yet. It looks again `LOOP_STALL` later, once the reader has had its turn."""
+        due: float | None = None
         while True:
             changed = self.states.changed
             if self.state is not ConnectionState.CONNECTED:
                 await changed.wait()
+                due = None
                 continue
             last = self._opened_at
             last_frame = self.last_frame_time
             if last_frame is not None and last_frame > last:
                 last = last_frame
-            wait = last + timeout - time.monotonic()
+            now = time.monotonic()
+            wait = last + timeout - now
             if wait > 0:
+                due = now + wait
                 await anyio.sleep(wait)
+                continue
+            if due is not None and now - due > LOOP_STALL:
+                due = now + LOOP_STALL
+                await anyio.sleep(LOOP_STALL)
                 continue
             self._log.warning(
                 "%s: no valid frame for %.1f s; link stale (is the device on and sending?)",

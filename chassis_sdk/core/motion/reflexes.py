@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Final
 import anyio
 
 from ...errors import ChassisError
-from ..alarm import Alarm
+from ..alarm import LOOP_STALL, Alarm
 from ..events import EventKind, Measure, RobotEvent
 from .safety import Reflexes, SafetyPolicy, Trigger
 
@@ -46,8 +46,6 @@ BACK_OFF_TIMEOUT: Final = 5.0
 #: Hazards whose ``stop`` blocks only at its start (the robot must be driven clear,
 #: or the hazard is only seen while moving); the others block while they last.
 _MOMENTARY: Final = frozenset({"stall", "geofence", "link"})
-#: A resend this late (s) says the host's loop was held up, not the link: not judged.
-LOOP_STALL: Final = 0.05
 #: How long a back-off waits for the cleared latch to show in telemetry (s).
 RELEASE_WAIT: Final = 1.0
 
