@@ -26,6 +26,13 @@ from .support.cli import ROOT, cli, silent_pty
 EXAMPLES = sorted(p for p in (ROOT / "examples").glob("*.py") if p.name != "fleet_console.py")
 
 
+@pytest.fixture(autouse=True)
+def _own_temp_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """What an example writes to a temporary directory (record_a_drive's recording) goes
+    to the test's own, removed with it."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+
+
 async def run(*args: str, timeout: float = 60.0) -> tuple[int, str, str]:
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
