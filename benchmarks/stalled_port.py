@@ -127,6 +127,21 @@ def _child(quick: bool) -> None:
     print(json.dumps(asyncio.run(_all(quick))))
 
 
+def _start_child(backend: str, quick: bool) -> subprocess.Popen[str]:
+    """This script's ``--child`` on one transport (``CHASSIS_SDK_BACKEND``)."""
+    env = {**os.environ, "CHASSIS_SDK_BACKEND": backend}
+    argv = [sys.executable, __file__, "--child"] + (["--quick"] * quick)
+    return subprocess.Popen(
+        argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def _finish(proc: subprocess.Popen[str]) -> tuple[int, str, str]:
+    """A child's exit code, output and errors, once it ends."""
+    out, err = proc.communicate(timeout=600)
+    return proc.returncode, out, err
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the 0.4 s stall only")
@@ -140,17 +155,22 @@ def main() -> None:
     print(f"stalled_port.py: chassis_sdk from {Path(chassis_sdk.__file__).parent}")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores,")
     print(f"  Python {platform.python_version()}, load {os.getloadavg()[0]:.2f}")
-    for backend, module in BACKENDS.items():
-        if importlib.util.find_spec(module) is None:
+    # One child per transport. The quick mode (CI: it must run and print) runs them at
+    # once, since they mostly wait on stalled devices; the full one, one at a time.
+    installed = [b for b, module in BACKENDS.items() if importlib.util.find_spec(module)]
+    done: dict[str, tuple[int, str, str]] = {}
+    if args.quick:
+        started = {backend: _start_child(backend, True) for backend in installed}
+        done = {backend: _finish(proc) for backend, proc in started.items()}
+    for backend in BACKENDS:
+        if backend not in installed:
             print(f"\n== {backend}: not installed, skipped")
             continue
-        env = {**os.environ, "CHASSIS_SDK_BACKEND": backend}
-        argv = [sys.executable, __file__, "--child"] + (["--quick"] * args.quick)
-        proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
-        if proc.returncode != 0:
-            print(f"\n== {backend}: failed\n{proc.stderr[-2000:]}")
+        code, out, err = done[backend] if args.quick else _finish(_start_child(backend, False))
+        if code != 0:
+            print(f"\n== {backend}: failed\n{err[-2000:]}")
             sys.exit(1)
-        figures = json.loads(proc.stdout.strip().splitlines()[-1])
+        figures = json.loads(out.strip().splitlines()[-1])
         print(f"\n== {backend}")
         print(f"replies on a slow device (request_timeout {TIMEOUT} s, retries 2, pty):")
         for r in figures["replies"]:
