@@ -178,7 +178,7 @@ def main() -> int:
         type=int,
         default=1,
         metavar="J",
-        help="scripts run at once (default 1; CI's quick mode runs 2: it only checks that "
+        help="scripts run at once (default 1; CI's quick mode runs 3: it only checks that "
         "they run and print, and their figures compete for the cores)",
     )
     parser.add_argument(
