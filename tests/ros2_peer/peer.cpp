@@ -1,6 +1,7 @@
-// peer: an independent DDS participant (eProsima Fast DDS 2.9, the middleware behind
-// ROS 2's default RMW) that speaks a few ROS 2 message types on the wire, for the tests
-// of chassis_sdk's ROS 2 bridge (which runs on Cyclone DDS). Built by
+// peer: an independent DDS participant (eProsima Fast DDS, the middleware behind ROS 2's
+// default RMW: 2.9 as Debian 12 ships it, or 3.1 as Debian 13 does, what Kilted and
+// Lyrical use) that speaks a few ROS 2 message types on the wire, for the tests of
+// chassis_sdk's ROS 2 bridge (which runs on Cyclone DDS). Built by
 // tests/support/dds_peer.py from this file and fastddsgen's code for ros2_types.idl.
 //
 // Usage:
@@ -79,16 +80,39 @@
 #include <fastdds/dds/subscriber/qos/DataReaderQos.hpp>
 #include <fastdds/dds/topic/Topic.hpp>
 #include <fastdds/dds/topic/TypeSupport.hpp>
+
+// Fast DDS 3 (ROS 2 Kilted and Lyrical; Debian 13) and 2 (Debian 12's 2.9): the same
+// peer, built against either. Fast DDS 3 folded eprosima::fastrtps into
+// eprosima::fastdds, renamed its headers .hpp, and fastddsgen 4 does the same.
+#if __has_include(<fastdds/config.hpp>)
+#include <fastdds/config.hpp>
+#endif
+#if defined(FASTDDS_VERSION_MAJOR) && FASTDDS_VERSION_MAJOR >= 3
+#define PEER_FASTDDS3 1
+#include <fastdds/rtps/transport/UDPv4TransportDescriptor.hpp>
+#include <fastdds/utils/IPLocator.hpp>
+
+#include "ros2_types.hpp"
+#include "ros2_typesPubSubTypes.hpp"
+namespace rtps = eprosima::fastdds::rtps;
+using Duration = eprosima::fastdds::dds::Duration_t;
+static constexpr auto RETURN_OK = eprosima::fastdds::dds::RETCODE_OK;
+#else
+#define PEER_FASTDDS3 0
 #include <fastdds/rtps/transport/UDPv4TransportDescriptor.h>
 #include <fastrtps/utils/IPLocator.h>
 
 #include "ros2_types.h"
 #include "ros2_typesPubSubTypes.h"
+namespace rtps = eprosima::fastrtps::rtps;
+using Duration = eprosima::fastrtps::Duration_t;
+static const auto RETURN_OK = eprosima::fastrtps::types::ReturnCode_t::RETCODE_OK;
+#endif
 
 using namespace eprosima::fastdds::dds;
 using eprosima::fastdds::rtps::UDPv4TransportDescriptor;
-using eprosima::fastrtps::rtps::IPLocator;
-using eprosima::fastrtps::rtps::Locator_t;
+using rtps::IPLocator;
+using rtps::Locator_t;
 
 namespace bi = builtin_interfaces::msg::dds_;
 namespace gm = geometry_msgs::msg::dds_;
@@ -441,23 +465,36 @@ static Options parse(int argc, char** argv)
 class ParticipantWatcher : public DomainParticipantListener
 {
 public:
-    void on_participant_discovery(
-        DomainParticipant*, eprosima::fastrtps::rtps::ParticipantDiscoveryInfo&& info) override
+#if PEER_FASTDDS3
+    void on_participant_discovery(DomainParticipant*, rtps::ParticipantDiscoveryStatus reason,
+        const ParticipantBuiltinTopicData& info, bool& should_be_ignored) override
     {
-        using Status = eprosima::fastrtps::rtps::ParticipantDiscoveryInfo::DISCOVERY_STATUS;
+        should_be_ignored = false;
+        const auto& ud = info.user_data.data_vec();
+        report(reason, info.participant_name.to_string(), std::string(ud.begin(), ud.end()));
+    }
+#else
+    void on_participant_discovery(
+        DomainParticipant*, rtps::ParticipantDiscoveryInfo&& info) override
+    {
+        const auto& ud = info.info.m_userData;
+        report(info.status, info.info.m_participantName.to_string(),
+            std::string(ud.begin(), ud.end()));
+    }
+#endif
+
+private:
+    template <class Status>
+    static void report(Status reason, const std::string& name, const std::string& user_data)
+    {
         const char* status = "changed";
-        switch (info.status) {
+        switch (reason) {
         case Status::DISCOVERED_PARTICIPANT: status = "discovered"; break;
         case Status::REMOVED_PARTICIPANT: status = "removed"; break;
         case Status::DROPPED_PARTICIPANT: status = "dropped"; break;
         default: break;
         }
-        const auto& ud = info.info.m_userData;
-        std::string user_data(ud.begin(), ud.end());
-        emit(event("participant")
-                 .str("status", status)
-                 .str("name", info.info.m_participantName.to_string())
-                 .str("user_data", user_data));
+        emit(event("participant").str("status", status).str("name", name).str("user_data", user_data));
     }
 };
 
@@ -499,7 +536,7 @@ static DomainParticipant* make_participant(const Options& o, DomainParticipantLi
     DomainParticipantQos q = PARTICIPANT_QOS_DEFAULT;
     q.name("chassis_sdk_dds_peer");
     const std::string enclave = "enclave=/;";
-    q.user_data().data_vec(std::vector<eprosima::fastrtps::rtps::octet>(enclave.begin(), enclave.end()));
+    q.user_data().data_vec(std::vector<rtps::octet>(enclave.begin(), enclave.end()));
     // No shared memory, no data sharing: RTPS over UDPv4 only.
     q.transport().use_builtin_transports = false;
     auto udp = std::make_shared<UDPv4TransportDescriptor>();
@@ -542,8 +579,7 @@ static void endpoint_qos(Qos& q, const Options& o)
     q.history().depth = 10;
     q.data_sharing().off();
     // Unbounded strings and sequences: let the history grow past fastddsgen's bounds.
-    q.endpoint().history_memory_policy =
-        eprosima::fastrtps::rtps::PREALLOCATED_WITH_REALLOC_MEMORY_MODE;
+    q.endpoint().history_memory_policy = rtps::PREALLOCATED_WITH_REALLOC_MEMORY_MODE;
 }
 
 static void teardown(DomainParticipant* p)
@@ -615,11 +651,9 @@ static int run_pub(const Options& o, const char* type_name = nullptr)
     ParticipantWatcher pw;
     DomainParticipant* p = make_participant(o, &pw);
     TypeSupport type(new PubSubType());
-    if (type_name != nullptr) {
-        type->setName(type_name);
-    }
-    type.register_type(p);
-    Topic* topic = p->create_topic(o.topic, type.get_type_name(), TOPIC_QOS_DEFAULT);
+    const std::string name = type_name != nullptr ? type_name : type.get_type_name();
+    type.register_type(p, name);
+    Topic* topic = p->create_topic(o.topic, name, TOPIC_QOS_DEFAULT);
     Publisher* publisher = p->create_publisher(PUBLISHER_QOS_DEFAULT);
     DataWriterQos wq = DATAWRITER_QOS_DEFAULT;
     endpoint_qos(wq, o);
@@ -678,7 +712,7 @@ static int run_pub(const Options& o, const char* type_name = nullptr)
     }
     if (!o.best_effort && o.count > 0) {
         const bool ok =
-            writer->wait_for_acknowledgments(eprosima::fastrtps::Duration_t(5, 0)) == ReturnCode_t::RETCODE_OK;
+            writer->wait_for_acknowledgments(Duration(5, 0)) == RETURN_OK;
         emit(event("acked").boolean("ok", ok));
     }
     if (!sleep_until<Clock>(Clock::now() + seconds(o.hold))) {
@@ -715,7 +749,7 @@ public:
     {
         T sample;
         SampleInfo info;
-        while (reader->take_next_sample(&sample, &info) == ReturnCode_t::RETCODE_OK) {
+        while (reader->take_next_sample(&sample, &info) == RETURN_OK) {
             if (!info.valid_data) {
                 continue;
             }
