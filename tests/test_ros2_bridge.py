@@ -30,6 +30,7 @@ from chassis_sdk.integrations.ros2.dds import (
     Discovery,
     Participant,
     discovery_from_env,
+    fast_dds_3_compatibility,
 )
 from chassis_sdk.protocol import BoardEncoder, ImuSample, Vector3
 from chassis_sdk.recording import ros2_types as m
@@ -146,9 +147,24 @@ def test_namespaces(given: str, expected: str) -> None:
     assert m.TOPICS["tf"].dds_topic(expected) == "rt/tf"  # absolute names stay
 
 
+@pytest.mark.parametrize(
+    ("version", "has_it"),
+    [("11.0.1", True), ("11.1.0", True), ("12.0.0", True), ("0.10.5", False), ("0.10.2", False)],
+)
+def test_the_fast_dds_3_setting_only_where_cyclone_has_it(version: str, has_it: bool) -> None:
+    setting = fast_dds_3_compatibility(version)
+    assert ("<IgnoreTypeInformation>1.15</IgnoreTypeInformation>" in setting) is has_it
+    assert has_it or setting == ""
+
+
 def test_discovery_follows_ros2s_variables() -> None:
     d = discovery_from_env({})
-    assert (d.domain_id, d.range, d.static_peers, d.config()) == (0, "SUBNET", (), None)
+    assert (d.domain_id, d.range, d.static_peers, d.sets_discovery) == (0, "SUBNET", (), False)
+    # No discovery setting: Cyclone's defaults, but always what Fast DDS 3 needs, then
+    # the user's CYCLONEDDS_URI (which wins on what it sets).
+    compat = "<Compatibility><IgnoreTypeInformation>1.15</IgnoreTypeInformation></Compatibility>"
+    assert d.config() == f'<CycloneDDS><Domain Id="any">{compat}</Domain></CycloneDDS>'
+    assert d.config("file:///etc/cyclone.xml") == f"{d.config()},file:///etc/cyclone.xml"
     d = discovery_from_env({"ROS_DOMAIN_ID": "42", "ROS_AUTOMATIC_DISCOVERY_RANGE": "localhost"})
     assert (d.domain_id, d.range) == (42, "LOCALHOST")
     config = d.config()

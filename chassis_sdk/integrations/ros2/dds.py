@@ -28,7 +28,9 @@ the write at once (it is counted) rather than stalling the loop for
 
 Discovery follows ROS 2's variables (``ROS_DOMAIN_ID``,
 ``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS``) as ``rmw_cyclonedds`` does, by
-a generated Cyclone configuration; without them, ``CYCLONEDDS_URI`` applies as set.
+a generated Cyclone configuration, followed by the user's ``CYCLONEDDS_URI`` (which wins
+on what it sets). The configuration always lets Fast DDS 3 (ROS 2 Kilted and Lyrical)
+and the bridge exchange types with sequences and arrays (`fast_dds_3_compatibility`).
 Static peers come with ``ParticipantIndex auto``: a peer's unicast discovery ports are
 then known, and unicast-only discovery takes tens of milliseconds instead of the
 seconds of Cyclone's default.
@@ -38,6 +40,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.metadata
 import ipaddress
 import logging
 import math
@@ -78,6 +81,7 @@ __all__ = [
     "Writer",
     "check_peer",
     "discovery_from_env",
+    "fast_dds_3_compatibility",
 ]
 
 _log = logging.getLogger("chassis_sdk.integrations.ros2")
@@ -108,7 +112,7 @@ class Discovery:
         domain_id: The DDS domain (``ROS_DOMAIN_ID``; 0 to 232).
         range: ``SUBNET`` (multicast, the default), ``LOCALHOST`` (this computer only:
             the loopback interface, no multicast), ``OFF`` (only ``static_peers``), or
-            ``SYSTEM_DEFAULT`` (Cyclone's own settings, ``CYCLONEDDS_URI``).
+            ``SYSTEM_DEFAULT`` (Cyclone's own defaults, or ``CYCLONEDDS_URI``'s).
         static_peers: Hosts always contacted by unicast (``ROS_STATIC_PEERS``).
 
     Raises:
@@ -148,11 +152,30 @@ class Discovery:
                 _log.warning("static peer %r left out: it does not resolve (%s)", peer, exc)
         return Discovery(self.domain_id, self.range, tuple(dict.fromkeys(found)))
 
-    def config(self) -> str | None:
-        """The Cyclone DDS configuration for this discovery, or ``None`` to leave
-        Cyclone's own (``CYCLONEDDS_URI``, or its defaults)."""
-        if self.range == "SYSTEM_DEFAULT" or (self.range == "SUBNET" and not self.static_peers):
-            return None
+    def config(self, uri: str | None = None) -> str:
+        """The Cyclone DDS configuration for this discovery: what Fast DDS 3 needs
+        (`fast_dds_3_compatibility`), the discovery ROS 2's variables ask for, then
+        ``uri`` (the user's ``CYCLONEDDS_URI``, files or XML, comma-separated), which
+        wins on whatever it sets, as with ``rmw_cyclonedds``.
+
+        ``SYSTEM_DEFAULT``, and ``SUBNET`` without static peers, add no discovery
+        setting: Cyclone's defaults (multicast on every interface) or ``uri``'s."""
+        ours = (
+            '<CycloneDDS><Domain Id="any">'
+            f"{fast_dds_3_compatibility()}{self._discovery_config()}</Domain></CycloneDDS>"
+        )
+        return f"{ours},{uri}" if uri else ours
+
+    @property
+    def sets_discovery(self) -> bool:
+        """Whether the configuration sets discovery (else Cyclone's defaults apply)."""
+        return not (
+            self.range == "SYSTEM_DEFAULT" or (self.range == "SUBNET" and not self.static_peers)
+        )
+
+    def _discovery_config(self) -> str:
+        if not self.sets_discovery:
+            return ""
         general = ""
         peers = list(self.static_peers)
         if self.range == "LOCALHOST":
@@ -169,7 +192,40 @@ class Discovery:
             f"<MaxAutoParticipantIndex>{_MAX_PARTICIPANT_INDEX}</MaxAutoParticipantIndex>"
             f"<Peers>{entries}</Peers></Discovery>"
         )
-        return f'<CycloneDDS><Domain Id="any">{general}{discovery}</Domain></CycloneDDS>'
+        return general + discovery
+
+
+#: eProsima's RTPS vendor id, as Cyclone writes it.
+_EPROSIMA = "1.15"
+
+
+def fast_dds_3_compatibility(cyclone_version: str | None = None) -> str:
+    """The Cyclone setting that lets Fast DDS 3 (ROS 2 Kilted and Lyrical) and this
+    bridge exchange types with a sequence or an array (``Odometry``, ``TFMessage``,
+    ``Imu``, ``BatteryState``, ``DiagnosticArray``), or ``""`` where Cyclone has none.
+
+    Both sides send XTypes type information, and they disagree on it: Cyclone's Python
+    binding sets ``TRY_CONSTRUCT1`` in the element flags of plain sequences and arrays,
+    Fast DDS leaves them 0, so the type hashes differ and each side rejects the other's
+    type object ("invalid type object" here, "Inconsistent TypeObject" there): the
+    topics match, and no sample of those types is delivered. Cyclone 11 ignores the
+    type information of the vendors listed in ``Compatibility/IgnoreTypeInformation``
+    and matches by type name, as ROS 2 itself does. Cyclone 0.10 has no such setting.
+
+    Args:
+        cyclone_version: The installed ``cyclonedds``'s version (default: looked up).
+    """
+    if cyclone_version is None:
+        try:
+            cyclone_version = importlib.metadata.version("cyclonedds")
+        except importlib.metadata.PackageNotFoundError:
+            return ""
+    major = re.match(r"\d+", cyclone_version)
+    if major is None or int(major.group()) < 11:
+        return ""
+    return (
+        f"<Compatibility><IgnoreTypeInformation>{_EPROSIMA}</IgnoreTypeInformation></Compatibility>"
+    )
 
 
 _LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
@@ -283,7 +339,10 @@ def _qos(spec: TopicSpec, *, writer: bool) -> Qos:
 _DOMAINS: dict[int, tuple[str, Domain, int]] = {}
 
 
-def _acquire_domain(domain_id: int, config: str) -> None:
+def _acquire_domain(domain_id: int, config: str, *, required: bool) -> bool:
+    """Configure ``domain_id`` with ``config`` for this process (or share the same
+    configuration); False when a participant made before the bridge holds the domain
+    with Cyclone's own settings and the bridge can do with them (not ``required``)."""
     held = _DOMAINS.get(domain_id)
     if held is not None:
         if held[0] != config:
@@ -293,16 +352,26 @@ def _acquire_domain(domain_id: int, config: str) -> None:
                 "domain ids)"
             )
         _DOMAINS[domain_id] = (held[0], held[1], held[2] + 1)
-        return
+        return True
     try:
         domain = Domain(domain_id, config)
     except DDSException as exc:
-        raise ValueError(
-            f"DDS domain {domain_id} already exists in this process with Cyclone's own "
-            "settings (a participant made before the bridge): make the bridge's first, or "
-            f"give it Discovery(range='SYSTEM_DEFAULT') and CYCLONEDDS_URI ({exc})"
-        ) from None
+        if required:
+            raise ValueError(
+                f"DDS domain {domain_id} already exists in this process with Cyclone's own "
+                "settings (a participant made before the bridge): make the bridge's first, "
+                f"or use another domain id ({exc})"
+            ) from None
+        _log.warning(
+            "DDS domain %d already exists in this process with Cyclone's own settings (a "
+            "participant made before the bridge): the bridge uses them, and Fast DDS 3 "
+            "peers (ROS 2 Kilted, Lyrical) will not get its odometry; make the bridge's "
+            "participant first",
+            domain_id,
+        )
+        return False
     _DOMAINS[domain_id] = (config, domain, 1)
+    return True
 
 
 def _release_domain(domain_id: int) -> None:
@@ -329,19 +398,19 @@ class Participant:
     def __init__(self, discovery: Discovery, namespace: str = "") -> None:
         self.namespace = check_namespace(namespace)
         self.discovery = discovery
-        config = discovery.config()
-        # A Domain of our own only when the configuration is ours (shared by the
-        # participants of this process that ask for the same); it lives as long as they.
+        config = discovery.config(os.environ.get("CYCLONEDDS_URI"))
+        # A Domain of our own (shared by the participants of this process that ask for
+        # the same configuration); it lives as long as they.
         self._domain_id = discovery.domain_id
-        self._has_domain = config is not None
-        if config is not None:
-            _acquire_domain(discovery.domain_id, config)
+        self._has_domain = _acquire_domain(
+            discovery.domain_id, config, required=discovery.sets_discovery
+        )
         try:
             self._participant = DomainParticipant(
                 discovery.domain_id, qos=Qos(Policy.Userdata(data=b"enclave=/;"))
             )
         except BaseException:
-            if config is not None:
+            if self._has_domain:
                 _release_domain(discovery.domain_id)
             raise
         self._topics: dict[str, Topic[Any]] = {}
