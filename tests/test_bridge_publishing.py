@@ -310,3 +310,19 @@ async def test_events_behind_a_stalled_broker_keep_the_newest_and_count_the_rest
                 await task
     stamps = [e["monotonic"] for e in obs.on("robots/r1/events")]
     assert stamps == [e.timestamp for e in (produced[0], *produced[-4:])]
+
+
+async def test_packets_queued_while_the_socket_has_room_are_no_stall() -> None:
+    # paho queues a packet at once and aiomqtt writes it a turn or two of the loop
+    # later: a telemetry slot that came in between counted a skip and started the
+    # stall clock (before: `unwritten` was paho's want_write), so a bridge under load
+    # could be judged stalled by the broker it was writing to without trouble.
+    async with broker() as b:
+        client = bridge_client(b, "r1")
+        async with client:
+            paho = client_internals(client).paho
+            paho.publish("robots/r1/x", b"queued")  # queued, not written yet
+            assert paho.want_write()
+            assert not mqtt_publish.unwritten(client)  # the socket has room: no stall
+            assert mqtt_publish.queued(client)
+            await until(lambda: not mqtt_publish.queued(client))  # the loop wrote it

@@ -42,6 +42,7 @@ import asyncio
 import functools
 import json
 import logging
+import select
 import time
 import zlib
 from collections import deque
@@ -68,6 +69,7 @@ __all__ = [
     "Publisher",
     "connection_will",
     "epoch_now",
+    "queued",
     "send_latest",
     "slot_phase",
     "state_payload",
@@ -87,17 +89,35 @@ def _not_connected(client: aiomqtt.Client, rc: int) -> aiomqtt.MqttCodeError:
 
 
 def unwritten(client: aiomqtt.Client) -> bool:
-    """True while packets queued on ``client``'s connection are not all written yet
-    (the broker reads slowly, or the link is congested).
+    """True while packets queued on ``client``'s connection wait for room in its socket
+    (the broker reads slowly, or the link is congested). Packets queued while the
+    socket has room are not (see `queued`): the loop writes them at its next turn.
 
     Raises:
         aiomqtt.MqttCodeError: The client is not connected (what ``publish`` raises; paho
             keeps the unwritten packets of a lost connection until it reconnects).
     """
     paho = client_internals(client).paho
-    if paho.socket() is None:
+    sock = paho.socket()
+    if sock is None:
         raise _not_connected(client, paho_mqtt.MQTT_ERR_NO_CONN)
-    return paho.want_write()
+    return paho.want_write() and not _writable(sock)
+
+
+def queued(client: aiomqtt.Client) -> bool:
+    """True while packets queued on ``client``'s connection are not all written yet,
+    whether they wait for room in its socket (`unwritten`) or only for the loop's
+    next turn: aiomqtt adds its writer a turn after a packet is queued, then writes
+    when the loop sees the socket writable."""
+    return client_internals(client).paho.want_write()
+
+
+def _writable(sock: Any) -> bool:
+    """True if the loop would find ``sock`` writable now (room in its send buffer);
+    never waits."""
+    poller = select.poll()
+    poller.register(sock, select.POLLOUT)
+    return bool(poller.poll(0))
 
 
 #: The instants in each telemetry period the bridges' slots are spread over (`slot_phase`).
@@ -369,6 +389,12 @@ class Publisher:
                 )
             return
         self._stalled_since = None
+        if queued(client):
+            # The socket has room: what is queued (the probe sent just before this
+            # slot, or the last slot's if the loop was held up) waits only for the
+            # loop's next turn, not for the broker. Neither a skip nor a stall: this
+            # slot's messages go at the next, so that at most one slot's are queued.
+            return
         latest = self._latest
         messages = []
         for stream in ctx.profile.remote.streams:
