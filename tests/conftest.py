@@ -11,6 +11,8 @@ from collections.abc import Callable, Mapping
 import pytest
 from hypothesis import settings
 
+from .support.netns import IN_NETNS
+
 # Hypothesis's deadline (200 ms an example by default) is a wall-clock assertion: under
 # pytest-xdist's load it fails for the machine, not the code (how fast the code is, the
 # benchmarks measure). Off for every property test.
@@ -20,6 +22,28 @@ settings.load_profile("chassis_sdk")
 # The markers (tests/support/markers.py), and `netns`: a test in a network namespace of
 # its own, loopback only (tests/support/netns.py).
 pytest_plugins = ("tests.support.markers", "tests.support.netns")
+
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Build the DDS peers (each Fast DDS's, `tests.support.dds_peer`) before the first
+    test that talks to one, when any is selected: a cold build takes up to a minute,
+    which inside a test would be taken from its time (a bridge started for 8 s would be
+    gone before its peer). Cached builds cost nothing; one that cannot be made is left
+    to the tests, which fail saying why. (A test re-run in a network namespace finds
+    them built by the run that started it.)"""
+    if os.environ.get(IN_NETNS) == "1" or session.config.option.collectonly:
+        return
+    if not any(item.get_closest_marker("ros2") is not None for item in session.items):
+        return
+    from .support.dds_peer import FAST_DDS, build_peer
+
+    for major in FAST_DDS:
+        try:
+            build_peer(major)
+        except RuntimeError as exc:
+            print(f"\n{exc}")
+
 
 if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":
     import asyncio

@@ -1,11 +1,13 @@
-"""The ROS 2 bridge against an independent DDS stack: eProsima Fast DDS 2.9 (the
-middleware of ROS 2's default RMW), built from an IDL of our own in ROS 2's DDS shape
-(tests/ros2_peer), over RTPS on UDP (no shared memory). The peer plays teleop
-(publishing ``cmd_vel``) and Nav2 (subscribing ``odom`` and ``/tf``).
+"""The ROS 2 bridge against an independent DDS stack: eProsima Fast DDS (the middleware
+of ROS 2's default RMW), 2.9 (Debian 12's) and 3.1 (Debian 13's, what Kilted and Lyrical
+run; stock settings, type propagation on), built from an IDL of our own in ROS 2's DDS
+shape (tests/ros2_peer), over RTPS on UDP (no shared memory). The peer plays teleop
+(publishing ``cmd_vel``) and Nav2 (subscribing ``odom`` and ``/tf``). Every test that
+talks to a peer runs against each (``[fastdds2]``, ``[fastdds3]``).
 
-What this proves: the bridge interoperates with Fast DDS 2.9 over RTPS with ROS 2's
-naming, types and QoS. It does not prove ``ros2 node list``, Fast DDS 3's XTypes type
-information, rmw_zenoh or services.
+What this proves: the bridge interoperates with Fast DDS 2.9 and 3.1 over RTPS with
+ROS 2's naming, types and QoS. It does not prove ``ros2 node list``, rmw_zenoh or
+services.
 
 Every test runs in a network namespace of its own whose only interface is loopback.
 """
@@ -29,11 +31,27 @@ from chassis_sdk.recording.ros2_types import DEFAULT_POSE_COVARIANCE, wall_time
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import CLI, ROOT, cli, one_line
-from .support.dds_peer import Event, start_peer
+from .support.dds_peer import FAST_DDS, Event, start_peer, use_fast_dds
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
 
 pytestmark = [pytest.mark.integration, pytest.mark.netns, pytest.mark.timeout(90)]
+
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    """Every test that talks to a peer (marked ``ros2``) runs against each Fast DDS."""
+    if metafunc.definition.get_closest_marker("ros2") is not None:
+        metafunc.parametrize(
+            "_fast_dds", FAST_DDS, indirect=True, ids=[f"fastdds{major}" for major in FAST_DDS]
+        )
+
+
+@pytest.fixture(autouse=True)
+def _fast_dds(request: pytest.FixtureRequest) -> int:
+    """The Fast DDS major version this test's peers run (2 where not parametrized)."""
+    major: int = getattr(request, "param", 2)
+    use_fast_dds(major)
+    return major
+
 
 #: How long one command holds (the bridge's default, diff_drive_controller's).
 TIMEOUT = 0.5

@@ -19,7 +19,10 @@ import pytest
 pytestmark = pytest.mark.integration
 
 SCRIPT = Path(__file__).resolve().parents[1] / "tools" / "system-deps.sh"
-TOOLS = ("sh", "grep", "env", "cat")
+TOOLS = (
+    "sh", "grep", "env", "cat", "sed", "head", "mkdir", "rm", "mv", "touch", "date", "du",
+    "cut", "dirname", "tail",
+)  # fmt: skip
 
 
 def stand_in(bin_dir: Path, name: str, body: str) -> None:
@@ -40,19 +43,33 @@ def bare_path(tmp_path: Path) -> Path:
     return bin_dir
 
 
-def run(tmp_path: Path, *, uid: int, sudo: bool) -> tuple[subprocess.CompletedProcess[str], str]:
+def debian13(tmp_path: Path, *, made: bool) -> Path:
+    """A stand-in for the Debian 13 root: complete (its mark written) or not there."""
+    root = tmp_path / "debian13"
+    if made:
+        root.mkdir()
+        (root / ".chassis-sdk-complete").touch()
+    return root
+
+
+def run(
+    tmp_path: Path, *, uid: int, sudo: bool, root_made: bool = True
+) -> tuple[subprocess.CompletedProcess[str], str]:
     bin_dir = bare_path(tmp_path)
     calls = tmp_path / "calls"
     stand_in(bin_dir, "id", f"echo {uid}")
     stand_in(bin_dir, "dpkg-query", "exit 1")  # nothing installed
     stand_in(bin_dir, "apt-get", f'echo "apt-get $*" >> {calls}')
+    # debootstrap makes the root's directory, as the real one does.
+    stand_in(bin_dir, "debootstrap", f'echo "debootstrap $*" >> {calls}; mkdir -p "$4"')
     if sudo:
         stand_in(bin_dir, "sudo", f'echo "sudo $1" >> {calls}; exec "$@"')
+    root = debian13(tmp_path, made=root_made)
     done = subprocess.run(
         [str(bin_dir / "sh"), str(SCRIPT)],
         capture_output=True,
         text=True,
-        env={"PATH": str(bin_dir), "HOME": str(tmp_path)},
+        env={"PATH": str(bin_dir), "HOME": str(tmp_path), "CHASSIS_SDK_DEBIAN13": str(root)},
         timeout=30,
         check=False,
     )
@@ -83,8 +100,27 @@ def test_as_a_user_without_sudo_it_says_what_to_run(tmp_path: Path) -> None:
     assert calls == ""
     assert len(done.stderr.splitlines()) == 1
     assert done.stderr.startswith(
-        "system-deps: not root and no sudo: as root, run: apt-get install"
+        "system-deps: not root and no sudo: as root, run: sh tools/system-deps.sh (it installs: "
     )
+    assert "mosquitto" in done.stderr
+
+
+@pytest.mark.skipif(
+    not list(Path("/etc/apt").glob("sources.list*")), reason="no apt sources to take a mirror from"
+)
+def test_a_missing_debian13_root_is_made_with_debootstrap_from_apts_mirror(tmp_path: Path) -> None:
+    done, calls = run(tmp_path, uid=0, sudo=False, root_made=False)
+    assert done.returncode == 0, done.stderr
+    (debootstrap,) = [line for line in calls.splitlines() if line.startswith("debootstrap")]
+    words = debootstrap.split()
+    assert words[1:3] == ["--variant=minbase", "--include=g++,libfastdds-dev,fastddsgen"]
+    assert words[3:5] == ["trixie", f"{tmp_path / 'debian13'}.partial"]
+    assert words[5].startswith(("http://", "https://", "file:/")), words[5]
+    root = tmp_path / "debian13"
+    assert (root / ".chassis-sdk-complete").exists()  # written last, after the move
+    assert (root / "build").is_dir()  # the peer's build binds onto it
+    assert not (tmp_path / "debian13.partial").exists()
+    assert "Debian 13 root made in" in done.stdout
 
 
 @pytest.mark.skipif(os.name != "posix", reason="a POSIX shell script")
@@ -99,11 +135,12 @@ def test_nothing_missing_touches_nothing(tmp_path: Path) -> None:
     include = Path("/usr/include/fastdds/dds/domain/DomainParticipantFactory.hpp")
     if not include.exists():
         pytest.skip("Fast DDS's headers are not installed here")
+    root = debian13(tmp_path, made=True)
     done = subprocess.run(
         [str(bin_dir / "sh"), str(SCRIPT)],
         capture_output=True,
         text=True,
-        env={"PATH": str(bin_dir)},
+        env={"PATH": str(bin_dir), "CHASSIS_SDK_DEBIAN13": str(root)},
         timeout=30,
         check=False,
     )

@@ -14,6 +14,13 @@ once per content of those sources: the binary is cached under
 Needs Debian's ``fastddsgen``, ``libfastrtps-dev`` and ``g++`` (``sh tools/system-deps.sh``
 installs them): without them ``build_peer()`` raises, so a test that needs the peer fails
 and says how to install it, rather than pass by skipping. Nothing here imports pytest.
+
+Two peers: Fast DDS 2 (the system's, Debian 12's 2.9) and Fast DDS 3 (Debian 13's 3.1,
+what ROS 2 Kilted and Lyrical run). The second is built inside a Debian 13 root that
+``tools/system-deps.sh`` makes with debootstrap (`debian13_root`), in a user and mount
+namespace of its own (no privilege needed once the root exists), and runs on that root's
+own dynamic loader and libraries, so no chroot is needed to run it. `use_fast_dds` picks
+the one `start_peer` starts by default.
 """
 
 from __future__ import annotations
@@ -37,13 +44,32 @@ from typing import Any
 
 from .watch import needs
 
-__all__ = ["SOURCES", "Event", "Peer", "build_peer", "peer_cache_dir", "start_peer"]
+__all__ = [
+    "FAST_DDS",
+    "SOURCES",
+    "Event",
+    "Peer",
+    "build_peer",
+    "debian13_root",
+    "peer_cache_dir",
+    "start_peer",
+    "use_fast_dds",
+]
+
+#: The Fast DDS major versions a peer can be built with.
+FAST_DDS = (2, 3)
 
 SOURCES = Path(__file__).resolve().parent.parent / "ros2_peer"
 INSTALL_HINT = "install it with: sh tools/system-deps.sh"
 IDL = "ros2_types.idl"
 # Part of the cache key: a change in how the peer is built builds it again.
 RECIPE = "fastddsgen -replace -t; g++ -std=c++17 -O1; -lfastrtps -lfastcdr -lpthread; v1"
+RECIPE_3 = "debian13: fastddsgen 4; g++ -std=c++17 -O1; -lfastdds -lfastcdr -lpthread; v1"
+#: Where tools/system-deps.sh makes the Debian 13 root (``CHASSIS_SDK_DEBIAN13`` elsewhere).
+DEBIAN13 = "/var/cache/chassis-sdk/debian13"
+#: Written last by tools/system-deps.sh: the root is complete.
+DEBIAN13_DONE = ".chassis-sdk-complete"
+INSTALL_HINT_3 = "make it with: sh tools/system-deps.sh (as root: debootstrap, about 1 GB)"
 HEADER = Path("fastdds/dds/domain/DomainParticipantFactory.hpp")
 
 Event = dict[str, Any]
@@ -54,17 +80,24 @@ def _source_files() -> list[Path]:
     return [SOURCES / "peer.cpp", SOURCES / IDL]
 
 
-def _fast_dds_libraries() -> list[str]:
+def debian13_root() -> Path:
+    """The Debian 13 root that holds Fast DDS 3 (``$CHASSIS_SDK_DEBIAN13``, else
+    /var/cache/chassis-sdk/debian13)."""
+    return Path(os.environ.get("CHASSIS_SDK_DEBIAN13") or DEBIAN13)
+
+
+def _fast_dds_libraries(root: str = "") -> list[str]:
     """The Fast DDS libraries' real files (their versions are in their names)."""
-    found = glob.glob("/usr/lib/*/libfast*.so") + glob.glob("/usr/*lib/libfast*.so")
+    found = glob.glob(f"{root}/usr/lib/*/libfast*.so") + glob.glob(f"{root}/usr/*lib/libfast*.so")
     return sorted({os.path.realpath(p) for p in found})
 
 
-def _digest() -> str:
+def _digest(major: int = 2) -> str:
     # The sources, how they are built, and which Fast DDS they are built against (a new
     # libfastrtps soname after an upgrade builds the peer again).
-    h = hashlib.sha256(RECIPE.encode())
-    h.update("\0".join(_fast_dds_libraries()).encode())
+    root = str(debian13_root()) if major == 3 else ""
+    h = hashlib.sha256((RECIPE_3 if major == 3 else RECIPE).encode())
+    h.update("\0".join(_fast_dds_libraries(root)).encode())
     for path in _source_files():
         data = path.read_bytes()
         h.update(f"\0{path.name}\0{len(data)}\0".encode())
@@ -87,8 +120,15 @@ def _find_header() -> Path | None:
     return None
 
 
-def _missing() -> str | None:
+def _missing(major: int = 2) -> str | None:
     """Why the peer cannot be built here, in a few words, or ``None``."""
+    if major == 3:
+        root = debian13_root()
+        if not (root / DEBIAN13_DONE).exists():
+            return f"the Debian 13 root with Fast DDS 3 ({root}) is not there; {INSTALL_HINT_3}"
+        if shutil.which("unshare") is None:
+            return f"unshare (util-linux) is not installed; {INSTALL_HINT}"
+        return None
     if shutil.which("fastddsgen") is None:
         return "fastddsgen (Debian's fastddsgen) is not installed"
     if shutil.which("g++") is None:
@@ -118,30 +158,85 @@ def _locked(path: Path) -> Iterator[None]:
 
 
 _built: dict[str, Path] = {}
+_default_major = 2
 
 
-def build_peer() -> Path:
-    """The peer's binary, built first if this content of the sources has not been.
+def use_fast_dds(major: int) -> None:
+    """Make `start_peer` start the Fast DDS ``major`` peer (2 or 3) by default."""
+    global _default_major
+    if major not in FAST_DDS:
+        raise ValueError(f"Fast DDS {major}: the peers are {FAST_DDS}")
+    _default_major = major
+
+
+def build_peer(major: int = 2) -> Path:
+    """The peer's binary for Fast DDS ``major``, built first if this content of the
+    sources has not been.
 
     Raises:
-        RuntimeError: fastddsgen, g++ or the Fast DDS headers are missing (with the
-            install hint), or the build failed (with the compiler's last lines).
+        RuntimeError: fastddsgen, g++, the Fast DDS headers or the Debian 13 root are
+            missing (with the install hint), or the build failed (with the compiler's
+            last lines).
     """
-    key = _digest()
+    key = _digest(major)
     if key in _built:
         return _built[key]
     root = peer_cache_dir()
     binary = root / key / "peer"
     if not os.access(binary, os.X_OK):
-        why = _missing()
+        why = _missing(major)
         if why is not None:
-            raise RuntimeError(f"DDS peer: {why}; {INSTALL_HINT}")
+            raise RuntimeError(f"DDS peer: {why}" + ("" if major == 3 else f"; {INSTALL_HINT}"))
         root.mkdir(parents=True, exist_ok=True)
         with _locked(root / f"{key}.lock"):
             if not os.access(binary, os.X_OK):  # another process may have built it meanwhile
-                _build(root, key)
+                (_build_3 if major == 3 else _build)(root, key)
     _built[key] = binary
     return binary
+
+
+def _loader(root: Path) -> list[str]:
+    """The command prefix that runs one of ``root``'s programs on ``root``'s own dynamic
+    loader and libraries (Debian 13's glibc and libstdc++ under this system's kernel)."""
+    loaders = sorted(glob.glob(f"{root}/usr/lib*/ld-linux-*.so.*"))
+    fast = glob.glob(f"{root}/usr/lib/*-linux-gnu/libfastdds.so.*")
+    if not loaders or not fast:
+        raise RuntimeError(f"DDS peer: no dynamic loader or libfastdds in {root}; {INSTALL_HINT_3}")
+    return [loaders[0], "--library-path", os.path.dirname(fast[0])]
+
+
+def _build_3(root: Path, key: str) -> None:
+    """Build the Fast DDS 3 peer inside the Debian 13 root: the build directory bound
+    onto its /build in a mount namespace of our own (a user namespace too when not
+    root), fastddsgen 4 and g++ 14 run there."""
+    debian = debian13_root()
+    work = Path(tempfile.mkdtemp(prefix=f"{key[:12]}-", dir=root))
+    try:
+        for path in _source_files():
+            shutil.copy2(path, work / path.name)
+        stem = IDL.removesuffix(".idl")
+        java = sorted(glob.glob(f"{debian}/usr/lib/jvm/java-*-openjdk-*/lib"))
+        # Java finds libjli through /proc, which the namespace has not: say where it is.
+        java_lib = java[-1].removeprefix(str(debian)) if java else ""
+        inside = (
+            "cd /build && mkdir -p gen tmp"
+            f" && LD_LIBRARY_PATH={java_lib} fastddsgen -replace -t tmp -d gen {IDL}"
+            f" && g++ -std=c++17 -O1 -o peer -I gen peer.cpp gen/{stem}PubSubTypes.cxx"
+            f" gen/{stem}TypeObjectSupport.cxx -lfastdds -lfastcdr -lpthread"
+        )
+        script = 'mount --bind "$1" "$2/build" && exec chroot "$2" /bin/sh -c "$3"'
+        flags = ["--mount"] if os.geteuid() == 0 else ["--user", "--map-root-user", "--mount"]
+        cmd = ["unshare", *flags, "sh", "-c", script, "sh", str(work), str(debian), inside]
+        _run(cmd, work, "the Fast DDS 3 build in the Debian 13 root")
+        if not (work / "peer").exists():
+            raise RuntimeError(f"DDS peer: the Fast DDS 3 build wrote no peer in {work}")
+        final = root / key
+        if final.exists():
+            shutil.rmtree(final)
+        work.rename(final)
+    finally:
+        if work.exists():
+            shutil.rmtree(work, ignore_errors=True)
 
 
 def _build(root: Path, key: str) -> None:
@@ -341,15 +436,19 @@ class Peer:
         await self.stop()
 
 
-async def start_peer(*args: str, binary: Path | None = None) -> Peer:
-    """Start ``peer ARGS...`` (``build_peer()``'s binary unless ``binary``).
+async def start_peer(*args: str, binary: Path | None = None, fast_dds: int | None = None) -> Peer:
+    """Start ``peer ARGS...`` (``build_peer(fast_dds)``'s binary unless ``binary``;
+    ``fast_dds`` defaults to what `use_fast_dds` chose, else 2).
 
     Its output is read as it comes; use the result as an async context manager (or call
     ``stop()``) so that it never outlives the test.
     """
     needs("ros2", "starts the Fast DDS peer")
-    exe = binary if binary is not None else await asyncio.to_thread(build_peer)
+    major = _default_major if fast_dds is None else fast_dds
+    exe = binary if binary is not None else await asyncio.to_thread(build_peer, major)
+    prefix = _loader(debian13_root()) if major == 3 else []
     process = await asyncio.create_subprocess_exec(
+        *prefix,
         str(exe),
         *args,
         stdin=asyncio.subprocess.DEVNULL,
