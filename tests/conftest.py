@@ -24,7 +24,6 @@ settings.load_profile("chassis_sdk")
 pytest_plugins = ("tests.support.markers", "tests.support.netns")
 
 
-
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Build the DDS peers (each Fast DDS's, `tests.support.dds_peer`) before the first
     test that talks to one, when any is selected: a cold build takes up to a minute,

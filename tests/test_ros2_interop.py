@@ -37,6 +37,7 @@ from .support.ros2 import drives, until
 
 pytestmark = [pytest.mark.integration, pytest.mark.netns, pytest.mark.timeout(90)]
 
+
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     """Every test that talks to a peer (marked ``ros2``) runs against each Fast DDS."""
     if metafunc.definition.get_closest_marker("ros2") is not None:

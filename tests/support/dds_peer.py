@@ -210,10 +210,7 @@ def _build_3(root: Path, key: str) -> None:
     onto its /build in a mount namespace of our own (a user namespace too when not
     root), fastddsgen 4 and g++ 14 run there."""
     debian = debian13_root()
-    work = Path(tempfile.mkdtemp(prefix=f"{key[:12]}-", dir=root))
-    try:
-        for path in _source_files():
-            shutil.copy2(path, work / path.name)
+    with _work_dir(root, key) as work:
         stem = IDL.removesuffix(".idl")
         java = sorted(glob.glob(f"{debian}/usr/lib/jvm/java-*-openjdk-*/lib"))
         # Java finds libjli through /proc, which the namespace has not: say where it is.
@@ -230,6 +227,18 @@ def _build_3(root: Path, key: str) -> None:
         _run(cmd, work, "the Fast DDS 3 build in the Debian 13 root")
         if not (work / "peer").exists():
             raise RuntimeError(f"DDS peer: the Fast DDS 3 build wrote no peer in {work}")
+
+
+@contextlib.contextmanager
+def _work_dir(root: Path, key: str) -> Iterator[Path]:
+    """A fresh directory holding the sources to build in: moved into place as
+    ``root/key`` at once when the block ends without an error (a half-built peer is
+    never seen), removed otherwise."""
+    work = Path(tempfile.mkdtemp(prefix=f"{key[:12]}-", dir=root))
+    try:
+        for path in _source_files():
+            shutil.copy2(path, work / path.name)
+        yield work
         final = root / key
         if final.exists():
             shutil.rmtree(final)
@@ -240,10 +249,7 @@ def _build_3(root: Path, key: str) -> None:
 
 
 def _build(root: Path, key: str) -> None:
-    work = Path(tempfile.mkdtemp(prefix=f"{key[:12]}-", dir=root))
-    try:
-        for path in _source_files():
-            shutil.copy2(path, work / path.name)
+    with _work_dir(root, key) as work:
         gen = work / "gen"
         gen.mkdir()
         # -t: its preprocessed copy goes here, not to a fixed name in /tmp (another user's
@@ -260,14 +266,6 @@ def _build(root: Path, key: str) -> None:
         if not (gen / f"{stem}PubSubTypes.cxx").exists():
             raise RuntimeError(f"DDS peer: fastddsgen wrote no {stem}PubSubTypes.cxx in {gen}")
         _run(cmd, work, "g++")
-        # Move the finished build into place at once: a half-built one is never seen.
-        final = root / key
-        if final.exists():
-            shutil.rmtree(final)
-        work.rename(final)
-    finally:
-        if work.exists():
-            shutil.rmtree(work, ignore_errors=True)
 
 
 def _named(name: str) -> Callable[[Event], bool]:
