@@ -241,10 +241,11 @@ async def test_unicast_only_discovery_with_static_peers() -> None:
 @pytest.mark.ros2
 async def test_a_non_finite_command_from_the_peer_is_refused() -> None:
     async with ChassisSimulator() as sim, Chassis(sim.port) as robot, bridged(robot) as bridge:
-        args = ("pub", "twist", "rt/cmd_vel", "--rate", "20", "--count", "3", "--linear", "nan")
-        async with await start_peer(*args) as teleop:
-            await teleop.wait_for("writer_deleted", 15.0)
-        await until(lambda: bridge.refused >= 1, 2.0)
+        # Streamed until one is refused: the bridge's reader may learn of the writer a
+        # while after the writer matched it, and gets nothing written before that.
+        args = ("pub", "twist", "rt/cmd_vel", "--rate", "20", "--count", "200", "--linear", "nan")
+        async with await start_peer(*args):
+            await until(lambda: bridge.refused >= 1, 10.0)
         assert all(c.linear_mm == 0 for _, c in drives(sim))
 
 
@@ -263,15 +264,17 @@ async def test_chassis_sdk_ros2_puts_a_simulated_chassis_on_the_graph_and_stops_
             async with asyncio.timeout(20):
                 line = (await bridge.stdout.readline()).decode()
             assert "onto ROS 2 domain 0 under /robot1" in line, line
-            teleop_args = ("pub", "twist", "rt/robot1/cmd_vel", "--rate", "20", "--count", "10")
+            # A teleop streams (20 Hz for 3 s): its writer can match the bridge's reader
+            # a while before the bridge's reader knows of it (more so under load), and
+            # a volatile reader gets nothing written before that.
+            teleop_args = ("pub", "twist", "rt/robot1/cmd_vel", "--rate", "20", "--count", "60")
             async with (
                 await start_peer("sub", "odometry", "rt/robot1/odom", "--count", "5") as nav2,
-                await start_peer(*teleop_args, "--linear", "0.3", "--hold", "10") as teleop,
+                await start_peer(*teleop_args, "--linear", "0.3", "--hold", "10"),
             ):
                 await nav2.wait_for("done", 15.0)
                 assert nav2.samples[-1]["frame_id"] == "odom"
-                await teleop.wait_for(lambda e: e.get("i") == 9, 10.0)
-                assert any(c.linear_mm == 300 for _, c in drives(sim))
+                await until(lambda: any(c.linear_mm == 300 for _, c in drives(sim)), 5.0)
                 async with asyncio.timeout(15):
                     out, err = await bridge.communicate()  # --seconds ran out
             assert bridge.returncode == 0, err.decode()
