@@ -21,7 +21,7 @@ pytestmark = pytest.mark.integration
 SCRIPT = Path(__file__).resolve().parents[1] / "tools" / "system-deps.sh"
 TOOLS = (
     "sh", "grep", "env", "cat", "sed", "head", "mkdir", "rm", "mv", "touch", "date", "du",
-    "cut", "dirname", "tail",
+    "cut", "dirname", "tail", "mktemp",
 )  # fmt: skip
 
 
@@ -69,7 +69,12 @@ def run(
         [str(bin_dir / "sh"), str(SCRIPT)],
         capture_output=True,
         text=True,
-        env={"PATH": str(bin_dir), "HOME": str(tmp_path), "CHASSIS_SDK_DEBIAN13": str(root)},
+        env={
+            "PATH": str(bin_dir),
+            "HOME": str(tmp_path),
+            "TMPDIR": str(tmp_path),  # the debootstrap log: never a file another user owns
+            "CHASSIS_SDK_DEBIAN13": str(root),
+        },
         timeout=30,
         check=False,
     )

@@ -94,12 +94,14 @@ if [ ! -f "$done_mark" ]; then
     started=$(date +%s)
     $as_root rm -rf "$debian13.partial"
     $as_root mkdir -p "$(dirname "$debian13")"
+    log=$(mktemp "${TMPDIR:-/tmp}/debootstrap.XXXXXX")
     $as_root debootstrap --variant=minbase --include=g++,libfastdds-dev,fastddsgen \
-        trixie "$debian13.partial" "$mirror" >"${TMPDIR:-/tmp}/debootstrap.log" 2>&1 || {
-        tail -n 20 "${TMPDIR:-/tmp}/debootstrap.log" >&2
-        echo "system-deps: debootstrap failed (log above)" >&2
+        trixie "$debian13.partial" "$mirror" >"$log" 2>&1 || {
+        tail -n 20 "$log" >&2
+        echo "system-deps: debootstrap failed (log above; all of it in $log)" >&2
         exit 1
     }
+    rm -f "$log"
     # The mount point the peer's build binds its directory onto; then the mark, last.
     $as_root mkdir -p "$debian13.partial/build"
     $as_root rm -rf "$debian13"
