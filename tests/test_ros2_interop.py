@@ -17,7 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 from typing import Any
 
 import anyio
@@ -47,11 +47,13 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
 
 
 @pytest.fixture(autouse=True)
-def fast_dds(request: pytest.FixtureRequest) -> int:
-    """The Fast DDS major version this test's peers run (2 where not parametrized)."""
+def fast_dds(request: pytest.FixtureRequest) -> Iterator[int]:
+    """The Fast DDS major version this test's peers run (2 where not parametrized); the
+    default is put back after it, so no other test of this process inherits it."""
     major: int = getattr(request, "param", 2)
     use_fast_dds(major)
-    return major
+    yield major
+    use_fast_dds(2)
 
 
 #: How long one command holds (the bridge's default, diff_drive_controller's).
