@@ -74,8 +74,7 @@ async def drive_until_the_link_blocks(dev: ChassisStandIn, robot: Any) -> asynci
     task = asyncio.create_task(control())
     await dev.wait_for(lambda fs: bool(drive_frames(fs)))  # the robot drives at 0.5 m/s
     dev.stop_reading()
-    if not dev.tcp:
-        dev.fill_line()
+    dev.fill_line()
     async with asyncio.timeout(20):
         while robot.stats.frames_discarded < 3:
             await asyncio.sleep(0.005)

@@ -142,24 +142,34 @@ class PtyPeer:
             asyncio.get_running_loop().add_reader(self._master, self._readable)
 
     def fill_line(self) -> int:
-        """Fill the kernel's buffer between host and device with zero bytes (what a
-        device that stopped reading minutes ago leaves); return how many."""
+        """Fill the kernel's buffers between host and device with zero bytes (what a
+        device that stopped reading minutes ago leaves); return how many. Over TCP the
+        host's own socket is filled (found among this process's descriptors by its
+        address: the host runs in the test's process), after ``stop_reading()``."""
+        if self.tcp:
+            return self._fill_tcp()
         fd = os.open(self.port, os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
-        total = 0
         try:
-            # The kernel moves bytes on between its buffers a moment after a write, so
-            # room comes back: fill until a pause adds nothing, down to the last byte.
-            while True:
-                before = total
-                for size in (4096, 256, 16, 1):
-                    with contextlib.suppress(BlockingIOError):
-                        while True:
-                            total += os.write(fd, bytes(size))
-                if total == before:
-                    return total
-                time.sleep(0.02)
+            return _fill(lambda data: os.write(fd, data))
         finally:
             os.close(fd)
+
+    def _fill_tcp(self) -> int:
+        assert self._writer is not None, "no host is connected"
+        host = self._writer.get_extra_info("peername")
+        for name in os.listdir("/proc/self/fd"):
+            try:
+                sock = socket.socket(fileno=os.dup(int(name)))
+            except OSError:  # not a socket (or gone since the listing)
+                continue
+            with sock:
+                try:
+                    if sock.family != socket.AF_INET or sock.getsockname() != host:
+                        continue
+                except OSError:
+                    continue
+                return _fill(lambda data: sock.send(data, socket.MSG_DONTWAIT))
+        raise LookupError(f"the host's socket {host} is not in this process")
 
     def release_line(self) -> None:
         """Close the stand-in's own hold on the pty, so that once the host closes the
@@ -509,3 +519,19 @@ class BoardStandIn(PtyPeer):
                 self.send(frame_b(b"\xfe\xce", 0x13, struct.pack("<h", 1234)))
             n += 1
             await asyncio.sleep(self.imu_period)
+
+
+def _fill(write: Callable[[bytes], int]) -> int:
+    """Write zero bytes with ``write`` (non-blocking) until the kernel takes no more."""
+    total = 0
+    # The kernel moves bytes on between its buffers a moment after a write, so room
+    # comes back: fill until a pause adds nothing, down to the last byte.
+    while True:
+        before = total
+        for size in (4096, 256, 16, 1):
+            with contextlib.suppress(BlockingIOError):
+                while True:
+                    total += write(bytes(size))
+        if total == before:
+            return total
+        time.sleep(0.02)
