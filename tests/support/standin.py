@@ -168,7 +168,11 @@ class PtyPeer:
                         continue
                 except OSError:
                     continue
-                return _fill(lambda data: sock.send(data, socket.MSG_DONTWAIT))
+
+                def send(data: bytes, sock: socket.socket = sock) -> int:
+                    return sock.send(data, socket.MSG_DONTWAIT)
+
+                return _fill(send)
         raise LookupError(f"the host's socket {host} is not in this process")
 
     def release_line(self) -> None:
