@@ -6,7 +6,8 @@ shape (tests/ros2_peer), over RTPS on UDP (no shared memory). The peer plays tel
 talks to a peer runs against each (``[fastdds2]``, ``[fastdds3]``).
 
 What this proves: the bridge interoperates with Fast DDS 2.9 and 3.1 over RTPS with
-ROS 2's naming, types and QoS. It does not prove ``ros2 node list``, rmw_zenoh or
+ROS 2's naming, types and QoS, and tells the graph its node as rmw does (what
+``ros2 node list`` and ``ros2 node info`` read). It does not prove rmw_zenoh or
 services.
 
 Every test runs in a network namespace of its own whose only interface is loopback.
@@ -203,6 +204,52 @@ async def test_tf_static_reaches_a_late_joiner_and_imu_and_battery_flow() -> Non
             await late.wait_for("done", 15.0)
             (transform,) = late.samples[-1]["transforms"]
             assert (transform["frame_id"], transform["child_frame_id"]) == ("base_link", "imu_link")
+
+
+@pytest.mark.ros2
+async def test_ros_discovery_info_names_the_node_and_exactly_the_endpoints_peers_discover() -> None:
+    # What `ros2 node list` and `ros2 node info` read (rmw_dds_common's graph cache): the
+    # node on `ros_discovery_info`, latched, its gid the participant's GUID, and the GIDs
+    # of exactly the readers and writers that DDS discovery finds on that participant.
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, namespace="robot1"),
+    ):
+        args = ("sub", "graph", "ros_discovery_info", "--transient-local", "--count", "1")
+        async with await start_peer(*args) as peer:
+            sample = await peer.wait_for("sample", 15.0)
+            (node,) = sample["nodes"]
+            assert (node["namespace"], node["name"]) == ("/robot1", "chassis_bridge")
+            gid = sample["gid"]
+            await peer.wait_for(lambda e: e["event"] == "participant" and e["guid"] == gid, 10.0)
+            prefix = gid[:24]  # the GUID prefix every entity of the participant shares
+
+            def found(entity: str) -> dict[str, str]:
+                return {
+                    e["guid"]: e["topic"]
+                    for e in peer.named("endpoint")
+                    if e["entity"] == entity
+                    and e["status"] == "discovered"
+                    and e["guid"].startswith(prefix)
+                    and e["topic"] != "ros_discovery_info"
+                }
+
+            readers, writers = set(node["readers"]), set(node["writers"])
+            await until(lambda: readers <= found("reader").keys(), 10.0)
+            await until(lambda: writers <= found("writer").keys(), 10.0)
+            assert found("reader").keys() == readers
+            assert found("writer").keys() == writers
+            assert sorted(found("reader").values()) == [
+                "rt/robot1/cmd_vel",
+                "rt/robot1/emergency_stop",
+            ]
+            assert sorted(found("writer").values()) == [
+                "rt/diagnostics",
+                "rt/robot1/battery_state",
+                "rt/robot1/odom",
+                "rt/tf",
+            ]
 
 
 @pytest.mark.slow

@@ -383,6 +383,7 @@ _TYPE_IDS: Final = {
     "string": 17,
 }  # fmt: skip
 _NESTED: Final = 1
+_BOUNDED_STRING: Final = 21
 _ARRAY, _UNBOUNDED_SEQUENCE = 48, 144
 
 
@@ -393,16 +394,21 @@ class _Field:
     nested: type | None
     array: int | None  # fixed length
     sequence: bool
+    string_capacity: int = 0  # a bounded string's (``string<=N``)
 
     @property
     def msg_type(self) -> str:
         base = self.base.replace("/msg/", "/") if self.nested is not None else self.base
+        if self.string_capacity:
+            base = f"string<={self.string_capacity}"
         if self.array is not None:
             return f"{base}[{self.array}]"
         return f"{base}[]" if self.sequence else base
 
     def description(self) -> dict[str, Any]:
         type_id = _NESTED if self.nested is not None else _TYPE_IDS[self.base]
+        if self.string_capacity:
+            type_id = _BOUNDED_STRING
         if self.array is not None:
             type_id += _ARRAY
         elif self.sequence:
@@ -412,7 +418,7 @@ class _Field:
             "type": {
                 "type_id": type_id,
                 "capacity": self.array or 0,
-                "string_capacity": 0,
+                "string_capacity": self.string_capacity,
                 "nested_type_name": self.base if self.nested is not None else "",
             },
         }
@@ -443,6 +449,9 @@ def _fields(cls: type) -> list[_Field]:
             base, nested = _element(typing.cast(Any, holder).subtype)
             length = getattr(holder, "length", None) if kind == "array" else None
             out.append(_Field(name, base, nested, length, kind == "sequence"))
+        elif kind == "bounded_str":
+            capacity = typing.cast(Any, holder).max_length
+            out.append(_Field(name, "string", None, None, False, string_capacity=capacity))
         else:
             base, nested = _element(hint)
             if name in _ROS_BYTES.get(cls, ()):

@@ -21,7 +21,9 @@
 //       Exit 0; 3 when no reader matched in time.
 //   peer sub <kind> <dds_topic> [--duration S] [--count N] [--best-effort]
 //            [--transient-local] [--domain N] [--unicast]
-//       kind: twist | twist_stamped | bool | odometry | tf | battery | imu
+//       kind: twist | twist_stamped | bool | odometry | tf | battery | imu | graph
+//       (graph: rmw_dds_common/ParticipantEntitiesInfo, what rmw publishes on
+//       ros_discovery_info; subscribe to it with --transient-local, as rmw does)
 //       Prints one line per sample received, for --duration seconds (default 10) or
 //       until --count samples (default 0: no limit). Exit 0.
 //
@@ -37,7 +39,10 @@
 //
 // Output: one JSON object a line on stdout, flushed; "t" is the wall clock (s, float).
 //   {"event":"started","t":..,"mode":"pub","kind":..,"topic":..,"type":..}
-//   {"event":"participant","t":..,"status":"discovered"|"removed"|..,"name":..}
+//   {"event":"participant","t":..,"status":"discovered"|"removed"|..,"name":..,
+//    "guid":HEX}                                  a remote participant (16-byte GUID, hex)
+//   {"event":"endpoint","t":..,"entity":"reader"|"writer","status":"discovered"|..,
+//    "topic":..,"guid":HEX}                       a remote reader or writer (any topic)
 //   {"event":"matched","t":..,"count":N}          a reader (pub) / writer (sub) matched
 //   {"event":"unmatched","t":..,"count":N}        one went away
 //   {"event":"incompatible_qos","t":..,"policy":ID} a remote endpoint was refused
@@ -120,6 +125,7 @@ namespace nm = nav_msgs::msg::dds_;
 namespace sm = sensor_msgs::msg::dds_;
 namespace stdm = std_msgs::msg::dds_;
 namespace tf = tf2_msgs::msg::dds_;
+namespace rmw = rmw_dds_common::msg::dds_;
 
 // ---------------------------------------------------------------------------------------
 // Output
@@ -247,6 +253,49 @@ static Json stamp(const bi::Time_& t)
 static void header(Json& j, const stdm::Header_& h)
 {
     j.obj("stamp", stamp(h.stamp())).str("frame_id", h.frame_id());
+}
+
+static std::string hex(const unsigned char* bytes, size_t n)
+{
+    static const char digits[] = "0123456789abcdef";
+    std::string out;
+    for (size_t i = 0; i < n; ++i) {
+        out += digits[bytes[i] >> 4];
+        out += digits[bytes[i] & 15];
+    }
+    return out;
+}
+
+static std::string hex(const rtps::GUID_t& g)
+{
+    unsigned char bytes[16];
+    std::memcpy(bytes, g.guidPrefix.value, 12);
+    std::memcpy(bytes + 12, g.entityId.value, 4);
+    return hex(bytes, 16);
+}
+
+static std::string gids(const std::vector<rmw::Gid_>& seq)
+{
+    std::string out = "[";
+    for (const auto& g : seq) {
+        out += (out.size() > 1 ? "," : "") + quoted(hex(g.data().data(), g.data().size()));
+    }
+    return out + "]";
+}
+
+static void describe(Json& j, const rmw::ParticipantEntitiesInfo_& m)
+{
+    j.str("gid", hex(m.gid().data().data(), m.gid().data().size()));
+    std::string nodes = "[";
+    for (const auto& n : m.node_entities_info_seq()) {
+        Json node;
+        node.str("namespace", n.node_namespace().to_string())
+            .str("name", n.node_name().to_string())
+            .raw("readers", gids(n.reader_gid_seq()))
+            .raw("writers", gids(n.writer_gid_seq()));
+        nodes += (nodes.size() > 1 ? "," : "") + node.text();
+    }
+    j.raw("nodes", nodes + "]");
 }
 
 static void describe(Json& j, const gm::Twist_& m)
@@ -471,7 +520,20 @@ public:
     {
         should_be_ignored = false;
         const auto& ud = info.user_data.data_vec();
-        report(reason, info.participant_name.to_string(), std::string(ud.begin(), ud.end()));
+        report(reason, info.participant_name.to_string(), std::string(ud.begin(), ud.end()),
+            hex(info.guid));
+    }
+    void on_data_reader_discovery(DomainParticipant*, rtps::ReaderDiscoveryStatus reason,
+        const SubscriptionBuiltinTopicData& info, bool& should_be_ignored) override
+    {
+        should_be_ignored = false;
+        endpoint("reader", reason, info.topic_name.to_string(), hex(info.guid));
+    }
+    void on_data_writer_discovery(DomainParticipant*, rtps::WriterDiscoveryStatus reason,
+        const PublicationBuiltinTopicData& info, bool& should_be_ignored) override
+    {
+        should_be_ignored = false;
+        endpoint("writer", reason, info.topic_name.to_string(), hex(info.guid));
     }
 #else
     void on_participant_discovery(
@@ -479,13 +541,22 @@ public:
     {
         const auto& ud = info.info.m_userData;
         report(info.status, info.info.m_participantName.to_string(),
-            std::string(ud.begin(), ud.end()));
+            std::string(ud.begin(), ud.end()), hex(info.info.m_guid));
+    }
+    void on_subscriber_discovery(DomainParticipant*, rtps::ReaderDiscoveryInfo&& info) override
+    {
+        endpoint("reader", info.status, info.info.topicName().to_string(), hex(info.info.guid()));
+    }
+    void on_publisher_discovery(DomainParticipant*, rtps::WriterDiscoveryInfo&& info) override
+    {
+        endpoint("writer", info.status, info.info.topicName().to_string(), hex(info.info.guid()));
     }
 #endif
 
 private:
     template <class Status>
-    static void report(Status reason, const std::string& name, const std::string& user_data)
+    static void report(
+        Status reason, const std::string& name, const std::string& user_data, const std::string& guid)
     {
         const char* status = "changed";
         switch (reason) {
@@ -494,7 +565,25 @@ private:
         case Status::DROPPED_PARTICIPANT: status = "dropped"; break;
         default: break;
         }
-        emit(event("participant").str("status", status).str("name", name).str("user_data", user_data));
+        emit(event("participant")
+                 .str("status", status)
+                 .str("name", name)
+                 .str("user_data", user_data)
+                 .str("guid", guid));
+    }
+
+    // Discovered (0), changed (1), removed (2) or ignored (3), in both versions' order.
+    template <class Status>
+    static void endpoint(const char* entity, Status reason, const std::string& topic,
+        const std::string& guid)
+    {
+        static const char* names[] = {"discovered", "changed", "removed", "ignored"};
+        const auto i = static_cast<unsigned>(reason);
+        emit(event("endpoint")
+                 .str("entity", entity)
+                 .str("status", i < 4 ? names[i] : "other")
+                 .str("topic", topic)
+                 .str("guid", guid));
     }
 };
 
@@ -847,5 +936,8 @@ int main(int argc, char** argv)
     if (o.kind == "tf") return run_sub<tf::TFMessage_, tf::TFMessage_PubSubType>(o);
     if (o.kind == "battery") return run_sub<sm::BatteryState_, sm::BatteryState_PubSubType>(o);
     if (o.kind == "imu") return run_sub<sm::Imu_, sm::Imu_PubSubType>(o);
-    usage("sub kind is twist, twist_stamped, bool, odometry, tf, battery or imu, not '" + o.kind + "'");
+    if (o.kind == "graph") {
+        return run_sub<rmw::ParticipantEntitiesInfo_, rmw::ParticipantEntitiesInfo_PubSubType>(o);
+    }
+    usage("sub kind is twist, twist_stamped, bool, odometry, tf, battery, imu or graph, not '" + o.kind + "'");
 }

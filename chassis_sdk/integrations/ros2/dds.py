@@ -73,6 +73,7 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from ...recording.ros2_types import TopicSpec, check_namespace, type_hash
+from .graph import GRAPH_TOPIC, NODE_NAME, GraphNode, ParticipantEntitiesInfo, check_node_name
 
 __all__ = [
     "Discovery",
@@ -333,6 +334,17 @@ def _qos(spec: TopicSpec, *, writer: bool) -> Qos:
     return Qos(*policies)
 
 
+#: ``ros_discovery_info``'s QoS, as ``rmw`` sets it: reliable, transient local, the last
+#: message only (a late reader gets it), plain CDR.
+_GRAPH_QOS = Qos(
+    Policy.Reliability.Reliable(max_blocking_time=0),
+    Policy.Durability.TransientLocal,
+    Policy.History.KeepLast(1),
+    Policy.Userdata(data=f"typehash={type_hash(ParticipantEntitiesInfo)};".encode()),
+    Policy.DataRepresentation(use_cdrv0_representation=True),
+)
+
+
 #: The domains this process configured: id -> (configuration, the Domain, its users).
 #: Cyclone has one configuration per domain and process, so participants (two bridges
 #: for two robots) share one, counted, and a second, different one is refused.
@@ -385,18 +397,27 @@ def _release_domain(domain_id: int) -> None:
 class Participant:
     """One DDS participant: the bridge's node on the graph.
 
+    It publishes the node on ``ros_discovery_info`` (see `graph`) each time it makes a
+    reader or a writer, so ``ros2 node list`` shows ``node_name`` under ``namespace``
+    and ``ros2 node info`` its topics.
+
     Args:
         discovery: How to find peers.
         namespace: Where relative topic names go (``/robot1``).
+        node_name: The node's name on the graph.
 
     Raises:
-        ValueError: A bad namespace; or the domain is configured otherwise in this
-            process already (one discovery setting per domain and process).
+        TypeError: A namespace or node name that is not a string.
+        ValueError: A bad namespace or node name; or the domain is configured otherwise
+            in this process already (one discovery setting per domain and process).
         DDSException: Cyclone could not create the participant.
     """
 
-    def __init__(self, discovery: Discovery, namespace: str = "") -> None:
+    def __init__(
+        self, discovery: Discovery, namespace: str = "", node_name: str = NODE_NAME
+    ) -> None:
         self.namespace = check_namespace(namespace)
+        self.node_name = check_node_name(node_name)
         self.discovery = discovery
         config = discovery.config(os.environ.get("CYCLONEDDS_URI"))
         # A Domain of our own (shared by the participants of this process that ask for
@@ -417,6 +438,17 @@ class Participant:
         self._entities: list[Any] = []
         self._readers: list[Reader[Any]] = []
         self._closed = False
+        #: The node and its endpoints, as ``ros_discovery_info`` tells the graph.
+        self.node = GraphNode(self._participant.guid.bytes, self.namespace, self.node_name)
+        graph_topic = self._topics[GRAPH_TOPIC] = Topic(
+            self._participant, GRAPH_TOPIC, ParticipantEntitiesInfo
+        )
+        self._graph = DataWriter(self._participant, graph_topic, _GRAPH_QOS)
+        self._announce()
+
+    def _announce(self, *, present: bool = True) -> None:
+        with contextlib.suppress(DDSException):  # never blocks (keep last 1)
+            self._graph.write(self.node.message(present=present))
 
     def _topic(self, spec: TopicSpec) -> Topic[Any]:
         name = spec.dds_topic(self.namespace)
@@ -429,6 +461,8 @@ class Participant:
         """A writer of ``spec``'s topic, with its QoS."""
         dw = DataWriter(self._participant, self._topic(spec), _qos(spec, writer=True))
         self._entities.append(dw)
+        self.node.writers.append(dw.guid.bytes)
+        self._announce()
         return Writer(dw, spec.qualified(self.namespace))
 
     def reader(self, spec: TopicSpec, loop: asyncio.AbstractEventLoop) -> Reader[Any]:
@@ -439,6 +473,8 @@ class Participant:
         )
         self._entities.append(dr)
         self._readers.append(reader)
+        self.node.readers.append(dr.guid.bytes)
+        self._announce()
         reader.attach(dr, self._participant)
         return reader
 
@@ -448,10 +484,12 @@ class Participant:
         if self._closed:
             return
         self._closed = True
+        self._announce(present=False)  # the node goes before its endpoints
         for reader in self._readers:  # their threads out of Cyclone's waits first
             reader.close()
         self._readers.clear()
-        for entity in reversed([*self._entities, *self._topics.values(), self._participant]):
+        entities = [self._graph, *self._entities, *self._topics.values(), self._participant]
+        for entity in reversed(entities):
             with contextlib.suppress(Exception):
                 entity.__del__()  # the binding's own delete; garbage collection is late
         self._entities.clear()
