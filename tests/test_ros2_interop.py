@@ -252,6 +252,43 @@ async def test_ros_discovery_info_names_the_node_and_exactly_the_endpoints_peers
             ]
 
 
+@pytest.mark.ros2
+async def test_two_namespaced_bridges_in_one_domain_each_drive_only_their_robot() -> None:
+    # Two robots on one graph (`--namespace r1`, `--namespace r2`): each one's cmd_vel
+    # moves it alone, and their frames are prefixed, so one /tf tree holds both.
+    async with (
+        ChassisSimulator() as sim1,
+        ChassisSimulator() as sim2,
+        Chassis(sim1.port) as robot1,
+        Chassis(sim2.port) as robot2,
+        bridged(robot1, namespace="r1"),
+        bridged(robot2, namespace="r2"),
+    ):
+        args = ("pub", "twist", "rt/r2/cmd_vel", "--rate", "20", "--count", "40")
+        async with await start_peer(*args, "--linear", "0.25") as teleop:
+            await teleop.wait_for("published", 15.0)
+            await until(lambda: any(c.linear_mm == 250 for _, c in drives(sim2)), 3.0)
+            await teleop.wait_for("acked", 10.0)
+        assert [c for _, c in drives(sim1) if c.linear_mm != 0] == []  # r1 never moved
+        tf_args = ("sub", "tf", "rt/tf", "--count", "40")
+        async with await start_peer(*tf_args) as tf:
+            await tf.wait_for("done", 15.0)
+            pairs = {
+                (t["frame_id"], t["child_frame_id"]) for e in tf.samples for t in e["transforms"]
+            }
+        assert pairs == {("r1/odom", "r1/base_link"), ("r2/odom", "r2/base_link")}
+        odom_args = ("sub", "odometry", "rt/r1/odom", "--count", "1")
+        async with await start_peer(*odom_args) as odom:
+            await odom.wait_for("done", 15.0)
+            (got,) = odom.samples
+            assert (got["frame_id"], got["child_frame_id"]) == ("r1/odom", "r1/base_link")
+        graph_args = ("sub", "graph", "ros_discovery_info", "--transient-local", "--count", "2")
+        async with await start_peer(*graph_args) as graph:
+            await graph.wait_for("done", 15.0)
+            nodes = sorted((n["namespace"], n["name"]) for e in graph.samples for n in e["nodes"])
+        assert nodes == [("/r1", "chassis_bridge"), ("/r2", "chassis_bridge")]
+
+
 @pytest.mark.slow
 @pytest.mark.ros2
 async def test_qos_that_must_not_match_does_not() -> None:
@@ -346,6 +383,7 @@ async def test_chassis_sdk_ros2_refuses_bad_options_in_one_line_before_the_port_
         (("--static-peer", "<x>"), "static peer"),
         (("--static-peer", "0"), "static peer"),  # Cyclone would segfault on it
         (("--static-peer", "::1"), "IPv6"),
+        (("--frame-prefix", "/r1/"), "frame_prefix"),
     ]:
         code, _out, err = await cli("ros2", "/dev/null/none", *args)
         assert code != 0

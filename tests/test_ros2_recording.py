@@ -184,21 +184,25 @@ async def test_a_chassis_session_is_a_rosbag2_file_both_readers_open(tmp_path: P
     assert 0.8 * 50 * span <= len(odometry) - 1 <= 1.2 * 50 * span  # 50 Hz
     for topic, log_time, _ in messages:
         assert started - 1 <= log_time / 1e9 <= ended + 1, topic
+    # Under a namespace the frames carry its prefix: robots share one /tf tree.
     for odom in odometry:
-        assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
+        assert (odom.header.frame_id, odom.child_frame_id) == ("robot1/odom", "robot1/base_link")
         assert started - 1 <= odom.header.stamp.sec + odom.header.stamp.nanosec / 1e9 <= ended + 1
         for matrix in (odom.pose.covariance, odom.twist.covariance):
             assert all(v > 0 for v in matrix.reshape(6, 6).diagonal())
     assert odometry[-1].pose.pose.position.x > 0.05  # it drove forward and turned
     assert odometry[-1].pose.pose.orientation.z > 0.01
     transform = of(messages, "/tf")[-1].transforms[0]
-    assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
+    assert (transform.header.frame_id, transform.child_frame_id) == (
+        "robot1/odom",
+        "robot1/base_link",
+    )
     assert transform.transform.translation.x == odometry[-1].pose.pose.position.x
     battery = of(messages, "/robot1/battery_state")
     assert 1 <= len(battery) <= math.ceil(span) + 1  # 1 Hz from 50 Hz telemetry
     assert battery[0].voltage == pytest.approx(telemetry[0].voltage, abs=1e-5)
     assert math.isnan(battery[0].current)
-    assert battery[0].header.frame_id == "base_link"
+    assert battery[0].header.frame_id == "robot1/base_link"
 
     # mcap-ros2-support: the same messages, decoded by another implementation.
     decoded = every_message_decodes_with_mcap_ros2(bag)
@@ -325,6 +329,7 @@ async def test_the_options_name_the_frames_and_the_static_transforms(tmp_path: P
         static_transforms=[laser],
         pose_covariance=(1, 1, 1, 1, 1, 1),
         metadata={"operator": "test"},
+        frame_prefix="",  # the frames exactly as named (by default: "fleet/r2/" first)
     )
     assert chosen.namespace == "/fleet/r2"
     async with BoardSimulator() as sim, Board(sim.port, record=chosen) as board:

@@ -587,3 +587,33 @@ def test_the_struct_reader_refuses_what_is_not_cdr() -> None:
     for bad in (b"", b"\x00", b"\x01\x00\x00\x00" + bytes(8), b"\x00\x07\x00\x00" + bytes(8)):
         with pytest.raises(ValueError, match="encapsulation"):
             uint8_multiarray_data(bad)
+
+
+@pytest.mark.parametrize(
+    ("namespace", "prefix", "expected"),
+    [
+        ("", None, "odom"),  # no namespace: the frames as named
+        ("r1", None, "r1/odom"),  # a namespace's tokens: robots share one /tf tree
+        ("/fleet/r2/", None, "fleet/r2/odom"),
+        ("r1", "", "odom"),  # asked for none
+        ("", "robot_a/", "robot_a/odom"),
+        ("r1", "custom_", "custom_odom"),
+    ],
+)
+def test_frames_carry_the_namespaces_prefix_unless_told_otherwise(
+    namespace: str, prefix: str | None, expected: str
+) -> None:
+    options = r.Ros2Options(namespace=namespace, frame_prefix=prefix)
+    assert options.frame("odom") == expected
+    static = options.static_for(["imu"])
+    assert [(st.parent, st.child) for st in static] == [
+        (options.frame("base_link"), options.frame("imu_link"))
+    ]
+
+
+@pytest.mark.parametrize(
+    ("prefix", "error"), [("/r1/", ValueError), ("r 1/", ValueError), (3, TypeError)]
+)
+def test_a_bad_frame_prefix_is_refused(prefix: object, error: type[Exception]) -> None:
+    with pytest.raises(error, match="frame_prefix"):
+        r.Ros2Options(namespace="r1", frame_prefix=prefix)  # type: ignore[arg-type]

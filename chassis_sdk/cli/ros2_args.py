@@ -36,6 +36,12 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     device_arg(p, names)
     p.add_argument("--namespace", default="", help="put every relative topic under it")
     p.add_argument(
+        "--frame-prefix",
+        default=None,
+        metavar="PREFIX",
+        help="put before every frame name (default: the namespace's, r1/ for --namespace r1)",
+    )
+    p.add_argument(
         "--domain-id",
         type=DOMAIN,
         default=None,

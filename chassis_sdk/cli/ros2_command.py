@@ -25,13 +25,14 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
     try:
         from ..integrations.ros2 import Ros2Bridge
         from ..integrations.ros2.dds import discovery_from_env
-        from ..recording.ros2_types import check_namespace
+        from ..recording.ros2_types import Ros2Options
     except ImportError as exc:
         raise ChassisError(
             f"ros2 needs cyclonedds: pip install 'chassis-sdk[ros2]' ({exc})"
         ) from None
     try:  # before the device opens
-        namespace = check_namespace(args.namespace)
+        names = Ros2Options(namespace=args.namespace, frame_prefix=args.frame_prefix)
+        namespace = names.namespace
         discovery = discovery_from_env(
             domain_id=args.domain_id,
             localhost=args.localhost or None,
@@ -50,6 +51,7 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
             tf=not args.no_tf,
             read_only=args.read_only,
             command_timeout=args.command_timeout,
+            frame_prefix=args.frame_prefix,
         )
         async with anyio.create_task_group() as tg:
             tg.start_soon(bridge.run, name="ros2 bridge")

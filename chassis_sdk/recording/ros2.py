@@ -162,6 +162,7 @@ def rosbag(
     twist_covariance: Sequence[float] | None = None,
     flush_interval: float = FLUSH_INTERVAL,
     metadata: Mapping[str, str] | None = None,
+    frame_prefix: str | None = None,
 ) -> Rosbag:
     """Choose a rosbag2 recording (the ROS 2 profile of MCAP) where a recording's file
     goes: a device's ``record`` option or `chassis_sdk.recording.capture.record`.
@@ -178,7 +179,7 @@ def rosbag(
         path: The ``.mcap`` file (overwritten when the recording starts).
         namespace: Where the relative topics go (``robot1`` → ``/robot1/odom``).
         frame_id, child_frame_id, imu_frame_id, static_transforms, pose_covariance,
-            twist_covariance: See
+            twist_covariance, frame_prefix: See
             `Ros2Options` (``/tf_static``
             is written once at the start, and only when it holds something).
         flush_interval, metadata: See `Rosbag`.
@@ -206,6 +207,7 @@ def rosbag(
         static_transforms=static_transforms,
         pose_covariance=pose_covariance,
         twist_covariance=twist_covariance,
+        frame_prefix=frame_prefix,
     )
     return Rosbag(
         Path(path),

@@ -24,6 +24,7 @@ expects (``wall_time`` converts a reading's ``time.monotonic()`` timestamp).
 Needs the ``ros2`` extra (``cyclonedds``).
 """
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -847,10 +848,15 @@ class Ros2Options:
             pose; ``None``: `DEFAULT_POSE_COVARIANCE`.
         twist_covariance: The same for its twist (``None``: `DEFAULT_TWIST_COVARIANCE`).
         tf: Publish odom → base_link on ``/tf`` too (``False`` when an EKF does).
+        frame_prefix: Put before every frame name in the messages (`frame`), so that
+            several robots share one ``/tf`` tree (robot_state_publisher's
+            ``frame_prefix``): ``None`` (the default) is the namespace's, ``/robot1`` →
+            ``robot1/`` (``robot1/odom``, ``robot1/base_link``), and none without a
+            namespace; ``""``: none.
 
     Raises:
         TypeError: An option of the wrong type.
-        ValueError: A bad namespace, frame, static transform or covariance.
+        ValueError: A bad namespace, frame, frame prefix, static transform or covariance.
     """
 
     namespace: str = ""
@@ -861,12 +867,19 @@ class Ros2Options:
     pose_covariance: Sequence[float] | None = None
     twist_covariance: Sequence[float] | None = None
     tf: bool = True
+    frame_prefix: str | None = None
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
         put("namespace", check_namespace(self.namespace))
+        if self.frame_prefix is None:
+            put("frame_prefix", f"{self.namespace.strip('/')}/" if self.namespace else "")
+        elif not isinstance(self.frame_prefix, str):
+            raise TypeError(f"frame_prefix must be a str, got {type(self.frame_prefix).__name__}")
+        elif self.frame_prefix:
+            check_frame(self.frame_prefix + "x", "frame_prefix")
         for name in ("frame_id", "child_frame_id", "imu_frame_id"):
             check_frame(getattr(self, name), name)
         if self.static_transforms is not None:
@@ -896,13 +909,22 @@ class Ros2Options:
                 put(name, tuple(float(v) for v in value))
         put("tf", bool(self.tf))
 
+    def frame(self, name: str) -> str:
+        """A frame's name in the messages: ``name`` after `frame_prefix`."""
+        return f"{self.frame_prefix}{name}"
+
     def static_for(self, streams: Iterable[str]) -> tuple[StaticTransform, ...]:
-        """What ``/tf_static`` holds for a device with these streams."""
+        """What ``/tf_static`` holds for a device with these streams (prefixed)."""
         if self.static_transforms is not None:
-            return tuple(self.static_transforms)
-        if "imu" in streams:
-            return (StaticTransform(self.child_frame_id, self.imu_frame_id),)
-        return ()
+            chosen = tuple(self.static_transforms)
+        elif "imu" in streams:
+            chosen = (StaticTransform(self.child_frame_id, self.imu_frame_id),)
+        else:
+            chosen = ()
+        return tuple(
+            dataclasses.replace(st, parent=self.frame(st.parent), child=self.frame(st.child))
+            for st in chosen
+        )
 
 
 class Translator:
@@ -995,8 +1017,8 @@ class Translator:
                 odometry_message(
                     sample,
                     epoch,
-                    frame_id=o.frame_id,
-                    child_frame_id=o.child_frame_id,
+                    frame_id=o.frame(o.frame_id),
+                    child_frame_id=o.frame(o.child_frame_id),
                     pose_covariance=self._pose_cov,
                     twist_covariance=self._twist_cov,
                 ),
@@ -1004,16 +1026,20 @@ class Translator:
         ]
         if o.tf:
             tf = transform_message(
-                sample, epoch, frame_id=o.frame_id, child_frame_id=o.child_frame_id
+                sample,
+                epoch,
+                frame_id=o.frame(o.frame_id),
+                child_frame_id=o.frame(o.child_frame_id),
             )
             out.append(("tf", tf))
         return out
 
     def _imu(self, sample: Any, epoch: float) -> list[tuple[str, Any]]:
-        return [("imu", imu_message(sample, epoch, frame_id=self.options.imu_frame_id))]
+        frame = self.options.frame(self.options.imu_frame_id)
+        return [("imu", imu_message(sample, epoch, frame_id=frame))]
 
     def _battery(self, reading: Any, epoch: float) -> list[tuple[str, Any]]:
-        frame = self.options.child_frame_id
+        frame = self.options.frame(self.options.child_frame_id)
         return [
             ("battery_state", charge_message(reading.voltage, epoch, self.battery, frame_id=frame))
         ]

@@ -118,6 +118,8 @@ class Ros2Bridge:
         static_transforms: What ``/tf_static`` holds (default: a board's
             ``base_link`` → ``imu_link``, identity; a chassis none).
         diagnostics_period: Seconds between two ``/diagnostics`` messages.
+        frame_prefix: Put before every frame name (``None``: the namespace's,
+            ``robot1/``; ``""``: none): two robots share one ``/tf`` tree.
 
     Raises:
         TypeError, ValueError: A bad option (before anything is created).
@@ -142,6 +144,7 @@ class Ros2Bridge:
         twist_covariance: Sequence[float] | None = None,
         static_transforms: Sequence[StaticTransform] | None = None,
         diagnostics_period: float = 1.0,
+        frame_prefix: str | None = None,
     ) -> None:
         self.device = device
         #: The names, frames and covariances (the rosbag2 recorder takes the same).
@@ -154,6 +157,7 @@ class Ros2Bridge:
             pose_covariance=pose_covariance,
             twist_covariance=twist_covariance,
             tf=tf,
+            frame_prefix=frame_prefix,
         )
         self.namespace = self.options.namespace
         self.discovery = discovery if discovery is not None else discovery_from_env()
