@@ -57,6 +57,7 @@ if TYPE_CHECKING:
     from .core.diagnosis import Diagnosis
     from .core.dispatch import Listener, ListenerStats, Subscription
     from .core.events import EventKind, RobotEvent
+    from .core.geometry import Geometry
     from .core.motion import MotionLimits, MoveResult
     from .core.motion.safety import Geofence, Reflex, SafetyPolicy
     from .core.notifier import Notifier
@@ -104,6 +105,7 @@ _LAZY = {
     "Notifier": ".core.notifier",
     "EventKind": ".core.events",
     "RobotEvent": ".core.events",
+    "Geometry": ".core.geometry",
     "Odometry": ".core.odometry",
     "run": ".core.run",
     "MotionLimits": ".core.motion",
@@ -159,6 +161,7 @@ __all__ = [
     "DriverStatus",
     "EventKind",
     "Geofence",
+    "Geometry",
     "ImuSample",
     "ImuScale",
     "LinkStats",

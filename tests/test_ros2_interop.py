@@ -17,14 +17,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import math
 from collections.abc import AsyncIterator, Iterator
 from typing import Any
+from xml.etree import ElementTree
 
 import anyio
 import pytest
 
 from chassis_sdk import Board, Chassis
+from chassis_sdk.core.geometry import FOUR_WHEELS
 from chassis_sdk.devices.chassis.messages import DriveVelocity
 from chassis_sdk.integrations.ros2 import Ros2Bridge
 from chassis_sdk.integrations.ros2.dds import Discovery
@@ -35,6 +38,7 @@ from .support.cli import CLI, ROOT, cli, one_line
 from .support.dds_peer import FAST_DDS, Event, start_peer, use_fast_dds
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
+from .support.urdf import check_urdf
 
 pytestmark = [pytest.mark.integration, pytest.mark.netns, pytest.mark.timeout(90)]
 
@@ -250,6 +254,51 @@ async def test_ros_discovery_info_names_the_node_and_exactly_the_endpoints_peers
                 "rt/robot1/odom",
                 "rt/tf",
             ]
+
+
+@pytest.mark.ros2
+async def test_rviz_draws_the_robot_from_its_robot_description_and_joint_states() -> None:
+    # What robot_state_publisher and RViz read: the latched URDF (checked by urdfdom,
+    # ROS's own parser) with the chassis's size and four wheels, and the wheels'
+    # joint_states at the telemetry rate, turning as the robot drives.
+    async with (
+        ChassisSimulator() as sim,
+        Chassis(sim.port) as robot,
+        bridged(robot, namespace="r1"),
+    ):
+        info = await robot.get_chassis_info()
+        args = ("sub", "string", "rt/r1/robot_description", "--transient-local", "--count", "1")
+        async with await start_peer(*args) as described:
+            await described.wait_for("done", 15.0)
+            (sample,) = described.samples
+        tree = await asyncio.to_thread(check_urdf, sample["data"])
+        assert "root Link: r1/base_link has 4 child(ren)" in tree
+        joints = {j.get("name"): j for j in ElementTree.fromstring(sample["data"]).iter("joint")}
+        origin = joints["front_left_wheel_joint"].find("origin")
+        assert origin is not None
+        assert origin.get("xyz") == f"{info.wheelbase / 2:g} {info.track_width / 2:g} 0"
+        async with anyio.create_task_group() as tg:
+
+            async def drive() -> None:
+                while True:  # within the deadman
+                    await robot.set_velocity(0.3, 0.0)
+                    await asyncio.sleep(0.1)
+
+            tg.start_soon(drive)
+            await until(lambda: (t := robot.latest_telemetry) is not None and t.linear > 0.29)
+            states = ("sub", "joint_state", "rt/r1/joint_states", "--count", "50")
+            async with await start_peer(*states) as peer:
+                await peer.wait_for("done", 15.0)
+            tg.cancel_scope.cancel()
+        stamps = [s["stamp"]["sec"] + s["stamp"]["nanosec"] / 1e9 for s in peer.samples]
+        assert 0.8 / 50 <= (stamps[-1] - stamps[0]) / 49 <= 1.25 / 50  # the telemetry's 50 Hz
+        last = peer.samples[-1]
+        assert last["name"] == [f"{w}_wheel_joint" for w in FOUR_WHEELS]
+        radius = info.wheel_diameter / 2
+        assert last["velocity"] == pytest.approx([0.3 / radius] * 4, rel=0.05)
+        angles = [s["position"][0] for s in peer.samples]  # in [-pi, pi]: unwrapped here
+        turned = sum(math.remainder(b - a, math.tau) for a, b in itertools.pairwise(angles))
+        assert turned == pytest.approx(0.3 / radius * (stamps[-1] - stamps[0]), rel=0.1)
 
 
 @pytest.mark.ros2

@@ -135,7 +135,16 @@ def test_nothing_missing_touches_nothing(tmp_path: Path) -> None:
     stand_in(bin_dir, "id", "echo 1000")
     stand_in(bin_dir, "dpkg-query", "echo 'install ok installed'")
     stand_in(bin_dir, "apt-get", "echo apt-get >&2; exit 99")
-    for command in ("fastddsgen", "g++", "ip", "unshare", "mosquitto", "chromium", "tmux"):
+    for command in (
+        "fastddsgen",
+        "g++",
+        "ip",
+        "unshare",
+        "mosquitto",
+        "chromium",
+        "tmux",
+        "check_urdf",
+    ):
         stand_in(bin_dir, command, "exit 0")
     include = Path("/usr/include/fastdds/dds/domain/DomainParticipantFactory.hpp")
     if not include.exists():

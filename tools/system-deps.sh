@@ -11,6 +11,8 @@
 #                    Playwright, which downloads no browser of its own
 #   fonts-dejavu-core  text for Chromium to render (the docs' screenshot, the pages)
 #   tmux             the terminal teleop's tests type into a real terminal
+#   liburdfdom-tools `check_urdf`: ROS's own URDF parser (urdfdom, what
+#                    robot_state_publisher reads with) checks the bridge's robot_description
 #   python3-venv, python3-dev  Debian's Python: `python3 -m venv` (README's commands), and
 #                    the headers the compiled fast path builds against
 #   debootstrap      makes a Debian 13 root with Fast DDS 3 (libfastdds-dev 3.1,
@@ -24,7 +26,7 @@
 set -eu
 
 packages="mosquitto fastddsgen libfastrtps-dev libfastcdr-dev g++ iproute2 util-linux
-    chromium fonts-dejavu-core tmux python3-venv python3-dev debootstrap"
+    chromium fonts-dejavu-core tmux liburdfdom-tools python3-venv python3-dev debootstrap"
 debian13=${CHASSIS_SDK_DEBIAN13:-/var/cache/chassis-sdk/debian13}
 
 installed() {
@@ -49,6 +51,7 @@ command -v unshare >/dev/null 2>&1 || need util-linux
 command -v mosquitto >/dev/null 2>&1 || [ -x /usr/sbin/mosquitto ] || need mosquitto
 command -v chromium >/dev/null 2>&1 || need chromium
 command -v tmux >/dev/null 2>&1 || need tmux
+command -v check_urdf >/dev/null 2>&1 || need liburdfdom-tools
 [ -f /usr/include/fastdds/dds/domain/DomainParticipantFactory.hpp ] || need libfastrtps-dev
 
 # The Debian 13 root is complete once its last step wrote this file.

@@ -89,8 +89,8 @@ TABLE_KEYS: Mapping[str, frozenset[str]] = {
         "ports": "json",
         "record": "ros2 namespace",
         "replay": "json speed",
-        "ros2": "namespace domain_id stamped no_tf read_only localhost static_peer "
-        "max_linear max_angular command_timeout",
+        "ros2": "namespace frame_prefix domain_id stamped no_tf no_description read_only "
+        "localhost static_peer max_linear max_angular command_timeout",
         "serve": "foxglove_port host read_only allow_origin token_file record max_linear "
         "max_angular command_timeout",
         "sim": "tcp noise bit_flips drop reply_delay world",

@@ -53,6 +53,11 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         help="read cmd_vel as geometry_msgs/TwistStamped (Jazzy's diff_drive_controller)",
     )
     p.add_argument("--no-tf", action="store_true", help="no odom -> base_link on /tf (an EKF does)")
+    p.add_argument(
+        "--no-description",
+        action="store_true",
+        help="no robot_description or joint_states (your robot_state_publisher has a URDF)",
+    )
     p.add_argument("--read-only", action="store_true", help="subscribe to nothing; never write")
     p.add_argument(
         "--localhost",

@@ -52,6 +52,7 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
             read_only=args.read_only,
             command_timeout=args.command_timeout,
             frame_prefix=args.frame_prefix,
+            description=not args.no_description,
         )
         async with anyio.create_task_group() as tg:
             tg.start_soon(bridge.run, name="ros2 bridge")

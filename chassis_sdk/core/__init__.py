@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from .events import EdgeDetector, EventKind, RobotEvent
     from .firmware import Firmware, FirmwareModel, next_slot
     from .framing import INVALID, NEED_DATA, DecoderStats, FrameDecoder, FrameTable
+    from .geometry import Geometry
     from .motion import FrameBuilder, MotionLimits
     from .notifier import Notifier
     from .stats import LinkStats
@@ -68,6 +69,7 @@ _LAZY = {
     "EdgeDetector": ".events",
     "EventKind": ".events",
     "RobotEvent": ".events",
+    "Geometry": ".geometry",
     "Firmware": ".firmware",
     "FirmwareModel": ".firmware",
     "next_slot": ".firmware",
@@ -94,6 +96,7 @@ __all__ = [
     "FrameBuilder",
     "FrameDecoder",
     "FrameTable",
+    "Geometry",
     "LinkStats",
     "Listener",
     "ListenerStats",

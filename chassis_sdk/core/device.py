@@ -33,6 +33,7 @@ from .calibration import Calibration
 from .diagnosis import Diagnosis, Findings
 from .dispatch import Subscription
 from .events import EventKind, RobotEvent
+from .geometry import Geometry
 from .motion import Axes, FrameBuilder, Motion, MotionLimits
 from .motion.goal import MoveResult
 from .motion.goals import Goals
@@ -501,6 +502,16 @@ class Device(Session[M, K]):
         or ``None`` if none has."""
         last = self._link.last_frame_time
         return None if last is None else time.monotonic() - last
+
+    async def geometry(self) -> Geometry | None:
+        """The base's size (what the ROS 2 bridge's robot description is made from), as
+        the device reports it; ``None`` for a device that does not (the default).
+
+        Raises:
+            RequestTimeoutError, ConnectionLostError, NotConnectedError: As the
+                device's requests do, for a device that asks.
+        """
+        return None
 
     async def verify(self, timeout: float = 3.0) -> None:
         """Make sure the device on the port is this one: wait until a valid frame of

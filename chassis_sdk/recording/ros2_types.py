@@ -38,6 +38,7 @@ from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as t
 
 from ..core.battery import OCV_CURVES, BatteryModel
+from ..core.geometry import Geometry
 from ..core.plain import wall_time
 
 __all__ = [
@@ -50,6 +51,7 @@ __all__ = [
     "DIAGNOSTIC_OK",
     "DIAGNOSTIC_STALE",
     "DIAGNOSTIC_WARN",
+    "JOINT_GAP",
     "TOPICS",
     "BatteryState",
     "Bool",
@@ -57,6 +59,7 @@ __all__ = [
     "DiagnosticStatus",
     "Header",
     "Imu",
+    "JointState",
     "KeyValue",
     "MultiArrayDimension",
     "MultiArrayLayout",
@@ -67,6 +70,7 @@ __all__ = [
     "Quaternion",
     "Ros2Options",
     "StaticTransform",
+    "String",
     "TFMessage",
     "Time",
     "TopicSpec",
@@ -123,6 +127,13 @@ class Bool(IdlStruct, typename="std_msgs::msg::dds_::Bool_"):
     """``std_msgs/msg/Bool``."""
 
     data: bool = False
+
+
+@dataclass
+class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+    """``std_msgs/msg/String``: ``robot_description``'s URDF."""
+
+    data: str = ""
 
 
 @dataclass
@@ -260,6 +271,17 @@ class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
     angular_velocity_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
     linear_acceleration: Vector3 = field(default_factory=Vector3)
     linear_acceleration_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+
+
+@dataclass
+class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+    """``sensor_msgs/msg/JointState``: the wheels' angles (rad) and speeds (rad/s)."""
+
+    header: Header = field(default_factory=Header)
+    name: t.sequence[str] = field(default_factory=list)
+    position: t.sequence[t.float64] = field(default_factory=list)
+    velocity: t.sequence[t.float64] = field(default_factory=list)
+    effort: t.sequence[t.float64] = field(default_factory=list)
 
 
 @dataclass
@@ -598,6 +620,10 @@ TOPICS: Final[dict[str, TopicSpec]] = {
     "battery_state": TopicSpec("battery_state", BatteryState, "out"),
     "diagnostics": TopicSpec("/diagnostics", DiagnosticArray, "out"),
     "imu": TopicSpec("imu/data_raw", Imu, "out"),
+    "joint_states": TopicSpec("joint_states", JointState, "out"),
+    "robot_description": TopicSpec(
+        "robot_description", String, "out", durability="transient_local", depth=1
+    ),
 }
 
 # --- from the SDK's readings to messages -------------------------------------------------------
@@ -829,6 +855,9 @@ def static_transforms_message(transforms: Iterable[StaticTransform], epoch: floa
 
 #: Least seconds between two ``battery_state`` messages from a 50 Hz telemetry stream.
 BATTERY_PERIOD: Final = 1.0
+#: The longest time between two telemetry readings that the wheels' angles integrate
+#: over (s): a longer gap (the link lost) adds nothing rather than a guess.
+JOINT_GAP: Final = 0.5
 
 
 @dataclass(frozen=True)
@@ -933,7 +962,10 @@ class Translator:
 
     ``odometry`` gives ``odom`` (and ``/tf``), ``imu`` ``imu/data_raw``, ``battery``
     ``battery_state``; without a ``battery`` stream, ``telemetry`` that carries a
-    ``voltage`` gives ``battery_state`` at most once per `BATTERY_PERIOD`.
+    ``voltage`` gives ``battery_state`` at most once per `BATTERY_PERIOD`. With a
+    ``geometry``, ``telemetry`` that carries ``wheels`` (each wheel's speed, m/s) gives
+    ``joint_states``: each wheel's ``<wheel>_wheel_joint`` speed (rad/s) and angle (rad,
+    integrated from the speeds; a gap over `JOINT_GAP` adds nothing).
 
     With ``forward_only`` (the live bridge), odometry stamps only go forward: a reading
     stamped no later than the last one published (two frames that came in one read
@@ -947,9 +979,11 @@ class Translator:
         battery: The device's ``battery_model`` (``None``: none): ``battery_state``
             then carries its state of charge (see `charge_message`).
         forward_only: Drop odometry stamped no later than the last (see above).
+        geometry: The base's size (``None``: no ``joint_states``).
 
     Raises:
-        TypeError: ``battery`` is not a ``BatteryModel`` or ``None``.
+        TypeError: ``battery`` is not a ``BatteryModel`` or ``None``; ``geometry`` not
+            a ``Geometry`` or ``None``.
     """
 
     def __init__(
@@ -959,9 +993,18 @@ class Translator:
         *,
         battery: BatteryModel | None = None,
         forward_only: bool = False,
+        geometry: Geometry | None = None,
     ) -> None:
         if battery is not None and not isinstance(battery, BatteryModel):
             raise TypeError(f"battery must be a BatteryModel or None, got {battery!r}")
+        if geometry is not None and not isinstance(geometry, Geometry):
+            raise TypeError(f"geometry must be a Geometry or None, got {geometry!r}")
+        self.geometry = geometry
+        self._joint_names = (
+            [f"{wheel}_wheel_joint" for wheel in geometry.wheels] if geometry else []
+        )
+        self._angles = [0.0] * len(self._joint_names)
+        self._last_joints = -math.inf
         self.options = options
         #: The state-of-charge estimator read for each ``battery_state``, or ``None``.
         self.battery = battery
@@ -980,8 +1023,12 @@ class Translator:
             table["imu"] = (("imu",), self._imu)
         if "battery" in names:
             table["battery"] = (("battery_state",), self._battery)
-        elif "telemetry" in names:
-            table["telemetry"] = (("battery_state",), self._telemetry)
+        if "telemetry" in names:
+            keys = () if "battery" in names else ("battery_state",)
+            if geometry is not None:
+                keys += ("joint_states",)
+            if keys:
+                table["telemetry"] = (keys, self._telemetry)
         self._table = table
         #: The streams to listen to.
         self.streams: tuple[str, ...] = tuple(table)
@@ -1045,12 +1092,37 @@ class Translator:
         ]
 
     def _telemetry(self, telemetry: Any, epoch: float) -> list[tuple[str, Any]]:
+        out = self._joints(telemetry, epoch) if self.geometry is not None else []
+        if "battery_state" not in self._table["telemetry"][0]:
+            return out
         voltage = getattr(telemetry, "voltage", None)
         at = telemetry.timestamp or time.monotonic()
         if not isinstance(voltage, float) or at - self._last_battery < BATTERY_PERIOD:
-            return []
+            return out
         self._last_battery = at
-        return self._battery(telemetry, epoch)
+        return out + self._battery(telemetry, epoch)
+
+    def _joints(self, telemetry: Any, epoch: float) -> list[tuple[str, Any]]:
+        geometry = self.geometry
+        wheels = getattr(telemetry, "wheels", None)
+        if geometry is None or wheels is None:
+            return []
+        speeds = [getattr(wheels, wheel) / geometry.wheel_radius for wheel in geometry.wheels]
+        at = telemetry.timestamp
+        dt = at - self._last_joints
+        self._last_joints = at
+        if 0 < dt <= JOINT_GAP:
+            self._angles = [
+                math.remainder(a + w * dt, math.tau)
+                for a, w in zip(self._angles, speeds, strict=True)
+            ]
+        message = JointState(
+            header=Header(stamp=stamp(epoch)),
+            name=list(self._joint_names),
+            position=list(self._angles),
+            velocity=speeds,
+        )
+        return [("joint_states", message)]
 
 
 def _all_types() -> tuple[type, ...]:

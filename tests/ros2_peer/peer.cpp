@@ -21,7 +21,8 @@
 //       Exit 0; 3 when no reader matched in time.
 //   peer sub <kind> <dds_topic> [--duration S] [--count N] [--best-effort]
 //            [--transient-local] [--domain N] [--unicast]
-//       kind: twist | twist_stamped | bool | odometry | tf | battery | imu | graph
+//       kind: twist | twist_stamped | bool | odometry | tf | battery | imu | graph |
+//             string | joint_state
 //       (graph: rmw_dds_common/ParticipantEntitiesInfo, what rmw publishes on
 //       ros_discovery_info; subscribe to it with --transient-local, as rmw does)
 //       Prints one line per sample received, for --duration seconds (default 10) or
@@ -310,6 +311,21 @@ static void describe(Json& j, const gm::TwistStamped_& m)
 }
 
 static void describe(Json& j, const stdm::Bool_& m) { j.boolean("data", m.data()); }
+
+static void describe(Json& j, const stdm::String_& m) { j.str("data", m.data()); }
+
+static void describe(Json& j, const sm::JointState_& m)
+{
+    header(j, m.header());
+    std::string names = "[";
+    for (const auto& n : m.name()) {
+        names += (names.size() > 1 ? "," : "") + quoted(n);
+    }
+    j.raw("name", names + "]")
+        .raw("position", array(m.position(), false))
+        .raw("velocity", array(m.velocity(), false))
+        .raw("effort", array(m.effort(), false));
+}
 
 static void describe(Json& j, const nm::Odometry_& m)
 {
@@ -936,8 +952,10 @@ int main(int argc, char** argv)
     if (o.kind == "tf") return run_sub<tf::TFMessage_, tf::TFMessage_PubSubType>(o);
     if (o.kind == "battery") return run_sub<sm::BatteryState_, sm::BatteryState_PubSubType>(o);
     if (o.kind == "imu") return run_sub<sm::Imu_, sm::Imu_PubSubType>(o);
+    if (o.kind == "string") return run_sub<stdm::String_, stdm::String_PubSubType>(o);
+    if (o.kind == "joint_state") return run_sub<sm::JointState_, sm::JointState_PubSubType>(o);
     if (o.kind == "graph") {
         return run_sub<rmw::ParticipantEntitiesInfo_, rmw::ParticipantEntitiesInfo_PubSubType>(o);
     }
-    usage("sub kind is twist, twist_stamped, bool, odometry, tf, battery, imu or graph, not '" + o.kind + "'");
+    usage("sub kind is twist, twist_stamped, bool, odometry, tf, battery, imu, graph, string or joint_state, not '" + o.kind + "'");
 }

@@ -10,6 +10,7 @@ import anyio
 import anyio.lowlevel
 
 from ...core.dispatch import Broadcast, Subscription
+from ...core.geometry import Geometry
 from ...core.motion import FrameBuilder, frame_builder
 from ...core.validation import check_duration, check_real
 from ...errors import ProtocolError, RequestTimeoutError
@@ -356,6 +357,12 @@ class Chassis(ChassisCommands, FromConfig):
         [`get_firmware_version`][chassis_sdk.Chassis.get_firmware_version]."""
         reply: ChassisInfo = await self._read(CommandId.CHASSIS_INFO)
         return reply
+
+    async def geometry(self) -> Geometry:
+        """The base's size from `get_chassis_info` (its four wheels, the radius half the
+        diameter). Raises as `get_firmware_version`."""
+        info = await self.get_chassis_info()
+        return Geometry(info.track_width, info.wheelbase, info.wheel_diameter / 2)
 
     async def get_ship_date(self) -> datetime.date:
         """Read the ship date (0x0A → 0x8A).

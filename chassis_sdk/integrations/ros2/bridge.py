@@ -19,7 +19,13 @@ ROS name             type                        dir  what
 ``battery_state``    ``sensor_msgs/BatteryState`` out the battery voltage (1 Hz for a chassis)
 ``/diagnostics``     ``DiagnosticArray``         out  the device's health, 1 Hz
 ``imu/data_raw``     ``sensor_msgs/Imu``         out  a board's IMU (m/s², rad/s)
+``robot_description`` ``std_msgs/String``        out  a URDF made from the device (latched)
+``joint_states``     ``sensor_msgs/JointState``  out  the wheels' angles and speeds (a chassis)
 ===================  ==========================  ===  ==========================================
+
+``robot_description`` and ``joint_states`` let robot_state_publisher and RViz draw the
+base with no description package (`description.urdf`); ``description=False`` leaves
+both to the user's own.
 
 Why it is shaped this way
 -------------------------
@@ -75,6 +81,7 @@ import anyio
 from cyclonedds.core import DDSException
 
 from ...core.device import Device
+from ...core.geometry import Geometry
 from ...core.notifier import Notifier
 from ...core.supervisor import ConnectionState
 from ...core.validation import check_real
@@ -84,6 +91,7 @@ from ...recording.ros2_types import TOPICS, Ros2Options, StaticTransform, Transl
 from ..inbound import Refusals
 from .commands import Inbound
 from .dds import Discovery, Participant, Reader, Writer, discovery_from_env
+from .description import urdf
 
 __all__ = ["Ros2Bridge", "StaticTransform"]
 
@@ -120,6 +128,10 @@ class Ros2Bridge:
         diagnostics_period: Seconds between two ``/diagnostics`` messages.
         frame_prefix: Put before every frame name (``None``: the namespace's,
             ``robot1/``; ``""``: none): two robots share one ``/tf`` tree.
+        description: Publish ``robot_description`` and ``joint_states`` (``False``:
+            the user's robot_state_publisher has a description of its own).
+        geometry: The base's size for them (``None``: what the device reports when the
+            bridge starts, `Device.geometry`; a read-only bridge asks nothing).
 
     Raises:
         TypeError, ValueError: A bad option (before anything is created).
@@ -145,6 +157,8 @@ class Ros2Bridge:
         static_transforms: Sequence[StaticTransform] | None = None,
         diagnostics_period: float = 1.0,
         frame_prefix: str | None = None,
+        description: bool = True,
+        geometry: Geometry | None = None,
     ) -> None:
         self.device = device
         #: The names, frames and covariances (the rosbag2 recorder takes the same).
@@ -178,16 +192,18 @@ class Ros2Bridge:
             else check_real(max_angular, "max_angular", low=0, low_open=True)
         )
         self._device_any: Any = device
+        if geometry is not None and not isinstance(geometry, Geometry):
+            raise TypeError(f"geometry must be a Geometry or None, got {geometry!r}")
+        self.description = bool(description)
+        #: The base's size (the device's, once the bridge started, unless given).
+        self.geometry = geometry
         self.diagnostics_period = check_real(
             diagnostics_period, "diagnostics_period", low=0, low_open=True, unit="s"
         )
         with Notifier(device) as notifier:
-            streams = notifier.stream_names
+            self._streams = notifier.stream_names
         #: What the device's readings give: the topics and each reading's messages.
-        # The device's battery model (if any) gives BatteryState.percentage.
-        self.translator = Translator(
-            self.options, streams, battery=device.battery_model, forward_only=True
-        )
+        self.translator = self._translator()
         self._refusals = Refusals(1.0)
         #: What comes in: ``cmd_vel`` and ``emergency_stop``, through the motion core.
         self.inbound = Inbound(
@@ -214,6 +230,27 @@ class Ros2Bridge:
         self._queued: dict[str, deque[Any]] = {}
         self._ready = asyncio.Event()
         self._lost = False
+
+    def _translator(self) -> Translator:
+        # The device's battery model (if any) gives BatteryState.percentage.
+        return Translator(
+            self.options,
+            self._streams,
+            battery=self.device.battery_model,
+            forward_only=True,
+            geometry=self.geometry if self.description else None,
+        )
+
+    async def _read_geometry(self) -> None:
+        """The device's size, for ``robot_description`` and ``joint_states``."""
+        if not self.description or self.geometry is not None or self.read_only:
+            return
+        try:
+            self.geometry = await self.device.geometry()
+        except ChassisError as exc:
+            _log.warning("robot_description: the device's size could not be read (%s)", exc)
+        if self.geometry is not None:
+            self.translator = self._translator()
 
     @property
     def commands(self) -> int:
@@ -252,6 +289,7 @@ class Ros2Bridge:
         """
         loop = asyncio.get_running_loop()
         self.discovery = await self.discovery.resolved()  # a name Cyclone cannot use aborts it
+        await self._read_geometry()
         try:
             participant = Participant(self.discovery, self.namespace)
         except DDSException as exc:
@@ -290,6 +328,12 @@ class Ros2Bridge:
             static = participant.writer(TOPICS["tf_static"])
             self._writers.append(static)
             static.write(translator.static_message(time.time()))
+        if self.description:
+            described = participant.writer(TOPICS["robot_description"])
+            self._writers.append(described)
+            name = type(self.device).__name__.lower()
+            text = urdf(self.geometry, self.options, self._streams, name=name)
+            described.write(msg.String(data=text))
         self._ready = asyncio.Event()
         self._lost = False
         self._queued = {}
