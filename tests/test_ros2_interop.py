@@ -251,7 +251,9 @@ async def test_ros_discovery_info_names_the_node_and_exactly_the_endpoints_peers
             assert sorted(found("writer").values()) == [
                 "rt/diagnostics",
                 "rt/robot1/battery_state",
+                "rt/robot1/joint_states",
                 "rt/robot1/odom",
+                "rt/robot1/robot_description",
                 "rt/tf",
             ]
 
@@ -412,7 +414,11 @@ async def test_chassis_sdk_ros2_puts_a_simulated_chassis_on_the_graph_and_stops_
                 await start_peer(*teleop_args, "--linear", "0.3", "--hold", "10"),
             ):
                 await nav2.wait_for("done", 15.0)
-                assert nav2.samples[-1]["frame_id"] == "odom"
+                last = nav2.samples[-1]
+                assert (last["frame_id"], last["child_frame_id"]) == (
+                    "robot1/odom",
+                    "robot1/base_link",
+                )
                 await until(lambda: any(c.linear_mm == 300 for _, c in drives(sim)), 5.0)
                 async with asyncio.timeout(15):
                     out, err = await bridge.communicate()  # --seconds ran out
