@@ -408,12 +408,12 @@ async def test_odometry_tf_battery_and_diagnostics_from_a_chassis() -> None:
         rate = len(got["odom"]) / (time.monotonic() - started)
         assert rate > 25  # the chassis's 50 Hz, less discovery
         o = got["odom"][-1]
-        assert (o.header.frame_id, o.child_frame_id) == ("odom", "base_link")
+        assert (o.header.frame_id, o.child_frame_id) == ("robot1/odom", "robot1/base_link")
         assert abs(o.header.stamp.sec + o.header.stamp.nanosec * 1e-9 - time.time()) < 1.0
         assert all(o.pose.covariance[i * 7] > 0 for i in range(6))
         assert all(o.twist.covariance[i * 7] > 0 for i in range(6))
         t = got["tf"][-1].transforms[0]
-        assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+        assert (t.header.frame_id, t.child_frame_id) == ("robot1/odom", "robot1/base_link")
         bat = got["battery"][-1]
         assert bat.voltage == pytest.approx(sim.firmware.battery_voltage, abs=0.1)
         assert math.isnan(bat.percentage)
