@@ -25,7 +25,7 @@ from cyclonedds.topic import Topic
 
 from chassis_sdk import Board, Chassis, ConnectionLostError
 from chassis_sdk.devices.chassis.messages import DriveVelocity
-from chassis_sdk.integrations.ros2 import Ros2Bridge
+from chassis_sdk.integrations.ros2 import Ros2Bridge, dds
 from chassis_sdk.integrations.ros2.dds import (
     Discovery,
     Participant,
@@ -161,8 +161,9 @@ def test_discovery_follows_ros2s_variables() -> None:
     d = discovery_from_env({})
     assert (d.domain_id, d.range, d.static_peers, d.sets_discovery) == (0, "SUBNET", (), False)
     # No discovery setting: Cyclone's defaults, but always what Fast DDS 3 needs, then
-    # the user's CYCLONEDDS_URI (which wins on what it sets).
-    compat = "<Compatibility><IgnoreTypeInformation>1.15</IgnoreTypeInformation></Compatibility>"
+    # the user's CYCLONEDDS_URI (which wins on what it sets). (Cyclone 0.10 has no such
+    # setting: `fast_dds_3_compatibility` is empty there, tested above.)
+    compat = fast_dds_3_compatibility()
     assert d.config() == f'<CycloneDDS><Domain Id="any">{compat}</Domain></CycloneDDS>'
     assert d.config("file:///etc/cyclone.xml") == f"{d.config()},file:///etc/cyclone.xml"
     d = discovery_from_env({"ROS_DOMAIN_ID": "42", "ROS_AUTOMATIC_DISCOVERY_RANGE": "localhost"})
@@ -194,6 +195,24 @@ def test_discovery_follows_ros2s_variables() -> None:
 
 
 # --- on DDS ------------------------------------------------------------------------------------
+
+
+@pytest.mark.ros2
+@pytest.mark.netns
+def test_a_cyclone_older_than_11_says_once_that_fast_dds_3_peers_get_nothing(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Measured: Cyclone 0.10.2 exchanges nothing with Fast DDS 3.1 (docs/ros2.md).
+    monkeypatch.setattr(dds, "_cyclone_version", lambda: "0.10.2")
+    dds._warn_old_cyclone.cache_clear()
+    for _ in range(2):
+        Participant(Discovery(domain_id=77)).close()
+    warned = [r.getMessage() for r in caplog.records if "Fast DDS 3" in r.getMessage()]
+    assert warned == [
+        "cyclonedds 0.10.2 cannot exchange data with Fast DDS 3 (ROS 2 Kilted, Lyrical); "
+        "Fast DDS 2 (Jazzy) and Cyclone peers work. Cyclone 11 works with both (docs/ros2.md)"
+    ]
+    dds._warn_old_cyclone.cache_clear()
 
 
 @pytest.mark.integration

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import importlib.metadata
 import ipaddress
 import logging
@@ -217,16 +218,30 @@ def fast_dds_3_compatibility(cyclone_version: str | None = None) -> str:
         cyclone_version: The installed ``cyclonedds``'s version (default: looked up).
     """
     if cyclone_version is None:
-        try:
-            cyclone_version = importlib.metadata.version("cyclonedds")
-        except importlib.metadata.PackageNotFoundError:
-            return ""
+        cyclone_version = _cyclone_version()
     major = re.match(r"\d+", cyclone_version)
     if major is None or int(major.group()) < 11:
         return ""
     return (
         f"<Compatibility><IgnoreTypeInformation>{_EPROSIMA}</IgnoreTypeInformation></Compatibility>"
     )
+
+
+@functools.cache
+def _warn_old_cyclone() -> None:
+    """Once a process: what a Cyclone older than 11 cannot do."""
+    _log.warning(
+        "cyclonedds %s cannot exchange data with Fast DDS 3 (ROS 2 Kilted, Lyrical); "
+        "Fast DDS 2 (Jazzy) and Cyclone peers work. Cyclone 11 works with both (docs/ros2.md)",
+        _cyclone_version(),
+    )
+
+
+def _cyclone_version() -> str:
+    try:
+        return importlib.metadata.version("cyclonedds")
+    except importlib.metadata.PackageNotFoundError:
+        return "(unknown version)"
 
 
 _LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
@@ -420,6 +435,8 @@ class Participant:
         self.node_name = check_node_name(node_name)
         self.discovery = discovery
         config = discovery.config(os.environ.get("CYCLONEDDS_URI"))
+        if not fast_dds_3_compatibility():
+            _warn_old_cyclone()
         # A Domain of our own (shared by the participants of this process that ask for
         # the same configuration); it lives as long as they.
         self._domain_id = discovery.domain_id
