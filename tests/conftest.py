@@ -6,7 +6,7 @@ ones it needs) and the ``netns`` marker's plugin."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 import pytest
 from hypothesis import settings
@@ -42,6 +42,19 @@ def pytest_collection_finish(session: pytest.Session) -> None:
             build_peer(major)
         except RuntimeError as exc:
             print(f"\n{exc}")
+
+
+@pytest.fixture
+def fast_dds(request: pytest.FixtureRequest) -> Iterator[int]:
+    """The Fast DDS major version this test's peers run: each of `FAST_DDS` where a
+    test is parametrized with it (``indirect=True``, ids `FAST_DDS_IDS`), else 2. The
+    default is put back after it, so no other test of this process inherits it."""
+    from .support.dds_peer import use_fast_dds
+
+    major: int = getattr(request, "param", 2)
+    use_fast_dds(major)
+    yield major
+    use_fast_dds(2)
 
 
 if os.environ.get("CHASSIS_SDK_TEST_LOOP") == "uvloop":

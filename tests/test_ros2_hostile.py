@@ -29,7 +29,7 @@ from chassis_sdk.recording import ros2_types as m
 from chassis_sdk.sim import ChassisSimulator
 
 from .support.cli import ROOT
-from .support.dds_peer import start_peer
+from .support.dds_peer import FAST_DDS, FAST_DDS_IDS, start_peer
 from .support.helpers import Heartbeat
 from .support.ros2 import bridged, drives, until
 
@@ -77,7 +77,10 @@ async def flooding(seconds: float, mode: str) -> AsyncIterator[asyncio.subproces
         await proc.wait()
 
 
-async def test_samples_that_do_not_decode_are_dropped_and_the_bridge_goes_on() -> None:
+@pytest.mark.parametrize("fast_dds", FAST_DDS, indirect=True, ids=FAST_DDS_IDS)
+async def test_samples_that_do_not_decode_are_dropped_and_the_bridge_goes_on(
+    fast_dds: int,
+) -> None:
     # Cyclone checks each sample against the type before the binding sees it: these
     # are dropped in the C layer (with one warning line each on stderr, its own), so
     # they never reach the bridge, let alone the serial line.

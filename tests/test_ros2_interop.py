@@ -19,7 +19,7 @@ import asyncio
 import contextlib
 import itertools
 import math
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from typing import Any
 from xml.etree import ElementTree
 
@@ -35,30 +35,23 @@ from chassis_sdk.recording.ros2_types import DEFAULT_POSE_COVARIANCE, wall_time
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import CLI, ROOT, cli, one_line
-from .support.dds_peer import FAST_DDS, Event, start_peer, use_fast_dds
+from .support.dds_peer import FAST_DDS, FAST_DDS_IDS, Event, start_peer
 from .support.ros2 import bridged as running
 from .support.ros2 import drives, until
 from .support.urdf import check_urdf
 
-pytestmark = [pytest.mark.integration, pytest.mark.netns, pytest.mark.timeout(90)]
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.netns,
+    pytest.mark.timeout(90),
+    pytest.mark.usefixtures("fast_dds"),  # the peers' Fast DDS (tests/conftest.py)
+]
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     """Every test that talks to a peer (marked ``ros2``) runs against each Fast DDS."""
     if metafunc.definition.get_closest_marker("ros2") is not None:
-        metafunc.parametrize(
-            "fast_dds", FAST_DDS, indirect=True, ids=[f"fastdds{major}" for major in FAST_DDS]
-        )
-
-
-@pytest.fixture(autouse=True)
-def fast_dds(request: pytest.FixtureRequest) -> Iterator[int]:
-    """The Fast DDS major version this test's peers run (2 where not parametrized); the
-    default is put back after it, so no other test of this process inherits it."""
-    major: int = getattr(request, "param", 2)
-    use_fast_dds(major)
-    yield major
-    use_fast_dds(2)
+        metafunc.parametrize("fast_dds", FAST_DDS, indirect=True, ids=FAST_DDS_IDS)
 
 
 #: How long one command holds (the bridge's default, diff_drive_controller's).
@@ -303,6 +296,7 @@ async def test_rviz_draws_the_robot_from_its_robot_description_and_joint_states(
         assert turned == pytest.approx(0.3 / radius * (stamps[-1] - stamps[0]), rel=0.1)
 
 
+@pytest.mark.slow
 @pytest.mark.ros2
 async def test_two_namespaced_bridges_in_one_domain_each_drive_only_their_robot() -> None:
     # Two robots on one graph (`--namespace r1`, `--namespace r2`): each one's cmd_vel

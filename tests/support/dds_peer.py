@@ -58,6 +58,8 @@ __all__ = [
 
 #: The Fast DDS major versions a peer can be built with.
 FAST_DDS = (2, 3)
+#: The test ids of a test run against each (``[fastdds2]``, ``[fastdds3]``).
+FAST_DDS_IDS = tuple(f"fastdds{major}" for major in FAST_DDS)
 
 SOURCES = Path(__file__).resolve().parent.parent / "ros2_peer"
 INSTALL_HINT = "install it with: sh tools/system-deps.sh"
