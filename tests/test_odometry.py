@@ -87,6 +87,35 @@ def test_subdividing_samples_does_not_change_the_pose(
     assert (a.x, a.y, a.heading) == pytest.approx((b.x, b.y, b.heading), abs=1e-9)
 
 
+# A ramp at 50 Hz (0.1, 0.2, 0.3, 0.4 m/s at 20 ms), and the same frames read in one burst
+# after the loop was held up: the frames after the first share its read time. Each row:
+# the receive times of the four samples after one at t=0 -> x (m).
+BURST_ROWS = [
+    ("regular", [0.02, 0.04, 0.06, 0.08], 0.02 * (0.1 + 0.2 + 0.3 + 0.4)),
+    ("three in one read", [0.02, 0.08, 0.08, 0.08], 0.02 * 0.1 + 0.02 * (0.2 + 0.3 + 0.4)),
+    ("all four in one read", [0.08, 0.08, 0.08, 0.08], 0.02 * (0.1 + 0.2 + 0.3 + 0.4)),
+    ("two bursts", [0.04, 0.04, 0.08, 0.08], 0.02 * (0.1 + 0.2 + 0.3 + 0.4)),
+    ("after a gap", [0.02, 0.9, 0.9, 0.9], 0.02 * 0.1),  # the gap: nothing to share
+]
+
+
+@pytest.mark.parametrize("deferred", [False, True], ids=["update", "defer"])
+@pytest.mark.parametrize(
+    ("times", "x"), [r[1:] for r in BURST_ROWS], ids=[r[0] for r in BURST_ROWS]
+)
+def test_samples_of_one_read_share_its_interval(
+    times: list[float], x: float, deferred: bool
+) -> None:
+    # Before: the first sample of a burst stood for the whole interval (0.4 m/s for
+    # 60 ms where the robot went 0.2, 0.3, 0.4), and the rest for nothing.
+    odo = OdometryIntegrator(max_gap=0.5)
+    odo.update(0.0, 0.0, 0.0)
+    for v, t in zip((0.1, 0.2, 0.3, 0.4), times, strict=True):
+        (odo.defer if deferred else odo.update)(v, 0.1, t)
+    assert odo.x == pytest.approx(x, abs=1e-4)  # the small turn: 0.1 rad/s
+    assert odo.heading == pytest.approx(0.1 * (times[-1] if times[1] < 0.5 else 0.02))
+
+
 def test_a_long_gap_is_not_integrated() -> None:
     odo = OdometryIntegrator(max_gap=0.5)
     odo.update(1.0, 0.0, 0.0)

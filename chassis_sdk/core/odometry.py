@@ -7,7 +7,10 @@ arc for that linear and angular velocity, so the result does not depend on how o
 samples come: ten samples 20 ms apart and one sample 200 ms later give the same pose
 for the same motion. A dropped frame therefore costs nothing but resolution; a gap
 longer than ``max_gap`` (a stalled link, a reconnect) is not integrated at all, because
-the velocity across it is unknown: the pose picks up from the next sample.
+the velocity across it is unknown: the pose picks up from the next sample. Samples that
+share one timestamp (frames that waited in the kernel while the event loop was held up,
+read at once) share the interval since the sample before them, in order: during a
+speed ramp the first of them alone would stand for the whole interval.
 """
 
 from __future__ import annotations
@@ -85,6 +88,10 @@ class OdometryIntegrator:
         self._sample: tuple[float, float, float] | None = None
         self._skipped = 0
         self._deferred: list[_Sample] = []
+        # The samples that share the last timestamp (one read), and the pose and time
+        # before the first of them: see `_step`.
+        self._burst: list[tuple[float, float, float | None]] | None = None
+        self._burst_start: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
     @property
     def x(self) -> float:
@@ -132,6 +139,7 @@ class OdometryIntegrator:
             self._catch_up()
         self._x, self._y, self._heading = float(x), float(y), float(heading)
         self._last = None
+        self._burst = None
 
     def update(
         self, linear: float, angular: float, timestamp: float, heading: float | None = None
@@ -189,19 +197,37 @@ class OdometryIntegrator:
         self._sample = (linear, angular, timestamp)
         if last is None:
             return
+        burst = self._burst
+        if timestamp == last and burst is not None:
+            # Another sample of the same read (frames that waited in the kernel while
+            # the loop was held up): the interval since the sample before them is
+            # shared among them in order, not given whole to the first.
+            burst.append((linear, angular, heading))
+            x, y, h, since = self._burst_start
+            self._x, self._y, self._heading = x, y, h
+            dt = (timestamp - since) / len(burst)
+            for sample in burst:
+                self._move(*sample, dt)
+            return
         dt = timestamp - last
+        self._burst = None
         if dt > self._max_gap:
             self._skipped += 1
         elif dt > 0:
-            h0 = self._heading
-            h1 = h0 + angular * dt if heading is None else heading
-            # The exact arc, written as its chord: length v*dt*sin(a)/a with a half the
-            # turn, along the mid heading. The same as (v*dt/turn)*(sin h1 - sin h0) but
-            # without its cancellation, which lost nanometres on a nearly straight arc
-            # (and so made one sample and three of the same motion disagree).
-            half = (h1 - h0) / 2
-            chord = linear * dt * (math.sin(half) / half if half else 1.0)
-            mid = h0 + half
-            self._x += chord * math.cos(mid)
-            self._y += chord * math.sin(mid)
-            self._heading = h1
+            self._burst_start = (self._x, self._y, self._heading, last)
+            self._burst = [(linear, angular, heading)]
+            self._move(linear, angular, heading, dt)
+
+    def _move(self, linear: float, angular: float, heading: float | None, dt: float) -> None:
+        h0 = self._heading
+        h1 = h0 + angular * dt if heading is None else heading
+        # The exact arc, written as its chord: length v*dt*sin(a)/a with a half the
+        # turn, along the mid heading. The same as (v*dt/turn)*(sin h1 - sin h0) but
+        # without its cancellation, which lost nanometres on a nearly straight arc
+        # (and so made one sample and three of the same motion disagree).
+        half = (h1 - h0) / 2
+        chord = linear * dt * (math.sin(half) / half if half else 1.0)
+        mid = h0 + half
+        self._x += chord * math.cos(mid)
+        self._y += chord * math.sin(mid)
+        self._heading = h1
