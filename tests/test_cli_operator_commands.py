@@ -300,7 +300,10 @@ async def test_no_port_is_a_usage_error_and_a_silent_port_is_no_answer() -> None
     for args in (("estop",), ("clear-faults", "--driver"), ("dock", "stop")):
         code, _, err = await cli(*args, env={"CHASSIS_SDK_PORT": ""})
         assert code == 2
-        assert f"{args[0]}: no port given (give PORT, or set CHASSIS_SDK_PORT)" in err
+        assert (
+            f"chassis-sdk {args[0]}: error: no port given (give PORT, or set CHASSIS_SDK_PORT)"
+            in err
+        )
     code, _, err = await cli("estop", "/dev/ttyX", "--timeout", "0")
     assert code == 2
     assert "argument --timeout" in err

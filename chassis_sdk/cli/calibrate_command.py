@@ -81,7 +81,12 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         ),
     )
     port_args(p)
-    p.add_argument("what", choices=("linear", "angular"), help="which factor to measure")
+    p.add_argument(
+        "what",
+        metavar="linear|angular",
+        choices=("linear", "angular"),
+        help="which factor to measure",
+    )
     device_arg(p, names)
     p.add_argument(
         "--distance",

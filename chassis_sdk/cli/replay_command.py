@@ -55,7 +55,7 @@ def _start(args: argparse.Namespace) -> Job:
     given = [name for name in _DEVICE_OPTIONS if getattr(args, name) is not None]
     if not args.as_device and given:
         flags = ", ".join("--" + name.replace("_", "-") for name in given)
-        raise UsageError(f"replay: {flags} needs --as-device (serve the capture as a device)")
+        raise UsageError(f"{flags} needs --as-device (serve the capture as a device)")
     for name, default in _DEVICE_OPTIONS.items():
         if getattr(args, name) is None:
             setattr(args, name, default)
