@@ -12,7 +12,7 @@ from ..devices import profile
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg
-from .captures import detect_file, no_messages
+from .captures import detect_file, no_messages, writable
 from .common import jsonable, out, show_warnings
 from .devices import commands
 
@@ -34,8 +34,10 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 
 def _start(args: argparse.Namespace) -> Job:
+    output = args.output or beside(args.file)
+    writable(output, "-o" if args.output else "")  # before the capture is read
     show_warnings("chassis_sdk.recording.capture", "plot")  # a capture cut short
-    plot(args.file, args.output or beside(args.file), args.device)
+    plot(args.file, output, args.device)
     return None
 
 

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg, port_args, positive, require_port
+from .captures import writable
 from .common import progress_line, show_warnings
 
 if TYPE_CHECKING:
@@ -65,23 +66,6 @@ def _start(args: argparse.Namespace) -> Job:
     # No frame of the device a few seconds in is said while recording, in one line.
     show_warnings("chassis_sdk.recording.capture", "record")
     return record(port, path, args.seconds, args.baudrate, args.device)
-
-
-def writable(file: str) -> None:
-    """Refuse, before the port opens, a capture file that cannot be written.
-
-    Raises:
-        ChassisError: Its directory does not exist or is not writable, or it is a
-            directory.
-    """
-    target = Path(file)
-    folder = target.parent
-    if not folder.is_dir():
-        raise ChassisError(f"cannot write {file}: no such directory {folder}")
-    if target.is_dir():
-        raise ChassisError(f"cannot write {file}: it is a directory")
-    if not os.access(folder, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
-        raise ChassisError(f"cannot write {file}: permission denied")
 
 
 async def record(
