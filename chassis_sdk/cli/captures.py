@@ -1,7 +1,7 @@
 """What the commands on capture files share (``record``, ``replay``, ``plot``,
-``export``): the checks made before anything is read or opened (the file or directory
-written), which device a capture file is of, and the one-line error for a capture
-without that device's frames."""
+``export``): the checks made before anything is read or opened (the extra that reads
+the file, the file or directory written), which device a capture file is of, and the
+one-line error for a capture without that device's frames."""
 
 from __future__ import annotations
 
@@ -12,14 +12,28 @@ from typing import NoReturn
 from ..devices import profiles
 from ..errors import ChassisError
 from ..recording import capture
+from .extras import require
 
 __all__ = [
     "detect_file",
     "head",
     "no_messages",
     "output_directory",
+    "require_reader",
     "writable",
 ]
+
+
+def require_reader(command: str, path: str) -> None:
+    """Before ``command`` reads the capture ``path``: if it is an MCAP file, the
+    package that reads it (`chassis_sdk.cli.extras.require`).
+
+    Raises:
+        FileNotFoundError, IsADirectoryError: ``path`` is not a file (one line).
+        ChassisError: It is MCAP, and mcap is not installed.
+    """
+    if capture.is_mcap(path):
+        require(command, "foxglove", "mcap")
 
 
 def writable(file: str, option: str = "") -> None:

@@ -15,6 +15,7 @@ from ..recording import capture
 from .arguments import device_arg, port_args, positive, require_port
 from .captures import writable
 from .common import progress_line, show_warnings
+from .extras import require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -52,17 +53,21 @@ def _start(args: argparse.Namespace) -> Job:
     path: str | os.PathLike[str] = args.file
     if args.namespace is not None and not args.ros2:
         raise ChassisError("--namespace is for --ros2 (a rosbag2 file)")
+    mcap = Path(args.file).suffix.lower() == ".mcap"
     if args.ros2:
-        if Path(args.file).suffix.lower() != ".mcap":
+        if not mcap:
             raise ChassisError(
                 f"--ros2 writes a rosbag2 MCAP file: name it FILE.mcap, not {args.file!r}"
             )
+        require("record --ros2", "ros2")
         from ..recording.ros2 import rosbag
 
         try:  # checked before the port opens
             path = rosbag(args.file, namespace=args.namespace or "")
         except (ImportError, TypeError) as exc:
             raise ChassisError(str(exc)) from None
+    elif mcap:
+        require("record", "foxglove")
     # No frame of the device a few seconds in is said while recording, in one line.
     show_warnings("chassis_sdk.recording.capture", "record")
     return record(port, path, args.seconds, args.baudrate, args.device)

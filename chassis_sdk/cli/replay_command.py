@@ -14,7 +14,7 @@ import anyio
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import TCP_PORT, UsageError, device_arg, positive
-from .captures import detect_file, no_messages
+from .captures import detect_file, no_messages, require_reader
 from .common import jsonable, out, show_warnings
 from .monitor_command import brief
 from .sim_command import serving
@@ -59,6 +59,7 @@ def _start(args: argparse.Namespace) -> Job:
     for name, default in _DEVICE_OPTIONS.items():
         if getattr(args, name) is None:
             setattr(args, name, default)
+    require_reader("replay", args.file)
     # A capture cut by a hard kill is read up to the cut; say so at any verbosity.
     show_warnings("chassis_sdk.recording.capture", "replay")
     if args.as_device:
