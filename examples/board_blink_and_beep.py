@@ -21,16 +21,20 @@ async def main(port: str | None) -> None:
         board = await stack.enter_async_context(Board(port))
         await board.verify()  # the device on the port is a board
         for _ in range(3):
-            print("led on:", await board.set_led(True))
-            await asyncio.sleep(0.2)
-            print("led off:", not await board.set_led(False))
-            await asyncio.sleep(0.2)
-        print("beep:", await board.set_buzzer(True))
+            for on in (True, False):
+                reported = await board.set_led(on)  # the state the board reports now
+                print(f"set_led({on}): the led is {onoff(reported)}")
+                await asyncio.sleep(0.2)
+        print(f"set_buzzer(True): the buzzer is {onoff(await board.set_buzzer(True))}")
         await asyncio.sleep(0.1)
-        await board.set_buzzer(False)
+        print(f"set_buzzer(False): the buzzer is {onoff(await board.set_buzzer(False))}")
         # Requests may overlap: each gets its own request id and its own reply.
         led, buzzer = await asyncio.gather(board.get_led(), board.get_buzzer())
-        print(f"now: led={led} buzzer={buzzer}")
+        print(f"now: the led is {onoff(led)}, the buzzer is {onoff(buzzer)}")
+
+
+def onoff(state: bool) -> str:
+    return "on" if state else "off"
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
 """Engage the software e-stop, watch the status bits, release it, clear faults.
 
 python examples/estop_and_faults.py [PORT]
+
+Without PORT it starts the built-in simulator and presses the simulator's front bumper
+first (and says so), so that there is a latched fault for ``clear_faults()`` to clear.
 """
 
 from __future__ import annotations
@@ -28,7 +31,9 @@ async def main(port: str | None) -> None:
         if port is None:
             sim = await stack.enter_async_context(ChassisSimulator())
             port = sim.port
-            sim.firmware.press_bumper(front=True)  # something for clear_faults() to clear
+            # Something for clear_faults() to clear, said so: a real robot's is pressed by hand.
+            sim.firmware.press_bumper(front=True)
+            print("simulator: pressing its front bumper (a fault for clear_faults() to clear)")
         robot = await stack.enter_async_context(Chassis(port))
         await robot.verify()  # the device on the port is a chassis
 

@@ -352,6 +352,29 @@ async def test_replay_options_of_as_device_without_it_are_refused(
     assert not out  # nothing replayed
 
 
+# --- issue 44, item 9: an output that cannot be written, refused before reading ------------
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        pytest.param(("export", "{cap}", "--csv", "/proc/nope"), "cannot make --csv /proc/nope: ", id="export-csv-cannot-be-made"),
+        pytest.param(("export", "{cap}", "--csv", "{cap}"), "--csv {cap} is a file, not a directory", id="export-csv-a-file"),
+        pytest.param(("plot", "{cap}", "-o", "/nonexistent/x.png"), "cannot write -o /nonexistent/x.png: no such directory /nonexistent", id="plot-no-such-directory"),
+        pytest.param(("plot", "{cap}", "-o", "{tmp}"), "cannot write -o {tmp}: it is a directory", id="plot-a-directory"),
+    ],
+)  # fmt: skip
+async def test_an_output_that_cannot_be_written_is_refused_before_the_capture_is_read(
+    tmp_path: Path, args: tuple[str, ...], says: str
+) -> None:
+    cap = tmp_path / "cap.jsonl"
+    cap.write_text("hello\n")  # read first, it would be refused as no capture instead
+    code, out, err = await cli(*(a.format(cap=cap, tmp=tmp_path) for a in args))
+    assert (code, out) == (1, ""), err
+    assert one_line(err).startswith(f"chassis-sdk: {says.format(cap=cap, tmp=tmp_path)}"), err
+
+
 # --- row 20: plot beside the input ---------------------------------------------------------
 
 

@@ -173,3 +173,39 @@ async def test_row11_a_bad_broker_from_the_environment_is_refused_while_parsing(
     assert code == 2, err
     assert "argument --broker: must be mqtt://HOST:PORT or mqtts://HOST:PORT, got 'http://y'" in err
     assert out == ""
+
+
+# --- issue 44, item 9: usage errors in the user's words, with the command's usage --------
+
+
+#: (what is typed, the command whose usage is shown ("" for chassis-sdk's own), how the
+#: error line after "error: " starts): each refused by the parser (exit 2), nothing run.
+USAGE_ERRORS = [
+    pytest.param(("dock", "/dev/ttyX", "park"), "dock", "argument start|stop: invalid choice: 'park' (choose from 'start', 'stop')", id="dock-choice-named"),
+    pytest.param(("calibrate", "/dev/ttyX", "both"), "calibrate", "argument linear|angular: invalid choice: 'both' (choose from 'linear', 'angular')", id="calibrate-choice-named"),
+    pytest.param(("info",), "info", "no port given (give PORT, or set CHASSIS_SDK_PORT)", id="missing-port-info"),
+    pytest.param(("dock", "start"), "dock", "no port given (give PORT, or set CHASSIS_SDK_PORT)", id="missing-port-dock"),
+    pytest.param(("estop",), "estop", "no port given (give PORT, or set CHASSIS_SDK_PORT)", id="missing-port-estop"),
+    pytest.param(("drive", "/dev/ttyX"), "drive", "give a velocity: --linear V and/or --angular W", id="missing-velocity"),
+    pytest.param(("mointor", "/dev/ttyX"), "", "argument COMMAND: invalid choice: 'mointor', did you mean 'monitor'? (choose from 'demo', ", id="did-you-mean-command"),
+    pytest.param(("clear_faults", "/dev/ttyX"), "", "argument COMMAND: invalid choice: 'clear_faults', did you mean 'clear-faults'?", id="did-you-mean-dash"),
+    pytest.param(("frobnicate",), "", "argument COMMAND: invalid choice: 'frobnicate' (choose from 'demo', ", id="nothing-close"),
+    pytest.param(("dock", "/dev/ttyX", "strat"), "dock", "argument start|stop: invalid choice: 'strat', did you mean 'start'?", id="did-you-mean-choice"),
+    pytest.param(("info", "/dev/ttyX", "--device", "bord"), "info", "argument --device: invalid choice: 'bord', did you mean 'board'?", id="did-you-mean-device"),
+    pytest.param(("sim", "chassis", "--reply-delay", "-1"), "sim", "argument --reply-delay: reply_delay must be a finite number >= 0 s, got -1.0", id="reply-delay-negative"),
+    pytest.param(("sim", "chassis", "--drop", "abc"), "sim", "argument --drop: 'abc' is not a number", id="drop-not-a-number"),
+    pytest.param(("sim", "chassis", "--tcp", "5e3"), "sim", "argument --tcp: '5e3' is not a whole number", id="tcp-not-a-whole-number"),
+]  # fmt: skip
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(("args", "command", "error"), USAGE_ERRORS)
+async def test_usage_errors_say_what_was_typed_under_the_commands_usage(
+    args: tuple[str, ...], command: str, error: str
+) -> None:
+    code, out, err = await cli(*args, env={"CHASSIS_SDK_PORT": ""})
+    prog = f"chassis-sdk {command}".strip()
+    assert (code, out) == (2, ""), err
+    assert "Traceback" not in err
+    assert err.startswith(f"usage: {prog} "), err  # the command's usage, not the top level's
+    assert err.strip().splitlines()[-1].startswith(f"{prog}: error: {error}"), err

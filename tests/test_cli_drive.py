@@ -86,7 +86,7 @@ async def test_row1_released_the_chassis_drives_again() -> None:
 @pytest.mark.parametrize(
     ("args", "says"),
     [
-        pytest.param((), "drive: give a velocity: --linear V and/or --angular W", id="no-velocity"),
+        pytest.param((), "chassis-sdk drive: error: give a velocity: --linear V and/or --angular W", id="no-velocity"),
         pytest.param(
             ("--linear", "0.1", "--duration", "1e9"),
             "argument --duration: duration must be a finite number 0 to 600 s",

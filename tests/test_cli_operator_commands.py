@@ -287,7 +287,13 @@ async def test_the_wrong_device_is_one_line_and_nothing_is_written() -> None:
             code, out, err = await cli(args[0], board.port, *args[1:], "--timeout", "0.5")
             assert code == 1
             assert out == ""
-            assert "none is a chassis frame: is it a board?" in one_line(err)
+            line = one_line(err)
+            assert "none is a chassis frame: is it a board?" in line
+            # Not "Try --device board": that would only say a board cannot (issue 44, 9).
+            assert "--device" not in line, line
+            assert line.endswith(
+                f"{args[0]} works on a chassis only (`chassis-sdk detect` says which device it is)"
+            )
         assert len(board.firmware.received) == 0
         code, out, err = await cli("dock", board.port, "start", "--device", "board")
         assert code == 1
@@ -300,7 +306,10 @@ async def test_no_port_is_a_usage_error_and_a_silent_port_is_no_answer() -> None
     for args in (("estop",), ("clear-faults", "--driver"), ("dock", "stop")):
         code, _, err = await cli(*args, env={"CHASSIS_SDK_PORT": ""})
         assert code == 2
-        assert f"{args[0]}: no port given (give PORT, or set CHASSIS_SDK_PORT)" in err
+        assert (
+            f"chassis-sdk {args[0]}: error: no port given (give PORT, or set CHASSIS_SDK_PORT)"
+            in err
+        )
     code, _, err = await cli("estop", "/dev/ttyX", "--timeout", "0")
     assert code == 2
     assert "argument --timeout" in err

@@ -92,6 +92,44 @@ async def test_examples_print_names_not_numbers_and_end_stopped() -> None:
 
 
 @pytest.mark.integration
+async def test_examples_say_what_they_do_in_words_that_mean_it() -> None:
+    """Issue 44, item 12: the LED's state as the board reports it (not ``led off:
+    True``), and the simulator's bumper pressed where it is pressed, said so."""
+    (code, blink, err), (code2, faults, err2) = await asyncio.gather(
+        run(str(ROOT / "examples" / "board_blink_and_beep.py")),
+        run(str(ROOT / "examples" / "estop_and_faults.py")),
+    )
+    assert (code, code2) == (0, 0), err + err2
+    assert "led off: True" not in blink
+    assert blink.count("set_led(True): the led is on\n") == 3
+    assert blink.count("set_led(False): the led is off\n") == 3
+    assert "now: the led is off, the buzzer is off" in blink
+    lines = faults.splitlines()
+    pressed = lines.index(
+        "simulator: pressing its front bumper (a fault for clear_faults() to clear)"
+    )
+    assert pressed < next(i for i, line in enumerate(lines) if line.startswith("faults latched"))
+
+
+@pytest.mark.integration
+async def test_an_example_piped_into_head_ends_quietly() -> None:
+    """Issue 44, item 12: ``chassis_info_and_telemetry.py | head -3`` ends with exit
+    status 0 and nothing on stderr, as ``chassis-sdk ... | head`` does."""
+    read_end, write_end = os.pipe()
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, str(ROOT / "examples" / "chassis_info_and_telemetry.py"),
+        stdout=write_end, stderr=asyncio.subprocess.PIPE, cwd=ROOT,
+    )  # fmt: skip
+    os.close(write_end)
+    with os.fdopen(read_end, "rb") as reader:  # head -3: three lines, then it goes
+        head = [await asyncio.to_thread(reader.readline) for _ in range(3)]
+    async with asyncio.timeout(30):
+        _, err = await proc.communicate()
+    assert head[0].startswith(b"firmware:")
+    assert (proc.returncode, err.decode()) == (0, "")
+
+
+@pytest.mark.integration
 async def test_example_takes_a_port_argument() -> None:
     async with ChassisSimulator() as sim:
         code, out, err = await run(

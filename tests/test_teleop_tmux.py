@@ -24,6 +24,7 @@ from pathlib import Path
 
 import pytest
 
+from chassis_sdk.sim import BoardSimulator
 from tests.support.cli import CLI, ROOT
 from tests.support.standin import (
     ChassisStandIn,
@@ -76,9 +77,9 @@ class Pane:
         assert done.returncode == 0, done.stderr.decode()
         return done.stdout.decode()
 
-    async def start(self) -> None:
+    async def start(self, columns: int = 120) -> None:
         await self.tmux(
-            "new-session", "-d", "-x", "120", "-y", "30", "-s", "t", "sh", "-c", self.script
+            "new-session", "-d", "-x", str(columns), "-y", "30", "-s", "t", "sh", "-c", self.script
         )
 
     async def send(self, *keys: str, literal: bool = True) -> float:
@@ -320,3 +321,22 @@ async def test_without_a_terminal_it_says_so_and_writes_nothing() -> None:
     assert len(lines) == 1, err
     assert lines[0].startswith("chassis-sdk: teleop reads keys from a terminal"), err
     assert dev.frames == []
+
+
+async def test_the_status_line_takes_the_terminals_width(tmp_path: Path) -> None:
+    """A board has no e-stop: ``e`` stops it, and the status line says ``r`` resumes,
+    beyond column 79; a 200-column terminal shows all of it (issue 44, item 8)."""
+    async with BoardSimulator() as sim:
+        pane = Pane(tmp_path, [*CLI, "teleop", sim.port, "--device", "board"])
+        await pane.start(columns=200)
+        try:
+            await pane.wait_screen(lambda s: "cmd v+0.00" in s, timeout=20)
+            await pane.send("e")
+            screen = await pane.wait_screen(lambda s: "r resumes" in s, timeout=5)
+            await pane.send("q")
+            await pane.wait_screen(lambda s: "STTY-DONE" in s)
+        finally:
+            await pane.kill()
+    line = next(row for row in screen.splitlines() if "no e-stop on a board" in row)
+    assert line.rstrip().endswith("no e-stop on a board: stopped; r resumes"), line
+    assert len(line.rstrip()) > 79

@@ -56,10 +56,18 @@ from . import (
     teleop_args,
     web_args,
 )
-from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, Command, UsageError, device_from_env
+from .arguments import (
+    ENV_BROKER,
+    ENV_DEVICE,
+    ENV_PORT,
+    Command,
+    Parser,
+    UsageError,
+    device_from_env,
+)
 from .common import blocked_line
 from .info_command import EXIT_FAULT
-from .profile import apply, config_argument, config_from_argv
+from .profile import apply, config_argument, config_from_argv, subparsers
 
 __all__ = ["ENV_BROKER", "ENV_DEVICE", "ENV_PORT", "build_parser", "main", "parse"]
 
@@ -119,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     known = profiles()
     names = list(known)
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="chassis-sdk",
         description="Talk to robot chassis and controller boards, or simulate them.",
         epilog="devices: " + "; ".join(f"{n}: {d.summary}" for n, d in known.items()),
@@ -182,17 +190,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.ERROR,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    # A usage error found after parsing is told with the command's usage, as argparse
+    # tells its own.
+    usage = subparsers(parser).get(args.command, parser)
     device = getattr(args, "device", None)
     if device is not None and device not in profiles():  # from the environment
         variable = (device_from_env() or (ENV_DEVICE, device))[0]
-        parser.error(
-            f"{variable}={device!r} is not a known device (known: {', '.join(profiles())})"
-        )
+        usage.error(f"{variable}={device!r} is not a known device (known: {', '.join(profiles())})")
     command: Command = args.func
     try:
         job = command(args)  # a command without an event loop is done here
     except UsageError as exc:
-        parser.error(str(exc))
+        usage.error(str(exc))
     except BrokenPipeError:  # `| head`
         return 0
     except (ChassisError, ValueError, OSError) as exc:

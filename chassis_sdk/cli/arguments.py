@@ -11,6 +11,7 @@ loop there and then (returning ``None``), or returns the coroutine that
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
 from collections.abc import Callable, Coroutine, Sequence
 from typing import TYPE_CHECKING, Any, TypeAlias
@@ -33,6 +34,7 @@ __all__ = [
     "TCP_PORT",
     "Command",
     "Job",
+    "Parser",
     "UsageError",
     "arg_type",
     "chance",
@@ -70,7 +72,31 @@ Command: TypeAlias = Callable[[argparse.Namespace], Job]
 
 class UsageError(Exception):
     """A command's arguments do not do (no port given, ...): ``main`` says so the way
-    argparse does, with the usage and exit status 2."""
+    argparse does, with the command's usage and exit status 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """The parser of ``chassis-sdk`` and of each command (subparsers take their parent's
+    class): a word that is not one of the choices (a command, a device, ``start``/``stop``)
+    is refused with the closest choice, if one is close (``did you mean 'monitor'?``),
+    as Python 3.14's ``suggest_on_error`` does."""
+
+    def _check_value(self, action: argparse.Action, value: Any) -> None:
+        choices = action.choices
+        if choices is not None and isinstance(value, str) and value not in choices:
+            names = [str(choice) for choice in choices]
+            close = difflib.get_close_matches(value, names, n=1)
+            if close:
+                listed = ", ".join(map(repr, names))
+                raise argparse.ArgumentError(
+                    action,
+                    f"invalid choice: {value!r}, did you mean {close[0]!r}? (choose from {listed})",
+                )
+        super()._check_value(action, value)
+
+
+#: What a failed conversion says, for the converters whose own error is Python's.
+_CONVERTED: dict[Callable[[str], Any], str] = {float: "a number", int: "a whole number"}
 
 
 def arg_type(convert: Callable[[str], Any], check: Callable[[Any], Any]) -> Callable[[str], Any]:
@@ -78,7 +104,14 @@ def arg_type(convert: Callable[[str], Any], check: Callable[[Any], Any]) -> Call
 
     def parse(text: str) -> Any:
         try:
-            return check(convert(text))
+            value = convert(text)
+        except (TypeError, ValueError) as exc:  # `abc` for a float: not Python's words
+            wanted = _CONVERTED.get(convert)
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not {wanted}" if wanted else str(exc)
+            ) from None
+        try:
+            return check(value)
         except (TypeError, ValueError) as exc:  # a wrong type or a bad value: both refused
             raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -204,5 +237,5 @@ def require_port(args: argparse.Namespace) -> str:
     """``args.port``, or a `UsageError` saying how to give one."""
     port: str | None = args.port
     if port is None:
-        raise UsageError(f"{args.command}: no port given (give PORT, or set {ENV_PORT})")
+        raise UsageError(f"no port given (give PORT, or set {ENV_PORT})")
     return port

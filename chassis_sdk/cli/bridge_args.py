@@ -13,6 +13,7 @@ from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
 from ..integrations.inbound import check_topic_level
 from .arguments import ENV_BROKER, arg_type, device_arg, port_args, require_port
+from .extras import install_hint, require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -56,7 +57,7 @@ RATE = arg_type(
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``bridge``."""
-    p = sub.add_parser("bridge", help="put the device on an MQTT broker (pip install '.[mqtt]')")
+    p = sub.add_parser("bridge", help=f"put the device on an MQTT broker ({install_hint('mqtt')})")
     port_args(p)
     device_arg(p, names)
     p.add_argument(
@@ -96,6 +97,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    require("bridge", "mqtt")
     return _bridge(profile(args.device), port, args)
 
 

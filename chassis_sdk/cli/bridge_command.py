@@ -42,19 +42,18 @@ def _broker(url: str) -> tuple[str, int, bool]:
 
 
 async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
-    """Bridge until Ctrl-C or SIGTERM (then ``OFFLINE`` is published and zero written)."""
-    try:
-        import aiomqtt
+    """Bridge until Ctrl-C or SIGTERM (then ``OFFLINE`` is published and zero written).
+    The mqtt extra was checked before (`chassis_sdk.cli.extras.require`)."""
+    import aiomqtt
 
-        from ..integrations.mqtt import (
-            CommandInbox,
-            MqttBridge,
-            RobotIdTaken,
-            connection_will,
-            new_owner,
-        )
-    except ImportError:
-        raise ChassisError("bridge needs aiomqtt: pip install 'chassis-sdk[mqtt]'") from None
+    from ..integrations.mqtt import (
+        CommandInbox,
+        MqttBridge,
+        RobotIdTaken,
+        connection_will,
+        new_owner,
+    )
+
     host, broker_port, tls = _broker(args.broker)
     password = None
     if args.password_file:

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import anyio
 
-from ..core.calibration import Calibration, combined_scale
+from ..core.calibration import SCALE_RANGE, Calibration, combined_scale
 from ..core.device import Device
 from ..core.odometry import wrap_angle
 from ..devices import DeviceProfile, profile
@@ -81,7 +81,12 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         ),
     )
     port_args(p)
-    p.add_argument("what", choices=("linear", "angular"), help="which factor to measure")
+    p.add_argument(
+        "what",
+        metavar="linear|angular",
+        choices=("linear", "angular"),
+        help="which factor to measure",
+    )
     device_arg(p, names)
     p.add_argument(
         "--distance",
@@ -128,7 +133,36 @@ def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     if args.measured is not None and args.measured <= 0:
         raise ValueError(f"--measured must be > 0, got {args.measured:g}")
-    return calibrate(profile(args.device), port, args)
+    device = profile(args.device)
+    gyro = args.imu if args.imu is not None else _has_gyro(device.device)
+    if args.measured is not None and not (args.what == "angular" and gyro):
+        _believable(args)
+    return calibrate(device, port, args)
+
+
+def _believable(args: argparse.Namespace) -> None:
+    """Refuse, before anything moves, a ``--measured`` that the end of the run would
+    refuse: the odometry reports what it is asked to drive, so the new factor is known
+    (`combined_scale`'s rule) before the drive.
+
+    Raises:
+        ChassisError: The factor would fall outside `SCALE_RANGE` (one line).
+    """
+    linear = args.what == "linear"
+    name = "linear_scale" if linear else "angular_scale"
+    old: float = getattr(_current(*_target(args)), name)
+    target, flag, unit = (
+        (args.distance, "--distance", "m") if linear else (args.turns, "--turns", "turns")
+    )
+    try:
+        combined_scale(old, target, args.measured, name)
+    except ValueError:
+        low, high = SCALE_RANGE
+        raise ChassisError(
+            f"--measured {args.measured:g} {unit} against {flag} {target:g}: {name} would be "
+            f"{old * args.measured / target:.3f}, outside {low:g}..{high:g}, so the measurement "
+            "is not believable; nothing driven"
+        ) from None
 
 
 def _target(args: argparse.Namespace) -> tuple[Path | None, Path]:
@@ -146,7 +180,7 @@ def _current(in_use: Path | None, written: Path) -> Calibration:
     return load_profile(source).calibration or Calibration()
 
 
-def _has_gyro(dev: Device[Any, Any]) -> bool:
+def _has_gyro(dev: Device[Any, Any] | type[Device[Any, Any]]) -> bool:
     return callable(getattr(dev, "imu", None))
 
 

@@ -144,10 +144,18 @@ async def simulated(name: str, device: type[D]) -> AsyncIterator[D]:
             yield connected
 
 
-async def first_frame(device: Device[Any, Any], timeout: float, what: str) -> None:
+async def first_frame(
+    device: Device[Any, Any],
+    timeout: float,
+    what: str,
+    *,
+    command: str = "",
+    able: Sequence[str] | None = None,
+) -> None:
     """``device.verify()``, with errors that name the other known devices and what
     was expected: proof that the device on the port is this one before anything is
-    done to it.
+    done to it. ``able``: the only devices ``command`` works on, if not every one (no
+    ``--device`` is suggested that the command would then refuse).
 
     Raises:
         WrongProtocolError: Bytes arrive, but none forms a frame of this protocol.
@@ -156,19 +164,28 @@ async def first_frame(device: Device[Any, Any], timeout: float, what: str) -> No
     try:
         await device.verify(timeout)
     except ProtocolError:
-        _wrong_protocol(device)
+        _wrong_protocol(device, command, able)
     except RequestTimeoutError:
         raise RequestTimeoutError(f"no {what} from {device.port} within {timeout:g} s") from None
 
 
-def _wrong_protocol(device: Device[Any, Any]) -> None:
+def _wrong_protocol(
+    device: Device[Any, Any], command: str = "", able: Sequence[str] | None = None
+) -> None:
     from ..devices import profiles
 
     others = [name for name in profiles() if name != device.device_name] or ["different device"]
+    tried = [name for name in others if able is None or name in able]
+    if tried:
+        advice = f"Try --device {tried[0]}, or `chassis-sdk detect`"
+    else:  # the other devices cannot do it: --device would only be refused
+        advice = (
+            f"{command} works on a {' or a '.join(able or [device.device_name])} only "
+            "(`chassis-sdk detect` says which device it is)"
+        )
     raise WrongProtocolError(
         f"{device.stats.bytes_received} bytes arrived on {device.port} but none is a "
-        f"{device.device_name} frame: is it a {' or a '.join(others)}? Try --device "
-        f"{others[0]}, or `chassis-sdk detect`"
+        f"{device.device_name} frame: is it a {' or a '.join(others)}? {advice}"
     )
 
 

@@ -78,7 +78,7 @@ def config(args: argparse.Namespace) -> Job:
         commands = subparsers(_parser(args))
         if args.for_command not in commands or args.for_command == "config":
             known = ", ".join(n for n in commands if n != "config")
-            raise UsageError(f"config: no command {args.for_command!r} (known: {known})")
+            raise UsageError(f"no command {args.for_command!r} (known: {known})")
         command_rows = settings(commands[args.for_command], args.for_command, profile)
     if args.json:
         document: dict[str, Any] = {

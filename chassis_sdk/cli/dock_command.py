@@ -43,7 +43,10 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         "`chassis-sdk monitor`. Exit 3 when the chassis does not confirm.",
     )
     common_args(p, names)  # PORT first: dock PORT start|stop
-    p.add_argument("what", choices=sorted(ACTIONS), help="start or stop docking")
+    # Named as docs/cli.md writes it: a refused word reads "argument start|stop: ...".
+    p.add_argument(
+        "what", metavar="start|stop", choices=sorted(ACTIONS), help="start or stop docking"
+    )
     p.set_defaults(func=_start)
 
 

@@ -79,7 +79,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     if args.linear is None and args.angular is None:
-        raise UsageError("drive: give a velocity: --linear V and/or --angular W")
+        raise UsageError("give a velocity: --linear V and/or --angular W")
     return drive(profile(args.device), port, args)
 
 

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from .arguments import device_arg
-from .captures import detect_file, no_messages
+from .captures import detect_file, no_messages, output_directory, require_reader
 from .common import out, show_warnings
 
 if TYPE_CHECKING:
@@ -27,6 +27,8 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 
 def _start(args: argparse.Namespace) -> Job:
+    require_reader("export", args.file)
+    output_directory(args.csv, "--csv")  # before the capture is read
     show_warnings("chassis_sdk.recording.capture", "export")  # a capture cut short
     export(args.file, args.csv, args.device)
     return None

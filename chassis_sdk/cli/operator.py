@@ -170,7 +170,13 @@ async def confirmed(
     async with device.device(port, baudrate=baudrate, request_timeout=timeout) as dev:
         if not isinstance(dev, Chassis):  # _is_chassis said so: a registry changed meanwhile
             raise ChassisError(f"{action.command}: {device.name} is not a chassis")
-        await first_frame(dev, max(timeout, 1.0), device.recognised_by)
+        await first_frame(
+            dev,
+            max(timeout, 1.0),
+            device.recognised_by,
+            command=action.command,
+            able=able_devices(),
+        )
         failure: str | None = None
         try:
             await action.send(dev, timeout)

@@ -9,12 +9,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..devices import profile
-from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg
-from .captures import detect_file, no_messages
+from .captures import detect_file, no_messages, require_reader, writable
 from .common import jsonable, out, show_warnings
 from .devices import commands
+from .extras import install_hint, require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -24,7 +24,10 @@ __all__ = ["add_parser", "plot"]
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``plot``."""
-    p = sub.add_parser("plot", help="plot a capture: velocities, wheel speeds, voltage, ...")
+    p = sub.add_parser(
+        "plot",
+        help=f"plot a capture: velocities, wheel speeds, voltage, ... ({install_hint('plot')})",
+    )
     p.add_argument("file")
     p.add_argument(
         "-o", "--output", help="the PNG to write (default: beside FILE, as FILE's name .png)"
@@ -34,8 +37,12 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 
 def _start(args: argparse.Namespace) -> Job:
+    require("plot", "plot")
+    require_reader("plot", args.file)
+    output = args.output or beside(args.file)
+    writable(output, "-o" if args.output else "")  # before the capture is read
     show_warnings("chassis_sdk.recording.capture", "plot")  # a capture cut short
-    plot(args.file, args.output or beside(args.file), args.device)
+    plot(args.file, output, args.device)
     return None
 
 
@@ -49,16 +56,15 @@ def plot(path: str, output: str, device: str | None) -> None:
     """Draw the capture ``path`` (of ``device``, else detected) into ``output``.
 
     Raises:
-        ChassisError: matplotlib is missing, or the capture holds no frames of the
-            device.
+        ChassisError: The capture holds no frames of the device.
+        ImportError: The plot extra is missing (``chassis-sdk plot`` checks it first:
+            `chassis_sdk.cli.extras.require`).
     """
-    try:
-        import matplotlib
+    import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise ChassisError("plot needs matplotlib: pip install 'chassis-sdk[plot]'") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     proto = device or detect_file(path)
     profile(proto)  # an unknown name fails here, naming the known ones
     fig = plt.figure(figsize=(13, 9))

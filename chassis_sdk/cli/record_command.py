@@ -13,7 +13,9 @@ from typing import TYPE_CHECKING
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg, port_args, positive, require_port
+from .captures import writable
 from .common import progress_line, show_warnings
+from .extras import require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -51,37 +53,24 @@ def _start(args: argparse.Namespace) -> Job:
     path: str | os.PathLike[str] = args.file
     if args.namespace is not None and not args.ros2:
         raise ChassisError("--namespace is for --ros2 (a rosbag2 file)")
+    mcap = Path(args.file).suffix.lower() == ".mcap"
     if args.ros2:
-        if Path(args.file).suffix.lower() != ".mcap":
+        if not mcap:
             raise ChassisError(
                 f"--ros2 writes a rosbag2 MCAP file: name it FILE.mcap, not {args.file!r}"
             )
+        require("record --ros2", "ros2")
         from ..recording.ros2 import rosbag
 
         try:  # checked before the port opens
             path = rosbag(args.file, namespace=args.namespace or "")
         except (ImportError, TypeError) as exc:
             raise ChassisError(str(exc)) from None
+    elif mcap:
+        require("record", "foxglove")
     # No frame of the device a few seconds in is said while recording, in one line.
     show_warnings("chassis_sdk.recording.capture", "record")
     return record(port, path, args.seconds, args.baudrate, args.device)
-
-
-def writable(file: str) -> None:
-    """Refuse, before the port opens, a capture file that cannot be written.
-
-    Raises:
-        ChassisError: Its directory does not exist or is not writable, or it is a
-            directory.
-    """
-    target = Path(file)
-    folder = target.parent
-    if not folder.is_dir():
-        raise ChassisError(f"cannot write {file}: no such directory {folder}")
-    if target.is_dir():
-        raise ChassisError(f"cannot write {file}: it is a directory")
-    if not os.access(folder, os.W_OK) or (target.exists() and not os.access(target, os.W_OK)):
-        raise ChassisError(f"cannot write {file}: permission denied")
 
 
 async def record(

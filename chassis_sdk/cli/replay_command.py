@@ -14,7 +14,7 @@ import anyio
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import TCP_PORT, UsageError, device_arg, positive
-from .captures import detect_file, no_messages
+from .captures import detect_file, no_messages, require_reader
 from .common import jsonable, out, show_warnings
 from .monitor_command import brief
 from .sim_command import serving
@@ -55,10 +55,11 @@ def _start(args: argparse.Namespace) -> Job:
     given = [name for name in _DEVICE_OPTIONS if getattr(args, name) is not None]
     if not args.as_device and given:
         flags = ", ".join("--" + name.replace("_", "-") for name in given)
-        raise UsageError(f"replay: {flags} needs --as-device (serve the capture as a device)")
+        raise UsageError(f"{flags} needs --as-device (serve the capture as a device)")
     for name, default in _DEVICE_OPTIONS.items():
         if getattr(args, name) is None:
             setattr(args, name, default)
+    require_reader("replay", args.file)
     # A capture cut by a hard kill is read up to the cut; say so at any verbosity.
     show_warnings("chassis_sdk.recording.capture", "replay")
     if args.as_device:

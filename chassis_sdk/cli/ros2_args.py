@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from ..core.validation import check_int
 from ..devices import DeviceProfile, profile
 from .arguments import arg_type, deadman_args, device_arg, limit_args, port_args, require_port
+from .extras import install_hint, require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -24,7 +25,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``ros2``."""
     p = sub.add_parser(
         "ros2",
-        help="put the device on the ROS 2 graph over DDS (pip install '.[ros2]')",
+        help=f"put the device on the ROS 2 graph over DDS ({install_hint('ros2')})",
         description=(
             "Bridge the device onto the ROS 2 graph with no ROS installed: cmd_vel and "
             "emergency_stop in; odom, /tf, /tf_static, battery_state, /diagnostics (and a "
@@ -77,6 +78,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    require("ros2", "ros2")
     return _ros2(profile(args.device), port, args)
 
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from ..devices import DeviceProfile, profile
 from .arguments import TCP_PORT, deadman_args, device_arg, limit_args, port_args, require_port
+from .extras import install_hint, require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -18,7 +19,10 @@ __all__ = ["add_parser"]
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``serve``."""
-    p = sub.add_parser("serve", help="serve the device live to the Foxglove app (WebSocket)")
+    p = sub.add_parser(
+        "serve",
+        help=f"serve the device live to the Foxglove app ({install_hint('foxglove')})",
+    )
     port_args(p)
     device_arg(p, names)
     p.add_argument("--foxglove-port", type=TCP_PORT, default=8765, help="TCP port (default 8765)")
@@ -45,6 +49,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    require("serve", "foxglove")
     return _serve(profile(args.device), port, args)
 
 

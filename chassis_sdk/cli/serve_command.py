@@ -26,13 +26,10 @@ __all__ = ["serve"]
 
 
 async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
-    """Serve until Ctrl-C, SIGTERM or ``--seconds``."""
-    try:
-        from ..integrations.foxglove import FoxgloveServer, check_access
-    except ImportError:
-        raise ChassisError(
-            "serve needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
-        ) from None
+    """Serve until Ctrl-C, SIGTERM or ``--seconds`` (the foxglove extra was checked
+    before: `chassis_sdk.cli.extras.require`)."""
+    from ..integrations.foxglove import FoxgloveServer, check_access
+
     if args.token is not None and args.token_file is not None:
         raise ChassisError("give --token or --token-file, not both")
     token = args.token

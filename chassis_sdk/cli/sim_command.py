@@ -71,7 +71,12 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     ):
         p.add_argument(flag, dest=dest, type=chance(dest), default=0.0, metavar="RATE", help=what)
     p.add_argument(
-        "--reply-delay", type=float, default=0.0, metavar="SECONDS", help="hold replies back"
+        "--reply-delay",
+        # Refused while parsing as LineFaults refuses it (a finite number >= 0).
+        type=arg_type(float, lambda v: LineFaults(reply_delay=v).reply_delay),
+        default=0.0,
+        metavar="SECONDS",
+        help="hold replies back",
     )
     p.set_defaults(func=_start)
 

@@ -22,6 +22,7 @@ from .arguments import (
     port_args,
     require_port,
 )
+from .extras import install_hint, require
 
 #: The longest a silent pad may go on driving (s).
 MAX_JOY_TIMEOUT = 5.0
@@ -76,7 +77,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         metavar="FRACTION",
         help="starting speed, a fraction of the maxima (default %(default)s; +/- step 0.1)",
     )
-    joy = p.add_argument_group("gamepad (pip install 'chassis-sdk[joystick]')")
+    joy = p.add_argument_group(f"gamepad ({install_hint('joystick')})")
     joy.add_argument(
         "--joystick", metavar="DEVICE", help="a gamepad's /dev/input/event* (Linux evdev)"
     )
@@ -135,6 +136,8 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    if args.joystick:
+        require("teleop --joystick", "joystick")
     if not sys.stdin.isatty():  # before anything opens: nothing is written
         raise ChassisError(
             "teleop reads keys from a terminal, and stdin is not one (over ssh: ssh -t)"

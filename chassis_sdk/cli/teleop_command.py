@@ -45,8 +45,16 @@ __all__ = ["REFRESH", "drive_from_terminal", "teleop"]
 REFRESH = 0.05
 #: How often the status line is redrawn (s).
 STATUS_EVERY = 0.1
-#: The status line's width (columns), for an 80-column terminal.
-WIDTH = 79
+#: The terminal's width when it cannot be asked (columns).
+FALLBACK_COLUMNS = 80
+
+
+def _columns() -> int:
+    """The width of the terminal on stdout now (it may have been resized)."""
+    try:
+        return os.get_terminal_size(sys.stdout.fileno()).columns or FALLBACK_COLUMNS
+    except (OSError, ValueError):
+        return FALLBACK_COLUMNS
 
 
 def _write_or_drop(data: bytes) -> None:
@@ -118,9 +126,11 @@ class Terminal:
         return chunks
 
     def status(self, line: str) -> None:
-        """Show ``line`` as the status line (in place on a terminal; a plain line when
-        stdout is piped and the line changed)."""
-        line = line[:WIDTH]
+        """Show ``line`` as the status line (in place on a terminal, cut to its width
+        less one column, so it never wraps; a plain line when stdout is piped and the
+        line changed)."""
+        if self._tty:
+            line = line[: max(_columns() - 1, 1)]
         if line == self._shown:
             return
         self._shown = line
@@ -315,8 +325,8 @@ def _status_line(
     note: str,
     now: float,
 ) -> str:
-    """``cmd v w @speed | meas v w | link | e-stop | pad``, within 79 columns (v in
-    m/s, w in rad/s)."""
+    """``cmd v w @speed | meas v w | link | e-stop | pad`` (v in m/s, w in rad/s);
+    `Terminal.status` cuts it to the terminal's width."""
     v, w = sent or (0.0, 0.0)
     parts = [f"cmd v{v:+.2f} w{w:+.2f} @{keys.percent}%"]
     odometry = dev.latest_odometry

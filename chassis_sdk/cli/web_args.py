@@ -18,6 +18,7 @@ from .arguments import (
     port_args,
     require_port,
 )
+from .extras import install_hint, require
 
 if TYPE_CHECKING:
     from .arguments import Job, Subparsers
@@ -36,7 +37,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     """Register ``web``."""
     p = sub.add_parser(
         "web",
-        help="a dashboard in the browser: watch and drive by hand (pip install '.[web]')",
+        help=f"a dashboard in the browser: watch and drive by hand ({install_hint('web')})",
         description=(
             "Serve one page that shows the device live and drives it from an on-screen "
             "joystick, the keyboard or a gamepad, every command under the deadman. "
@@ -91,6 +92,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
+    require("web", "web")
     return _web(profile(args.device), port, args)
 
 

@@ -23,12 +23,11 @@ __all__ = ["web"]
 
 
 async def web(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
-    """Serve the dashboard until Ctrl-C, SIGTERM or ``--seconds``."""
-    try:
-        from ..integrations.access import check_allowed_origin, check_token, is_loopback
-        from ..integrations.web import GamepadMapping, WebDashboard
-    except ImportError as exc:
-        raise ChassisError(f"web needs aiohttp: pip install 'chassis-sdk[web]' ({exc})") from None
+    """Serve the dashboard until Ctrl-C, SIGTERM or ``--seconds`` (the web extra was
+    checked before: `chassis_sdk.cli.extras.require`)."""
+    from ..integrations.access import check_allowed_origin, check_token, is_loopback
+    from ..integrations.web import GamepadMapping, WebDashboard
+
     token = None
     if args.token_file is not None:
         token = read_secret_file(args.token_file, "--token-file")

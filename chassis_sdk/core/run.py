@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import importlib
 import os
+import select
 import signal
 import sys
 from collections.abc import Callable, Coroutine
@@ -74,8 +75,9 @@ def run(
             after the script, and exit status 1 (2 for a timeout: every timeout the
             SDK raises is one, ``wait_for`` and ``wait_connected`` included), instead
             of a traceback; Ctrl-C ends it quietly with exit status 130 (no
-            ``KeyboardInterrupt`` traceback). The robot has been stopped by then, as
-            on any exit.
+            ``KeyboardInterrupt`` traceback). Standard output closed by its reader
+            (``| head``) ends it quietly with exit status 0, as ``chassis-sdk`` does.
+            The robot has been stopped by then, as on any exit.
         uvloop: Run on `uvloop <https://github.com/MagicStack/uvloop>`_ (extra
             ``uvloop``): ``None`` (default) when it is installed, unless the
             environment says ``CHASSIS_SDK_LOOP=asyncio``; ``True`` requires it;
@@ -86,8 +88,8 @@ def run(
 
     Raises:
         SystemExit: ``main`` was cancelled by SIGTERM or SIGHUP, or (with
-            ``one_line_errors``) failed with a ``ChassisError`` or was interrupted
-            by Ctrl-C.
+            ``one_line_errors``) failed with a ``ChassisError``, was interrupted
+            by Ctrl-C, or lost the reader of its standard output.
         KeyboardInterrupt: Ctrl-C, without ``one_line_errors`` (as under
             `asyncio.run`).
     """
@@ -110,6 +112,23 @@ def run(
     except ChassisError as exc:
         print(f"{_program()}: {exc}", file=sys.stderr)
         raise SystemExit(1) from None
+    except BrokenPipeError:
+        if not _stdout_closed():  # another pipe (a socket of the program's own)
+            raise
+        # What is left in stdout's buffer goes nowhere, not into a second error at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise SystemExit(0) from None
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe whose reader has gone (``| head`` read its
+    lines)."""
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll, or stdout is not a file
+        return False
 
 
 async def _final_zeros() -> None:

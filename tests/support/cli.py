@@ -22,14 +22,29 @@ ROOT = Path(__file__).resolve().parents[2]
 CLI = (sys.executable, "-m", "chassis_sdk.cli")
 
 
+#: ``chassis-sdk`` with the modules it is given (argv[1], comma-separated) made missing,
+#: as if their extra were not installed: importing one fails.
+_WITHOUT = (
+    "import runpy, sys\n"
+    "for name in sys.argv.pop(1).split(','): sys.modules[name] = None\n"
+    "runpy.run_module('chassis_sdk.cli', run_name='__main__', alter_sys=True)"
+)
+
+
 async def cli(
-    *args: str, env: dict[str, str] | None = None, timeout: float = 30.0, cwd: Path = ROOT
+    *args: str,
+    env: dict[str, str] | None = None,
+    timeout: float = 30.0,
+    cwd: Path = ROOT,
+    without: tuple[str, ...] = (),
 ) -> tuple[int, str, str]:
     """Run ``chassis-sdk args`` to its end: ``(exit code, stdout, stderr)``. ``env`` is
-    added to this process's environment."""
+    added to this process's environment; the modules ``without`` names cannot be
+    imported in it (an extra not installed)."""
+    command = (sys.executable, "-c", _WITHOUT, ",".join(without)) if without else CLI
     proc = await asyncio.create_subprocess_exec(
-        *CLI, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=cwd,
-        env={**os.environ, **(env or {})},
+        *command, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        cwd=cwd, env={**os.environ, **(env or {})},
     )  # fmt: skip
     async with asyncio.timeout(timeout):
         out, err = await proc.communicate()
