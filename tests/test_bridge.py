@@ -279,8 +279,8 @@ async def test_a_board_is_bridged_with_its_own_streams() -> None:
 
 @pytest.mark.integration
 @pytest.mark.mqtt
-async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_events() -> None:
-    # A pack at 5 %: null while the model warms up (3 s), then the charge, CRITICAL,
+async def test_the_state_of_charge_beside_the_voltage_once_known_and_its_events() -> None:
+    # A pack at 5 %: left out while the model warms up (3 s), then the charge, CRITICAL,
     # and battery_low then battery_critical on events with their percentage.
     pack = PackSpec("li-ion", cells=7, charge=5.0)
     model = BatteryModel("li-ion", cells=7, warmup=3.0, min_readings=3)
@@ -291,12 +291,13 @@ async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_e
                 lambda: any(e["kind"] == "battery_critical" for e in obs.on("robots/r1/events")),
                 timeout=10.0,
             )
-            await obs.wait(lambda: obs.on(topic)[-1]["battery_percentage"] is not None)
+            await obs.wait(lambda: "battery_percentage" in obs.on(topic)[-1])
             truth = sim.firmware.battery_charge
         frames = obs.on(topic)
-        assert frames[0]["battery_percentage"] is None  # unknown: null, never a number
-        assert frames[0]["battery_level"] is None
-        known = [f for f in frames if f["battery_percentage"] is not None]
+        # Unknown: left out (never null, never a number).
+        assert "battery_percentage" not in frames[0]
+        assert "battery_level" not in frames[0]
+        known = [f for f in frames if "battery_percentage" in f]
         assert all(0.0 <= f["battery_percentage"] <= 100.0 for f in known)
         assert truth is not None
         assert abs(known[-1]["battery_percentage"] - truth) <= 3
@@ -304,7 +305,7 @@ async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_e
         events = [e for e in obs.on("robots/r1/events") if e["kind"].startswith("battery")]
         assert [e["kind"] for e in events] == ["battery_low", "battery_critical"]
         assert all(e["percentage"] < model.critical and e["voltage"] > 0 for e in events)
-    async with (  # a board's battery stream; no model: null beside the voltage
+    async with (  # a board's battery stream; no model: the voltage alone
         broker() as b,
         BoardSimulator() as board_sim,
         Board(board_sim.port) as board,
@@ -314,7 +315,8 @@ async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_e
         await obs.wait(lambda: bool(obs.on("robots/b1/telemetry/battery")))
         reading = obs.on("robots/b1/telemetry/battery")[-1]
         assert reading["voltage"] > 0
-        assert (reading["battery_percentage"], reading["battery_level"]) == (None, None)
+        assert "battery_percentage" not in reading
+        assert "battery_level" not in reading
         assert "battery_percentage" not in obs.on("robots/b1/telemetry/imu")[-1]
 
 
