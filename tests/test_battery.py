@@ -599,7 +599,7 @@ async def test_monitor_shows_the_percentage_beside_the_voltage_and_the_level(
 
 
 @pytest.mark.integration
-async def test_monitor_json_carries_the_percentage_null_until_known_and_the_events(
+async def test_monitor_json_carries_the_percentage_once_known_and_the_events(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     pack = PackSpec("li-ion", cells=7, charge=5.0)
@@ -610,9 +610,10 @@ async def test_monitor_json_carries_the_percentage_null_until_known_and_the_even
         truth = sim.firmware.battery_charge
     rows = [json.loads(line) for line in got.lines]
     frames = [r for r in rows if r["type"] == "Telemetry"]
-    assert frames[0]["battery_percentage"] is None
-    assert frames[0]["battery_level"] is None
-    known = [r for r in frames if r["battery_percentage"] is not None]
+    # Not known yet: left out, never null (nor a made-up number).
+    assert "battery_percentage" not in frames[0]
+    assert "battery_level" not in frames[0]
+    known = [r for r in frames if "battery_percentage" in r]
     assert known, frames[-1]
     assert truth is not None
     assert abs(known[-1]["battery_percentage"] - truth) <= 3
@@ -623,7 +624,7 @@ async def test_monitor_json_carries_the_percentage_null_until_known_and_the_even
 
 
 @pytest.mark.integration
-async def test_monitor_without_a_model_shows_the_voltage_alone_and_null(
+async def test_monitor_without_a_model_shows_the_voltage_alone(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     async with ChassisSimulator(ChassisSpec(pack=PackSpec("li-ion", cells=7))) as sim:
@@ -632,8 +633,8 @@ async def test_monitor_without_a_model_shows_the_voltage_alone_and_null(
     frame = next(line for line in text.lines if line.startswith("  v="))
     assert re.search(r" \d+\.\d V  docking=", frame), frame
     first = next(r for r in map(json.loads, rows.lines) if r["type"] == "Telemetry")
-    assert first["battery_percentage"] is None
-    assert first["battery_level"] is None
+    assert "battery_percentage" not in first
+    assert "battery_level" not in first
 
 
 @pytest.mark.integration
@@ -699,7 +700,7 @@ async def test_an_mcap_recording_carries_the_charge_beside_the_voltage(tmp_path:
             proto_fields(m.data)
             for _, _, m in make_reader(f).iter_messages(topics=["/chassis/log"])
         ]
-    assert frames[0]["battery_percentage"] is None
+    assert "battery_percentage" not in frames[0]  # not known yet: left out
     assert frames[-1]["battery_level"] == "CRITICAL"
     assert truth is not None
     assert abs(frames[-1]["battery_percentage"] - truth) <= 3
@@ -759,7 +760,7 @@ async def test_the_monitor_command_takes_the_model_from_the_profile(tmp_path: Pa
         truth = sim.firmware.battery_charge
     assert code == 0, err
     frames = [r for r in map(json.loads, out.splitlines()) if r["type"] == "Telemetry"]
-    assert frames[0]["battery_percentage"] is None
+    assert "battery_percentage" not in frames[0]  # not known yet: left out
     assert frames[-1]["battery_level"] == "LOW"
     assert truth is not None
     assert abs(frames[-1]["battery_percentage"] - truth) <= 3

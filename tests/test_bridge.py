@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
 import signal
 import ssl
@@ -19,9 +20,9 @@ from pathlib import Path
 import aiomqtt
 import pytest
 
-from chassis_sdk import BatteryModel, Board, Chassis
+from chassis_sdk import BatteryModel, Board, Chassis, EventKind
 from chassis_sdk.integrations.mqtt import MqttBridge
-from chassis_sdk.protocol import DriveVelocity
+from chassis_sdk.protocol import DockingState, DriveVelocity
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator, ChassisSpec, PackSpec
 
 from .support.cli import ROOT
@@ -85,9 +86,50 @@ async def test_telemetry_at_the_rate_and_events(
         )
         assert obs.on("robots/r1/telemetry/odometry")[-1]["type"] == "Odometry"
         sim.firmware.press_bumper(front=True)
-        await obs.wait(lambda: any(e["kind"] == "bumper_hit" for e in obs.on("robots/r1/events")))
-        hit = next(e for e in obs.on("robots/r1/events") if e["kind"] == "bumper_hit")
+        await obs.wait(lambda: any(e["kind"] == "BUMPER_HIT" for e in obs.on("robots/r1/events")))
+        hit = next(e for e in obs.on("robots/r1/events") if e["kind"] == "BUMPER_HIT")
         assert hit["source"] == "front"
+
+
+@pytest.mark.integration
+@pytest.mark.mqtt
+async def test_events_on_mqtt_are_the_json_a_recording_writes(tmp_path: Path) -> None:
+    # One encoding: an event on MQTT is the MCAP's JSON of it (kind by name, as
+    # docs/mqtt.md says; the state of a docking change by name), but for the clock: its
+    # timestamp is wall time and the recording's monotonic reading is `monotonic`.
+    from mcap.reader import make_reader
+
+    path = tmp_path / "run.mcap"
+    async with (
+        broker() as b,
+        ChassisSimulator() as sim,
+        Observer(b) as obs,
+        Chassis(sim.port, record=path) as robot,
+        bridged(b, robot),
+    ):
+        await obs.wait(lambda: bool(obs.on("robots/r1/telemetry/telemetry")))
+        sim.firmware.press_bumper(front=True)
+        await robot.start_docking()
+        await obs.wait(
+            lambda: (
+                {"BUMPER_HIT", "DOCKING_CHANGED"} <= {e["kind"] for e in obs.on("robots/r1/events")}
+            )
+        )
+    published = obs.on("robots/r1/events")
+    with path.open("rb") as f:
+        recorded = [
+            json.loads(m.data)
+            for _, _, m in make_reader(f).iter_messages(topics=["/chassis/events"])
+        ]
+    # Each by its clock reading and its fields (a frame can make two events).
+    written = [(e.pop("timestamp"), e) for e in recorded]
+    for event in published:
+        assert event["kind"] in {k.name for k in EventKind}, event
+        clock = event.pop("monotonic")
+        del event["timestamp"]
+        assert (clock, event) in written
+    docking = next(e for e in published if e["kind"] == "DOCKING_CHANGED")
+    assert docking["state"] in {s.name for s in DockingState}
 
 
 @pytest.mark.integration
@@ -279,32 +321,33 @@ async def test_a_board_is_bridged_with_its_own_streams() -> None:
 
 @pytest.mark.integration
 @pytest.mark.mqtt
-async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_events() -> None:
-    # A pack at 5 %: null while the model warms up (3 s), then the charge, CRITICAL,
-    # and battery_low then battery_critical on events with their percentage.
+async def test_the_state_of_charge_beside_the_voltage_once_known_and_its_events() -> None:
+    # A pack at 5 %: left out while the model warms up (3 s), then the charge, CRITICAL,
+    # and BATTERY_LOW then BATTERY_CRITICAL on events with their percentage.
     pack = PackSpec("li-ion", cells=7, charge=5.0)
     model = BatteryModel("li-ion", cells=7, warmup=3.0, min_readings=3)
     async with broker() as b, Observer(b) as obs, ChassisSimulator(ChassisSpec(pack=pack)) as sim:
         async with Chassis(sim.port, battery=model) as robot, bridged(b, robot, rate=10.0):
             topic = "robots/r1/telemetry/telemetry"
             await obs.wait(
-                lambda: any(e["kind"] == "battery_critical" for e in obs.on("robots/r1/events")),
+                lambda: any(e["kind"] == "BATTERY_CRITICAL" for e in obs.on("robots/r1/events")),
                 timeout=10.0,
             )
-            await obs.wait(lambda: obs.on(topic)[-1]["battery_percentage"] is not None)
+            await obs.wait(lambda: "battery_percentage" in obs.on(topic)[-1])
             truth = sim.firmware.battery_charge
         frames = obs.on(topic)
-        assert frames[0]["battery_percentage"] is None  # unknown: null, never a number
-        assert frames[0]["battery_level"] is None
-        known = [f for f in frames if f["battery_percentage"] is not None]
+        # Unknown: left out (never null, never a number).
+        assert "battery_percentage" not in frames[0]
+        assert "battery_level" not in frames[0]
+        known = [f for f in frames if "battery_percentage" in f]
         assert all(0.0 <= f["battery_percentage"] <= 100.0 for f in known)
         assert truth is not None
         assert abs(known[-1]["battery_percentage"] - truth) <= 3
         assert known[-1]["battery_level"] == "CRITICAL"
-        events = [e for e in obs.on("robots/r1/events") if e["kind"].startswith("battery")]
-        assert [e["kind"] for e in events] == ["battery_low", "battery_critical"]
+        events = [e for e in obs.on("robots/r1/events") if e["kind"].startswith("BATTERY")]
+        assert [e["kind"] for e in events] == ["BATTERY_LOW", "BATTERY_CRITICAL"]
         assert all(e["percentage"] < model.critical and e["voltage"] > 0 for e in events)
-    async with (  # a board's battery stream; no model: null beside the voltage
+    async with (  # a board's battery stream; no model: the voltage alone
         broker() as b,
         BoardSimulator() as board_sim,
         Board(board_sim.port) as board,
@@ -314,7 +357,8 @@ async def test_the_state_of_charge_beside_the_voltage_null_until_known_and_its_e
         await obs.wait(lambda: bool(obs.on("robots/b1/telemetry/battery")))
         reading = obs.on("robots/b1/telemetry/battery")[-1]
         assert reading["voltage"] > 0
-        assert (reading["battery_percentage"], reading["battery_level"]) == (None, None)
+        assert "battery_percentage" not in reading
+        assert "battery_level" not in reading
         assert "battery_percentage" not in obs.on("robots/b1/telemetry/imu")[-1]
 
 

@@ -149,7 +149,7 @@ async def test_a_device_lost_for_good_ends_the_bridge_with_its_last_will() -> No
                 await asyncio.wait_for(task, 10)
         await obs.wait(lambda: obs.on("robots/r1/connection")[-1]["state"] == "CONNECTIONBROKEN")
         assert obs.on("robots/r1/link")[-1]["state"] == "lost"
-        assert "link_lost" in [e["kind"] for e in obs.on("robots/r1/events")]
+        assert "LINK_LOST" in [e["kind"] for e in obs.on("robots/r1/events")]
 
 
 @pytest.mark.slow

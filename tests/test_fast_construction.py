@@ -110,6 +110,7 @@ def _messages() -> list[object]:
         Telemetry(1e-7, unknown_bit, DockingState.DOCKED, -0.0, 1e22, WheelSpeeds(1, 2, 3, 4)),
         DriverStatus(driver, driver, driver, driver, 20.5, 21.0, 24.0, 23.9),
         ImuSample(Vector3(1, 2, 3), Vector3(4, 5, 6), Vector3(7, 8, 9), 0.5, None),
+        Telemetry(24.6, ChassisStatus(0), DockingState.DOCKED, 0.3, -0.2, WheelSpeeds(0, 0, 0, 0)),
     ]
     return found
 
@@ -142,13 +143,23 @@ def test_fast_repr_refuses_other_classes() -> None:
 
 
 def _standard_plain(value: object) -> object:
-    """What :func:`~chassis_sdk.core.plain.plain` promises, written the obvious way."""
+    """What :func:`~chassis_sdk.core.plain.plain` promises, written the obvious way:
+    objects without their None fields, an enum's name, a flag's set bits by name."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _standard_plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        fields = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+        return {k: _standard_plain(v) for k, v in fields.items() if v is not None}
     if isinstance(value, tuple) and hasattr(value, "_fields"):
-        return {n: _standard_plain(v) for n, v in zip(value._fields, value, strict=True)}
+        fields = dict(zip(value._fields, value, strict=True))
+        return {k: _standard_plain(v) for k, v in fields.items() if v is not None}
+    if isinstance(value, enum.Flag):
+        bits = int(value.value)
+        return "|".join(
+            type(value)(1 << n).name or f"BIT_{n}"
+            for n in range(bits.bit_length())
+            if bits >> n & 1
+        )
     if isinstance(value, enum.Enum):
-        return value.name if value.name else int(value.value)
+        return value.name
     if isinstance(value, datetime.date):
         return value.isoformat()
     return value
@@ -161,8 +172,10 @@ def test_plain_data_is_what_it_promises() -> None:
         converted = plain(msg)
         assert converted == _standard_plain(msg), type(msg).__name__
         assert json.loads(json.dumps(converted)) == converted
-        # Enums become names (or numbers), never stay enum members inside the dict.
+        # Enums and flags become names, never stay enum members or numbers, and a
+        # None is left out, never null.
         assert not any(isinstance(v, enum.Enum) for v in _leaves(converted))
+        assert None not in _leaves(converted)
 
 
 def _leaves(value: object) -> list[object]:

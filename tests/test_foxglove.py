@@ -15,10 +15,10 @@ import pytest
 from mcap.reader import make_reader
 
 from chassis_sdk import Board, Chassis, EventKind, Telemetry
+from chassis_sdk.core.plain import json_schema
 from chassis_sdk.integrations.foxglove import FoxgloveServer
-from chassis_sdk.protocol import DriveVelocity
+from chassis_sdk.protocol import DockingState, DriveVelocity
 from chassis_sdk.recording import capture
-from chassis_sdk.recording.sink import json_schema
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import ROOT, cli, running
@@ -247,13 +247,46 @@ async def test_export_writes_commands_of_an_application_recording(tmp_path: Path
     assert written["telemetry"].rows >= 10
 
 
+@pytest.mark.integration
+async def test_export_has_a_column_for_every_field_even_one_the_first_row_leaves_out(
+    tmp_path: Path,
+) -> None:
+    # An event's fields that are None are left out of its JSON, not of its CSV: the
+    # first event (a bumper: no state) still gives the docking change its column.
+    from chassis_sdk.recording.export import export_csv
+
+    path = tmp_path / "events.jsonl"
+    async with ChassisSimulator() as sim, Chassis(sim.port, record=path) as robot:
+        events = robot.events()
+        sim.firmware.press_bumper()
+        async for event in events:
+            if event.kind is EventKind.BUMPER_HIT:
+                await robot.start_docking()
+            elif event.kind is EventKind.DOCKING_CHANGED:
+                break
+    written = export_csv(path, tmp_path / "out", "chassis")
+    with written["events"].path.open() as f:
+        reader = csv.DictReader(f)
+        rows = list(reader)
+    assert reader.fieldnames is not None
+    assert reader.fieldnames[:8] == [
+        "t", "kind", "source", "timestamp", "state", "voltage", "percentage", "action"
+    ]  # fmt: skip
+    assert rows[0]["kind"] == "BUMPER_HIT"
+    assert rows[0]["state"] == ""
+    docking = next(r for r in rows if r["kind"] == "DOCKING_CHANGED")
+    assert docking["state"] in {s.name for s in DockingState}
+
+
 def test_json_schemas_describe_what_plain_writes() -> None:
     schema = json_schema(Telemetry)
     assert schema["type"] == "object"
     props = schema["properties"]
     assert props["voltage"] == {"type": "number"}
     assert props["seq"] == {"type": "integer"}
-    assert props["docking"]["enum"][0] == "SEARCHING"
+    assert props["status"] == {"type": "string"}  # flags by name: "A|B", "" for none
+    assert props["docking"] == {"type": "string"}  # by name (UNKNOWN_<n> if unlisted)
+    assert set(schema["required"]) == set(props)  # no field of a Telemetry is ever None
     assert props["wheels"]["properties"]["front_left"] == {"type": "number"}
 
 

@@ -5,7 +5,7 @@ real ptys, the files read back by two independent bag readers and by the SDK's o
   directory or ``metadata.yaml`` needed) and mcap-ros2-support (its ``DecoderFactory``
   under ``mcap``'s reader) each decode every message from the file's own schemas;
 * what rosbag2 itself checks is there: profile ``ros2``, ``ros2msg`` schemas that are
-  rosbags' Jazzy definitions, ``cdr`` messages, QoS YAML that parses (``/tf_static``
+  the definitions rosbag2 writes and declare rosbags' Jazzy types, ``cdr`` messages, QoS YAML that parses (``/tf_static``
   latched), ``topic_type_hash`` equal to rosbags' REP 2011 hash;
 * the session's raw bytes come back through ``capture.read_capture``, ``replay`` and
   ``export`` exactly as from a Foxglove recording of the same session.
@@ -31,17 +31,20 @@ from ruamel.yaml import YAML
 
 from chassis_sdk import Board, Chassis, ImuSample, Telemetry
 from chassis_sdk.protocol import DriveVelocity
-from chassis_sdk.recording import capture, open_recording
+from chassis_sdk.recording import capture, open_recording, ros2_types
 from chassis_sdk.recording.ros2 import Ros2Recording, rosbag
 from chassis_sdk.recording.ros2_types import StaticTransform
 from chassis_sdk.sim import BoardSimulator, ChassisSimulator
 
 from .support.cli import ROOT, cli, one_line
 from .support.helpers import kill_while_recording
+from .support.msgdefs import jazzy_differences
 
 pytestmark = pytest.mark.timeout(60)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
+#: The SDK's message classes by their ROS names.
+TYPES = {ros2_types.ros_name(cls): cls for cls in ros2_types._all_types()}
 G = 9.80665
 RAW = "std_msgs/msg/UInt8MultiArray"
 
@@ -95,7 +98,8 @@ def check_rosbag2_shape(path: Path, expected: dict[str, str]) -> dict[str, Any]:
         channel, schema, _ = channels[topic]
         assert schema.name == type_name
         assert schema.encoding == "ros2msg"
-        assert schema.data.decode() == STORE.generate_msgdef(type_name, ros_version=2)[0]
+        assert jazzy_differences(schema.data.decode(), type_name) == []
+        assert schema.data.decode() == ros2_types.definition(TYPES[type_name])
         assert channel.message_encoding == "cdr"
         assert channel.metadata["topic_type_hash"] == STORE.hash_rihs01(type_name)
         profile = qos(channel)

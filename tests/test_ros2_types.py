@@ -2,7 +2,9 @@
 independent implementation of ROS 2's type system and CDR: ``rosbags`` (its Jazzy type
 store, which carries the .msg files of ROS 2 Jazzy).
 
-* every class's definition text and REP 2011 type hash are rosbags' own;
+* every class's definition is what rosbag2 writes (the .msg files as they are, comments
+  and defaults kept), declares rosbags' Jazzy types, and its REP 2011 type hash is
+  rosbags' own;
 * each converter's message, serialised by Cyclone DDS, is byte for byte what rosbags
   serialises for the same message built here from rosbags' classes, the expected field
   values worked out here from the inputs (unit conversions, the yaw quaternion, the
@@ -28,6 +30,8 @@ from rosbags.typesys import Stores, get_typestore
 from chassis_sdk import BatteryModel, Chassis
 from chassis_sdk.recording import ros2_types as r
 from chassis_sdk.sim import ChassisSimulator, ChassisSpec, PackSpec
+
+from .support.msgdefs import jazzy_differences
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -83,10 +87,54 @@ def f32(value: float) -> float:
 
 
 @pytest.mark.parametrize("cls", TYPES, ids=lambda c: r.ros_name(c))
-def test_the_definition_and_type_hash_are_rosbags_own(cls: type) -> None:
+def test_the_definition_declares_rosbags_types_and_the_type_hash_is_rosbags_own(
+    cls: type,
+) -> None:
     name = r.ros_name(cls)
-    assert r.definition(cls) == STORE.generate_msgdef(name, ros_version=2)[0]
+    assert jazzy_differences(r.definition(cls), name) == []
     assert r.type_hash(cls) == STORE.hash_rihs01(name)
+
+
+#: ``geometry_msgs/msg/Quaternion.msg`` of ROS 2 Jazzy, as ``ros2 interface show`` and
+#: rosbag2 give it: its comment, its fields and their defaults.
+QUATERNION_MSG = """\
+# This represents an orientation in free space in quaternion form.
+
+float64 x 0
+float64 y 0
+float64 z 0
+float64 w 1
+"""
+
+
+def test_the_definition_is_the_msg_file_as_it_is_as_rosbag2_writes_it() -> None:
+    # rosbag2 (rosbag2_cpp's LocalMessageDefinitionSource) stores the .msg file's text
+    # as it is: ``float64 w 1``, not ``float64 w``, and the comments.
+    assert r.definition(r.Quaternion) == QUATERNION_MSG
+    constants = r.definition(r.BatteryState)
+    assert "uint8 POWER_SUPPLY_TECHNOLOGY_LIFE = 4" in constants
+    assert "# Constants are chosen to match the enums in the linux kernel" in constants
+
+
+def test_the_definition_puts_each_used_type_after_it_as_rosbag2_does() -> None:
+    # Each type the file uses, sorted by name (its std::set), depth first, each once,
+    # after "\n", 80 "=" and "MSG: pkg/Type" as the file names it.
+    text = r.definition(r.Odometry)
+    sections = text.split("\n" + "=" * 80 + "\n")
+    assert [s.split("\n", 1)[0] for s in sections[1:]] == [
+        "MSG: geometry_msgs/PoseWithCovariance",
+        "MSG: geometry_msgs/Pose",
+        "MSG: geometry_msgs/Point",
+        "MSG: geometry_msgs/Quaternion",
+        "MSG: geometry_msgs/TwistWithCovariance",
+        "MSG: geometry_msgs/Twist",
+        "MSG: geometry_msgs/Vector3",
+        "MSG: std_msgs/Header",
+        "MSG: builtin_interfaces/Time",
+    ]
+    assert sections[4] == "MSG: geometry_msgs/Quaternion\n" + QUATERNION_MSG
+    assert sections[0].startswith("# This represents an estimate of a position and velocity")
+    assert "\ngeometry_msgs/PoseWithCovariance pose\n" in sections[0]
 
 
 def test_every_type_the_topics_use_is_checked() -> None:

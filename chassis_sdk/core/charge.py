@@ -3,7 +3,8 @@ dashboard and the MQTT bridge read it here, so that they say the same thing.
 
 The state of charge comes from the device's ``battery=BatteryModel(...)``
 ([`battery_percentage`][chassis_sdk.Board.battery_percentage]). It is ``None`` until it is
-known, and shown as such (``null``, ``--``), never as a made-up number.
+known, and shown as such (left out of JSON, ``--`` on a terminal), never as a made-up
+number.
 """
 
 from __future__ import annotations
@@ -35,15 +36,15 @@ def battery_level(device: HasBattery) -> BatteryLevel | None:
 
 
 def battery_fields(device: HasBattery) -> dict[str, Any]:
-    """``{"battery_percentage": 63.2 | None, "battery_level": "OK" | "LOW" |
-    "CRITICAL" | None}``: the keys a JSON payload carries beside a voltage (both
-    ``None`` without a model or while the charge is not known)."""
+    """``{"battery_percentage": 63.2, "battery_level": "OK" | "LOW" | "CRITICAL"}``:
+    the keys a JSON payload carries beside a voltage; empty without a model or while the
+    charge is not known (a value not known is left out, never ``null``: see
+    `chassis_sdk.core.plain`)."""
     percentage = device.battery_percentage
     level = battery_level(device)
-    return {
-        "battery_percentage": None if percentage is None else round(percentage, 1),
-        "battery_level": None if level is None else level.name,
-    }
+    if percentage is None or level is None:
+        return {}
+    return {"battery_percentage": round(percentage, 1), "battery_level": level.name}
 
 
 def battery_text(voltage: float, device: HasBattery) -> str:

@@ -22,11 +22,11 @@ __all__ = ["NamedEnum", "NamedFlag", "flag_names"]
 _NUMERIC = frozenset("bcdoxXn")
 
 
-def flag_names(value: enum.IntFlag) -> list[str]:
+def flag_names(value: enum.Flag) -> list[str]:
     """The name of every set bit of ``value``, lowest first; an undocumented bit is
     named ``BIT_n``."""
     names = []
-    bits = int(value)
+    bits: int = value._value_
     cls = type(value)
     for n in range(bits.bit_length()):
         if bits >> n & 1:

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from ..core.notifier import Notifier
-from ..core.plain import plain
+from ..core.plain import json_schema, plain
 from ..devices import profile
 from .capture import read_capture
 
@@ -46,8 +46,19 @@ def flatten(value: object, prefix: str = "") -> Iterator[tuple[str, Any]]:
         yield (prefix[:-1] or "value"), value
 
 
+def _columns(schema: dict[str, Any], prefix: str = "") -> Iterator[str]:
+    """The flattened columns of an object's JSON schema (`json_schema`), nested
+    objects with dots; a sequence has none (its length is the row's)."""
+    for key, prop in schema.get("properties", {}).items():
+        if prop.get("type") == "object":
+            yield from _columns(prop, f"{prefix}{key}.")
+        elif prop.get("type") != "array":
+            yield f"{prefix}{key}"
+
+
 class _Tables:
-    """CSV files opened as their first row arrives, each with that row's columns."""
+    """CSV files opened as their first row arrives, each with the columns of that row's
+    type (a field the row leaves out is an empty cell)."""
 
     def __init__(self, directory: Path) -> None:
         self.directory = directory
@@ -59,7 +70,10 @@ class _Tables:
         entry = self._files.get(name)
         if entry is None:
             f = (self.directory / f"{name}.csv").open("w", newline="", encoding="utf-8")
-            columns = list(row)
+            # Every field of the type, those the first row leaves out (None) too, then
+            # what only the row says (the items of a sequence).
+            columns = ["t", *_columns(json_schema(type(message)))]
+            columns += [c for c in row if c not in columns]
             writer = csv.DictWriter(f, columns, extrasaction="ignore")
             writer.writeheader()
             entry = self._files[name] = (f, writer, columns)

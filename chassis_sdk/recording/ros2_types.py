@@ -8,13 +8,15 @@ bridge puts on the wire (plain CDR, encapsulation ``00 01 00 00``) and what a ro
 MCAP file holds. From the fields alone this module derives what ROS 2 tools check:
 
 * `definition`: the full message definition text that rosbag2 stores as a
-  ``ros2msg`` schema (the type's ``.msg`` fields and constants, then every type it uses
-  under ``MSG: pkg/Type`` separators);
+  ``ros2msg`` schema, made as rosbag2 makes it: the type's ``.msg`` file as it is
+  (comments, constants and defaults), then each type it uses after a line of 80 ``=``
+  and ``MSG: pkg/Type`` (the ``.msg`` files are ROS 2 Jazzy's, in ``ros2_msg/``);
 * `type_hash`: the ``RIHS01_…`` type hash of REP 2011 that Jazzy and newer put in
   every endpoint's USER_DATA (``typehash=…;``) and in a bag's ``topic_type_hash``.
 
-Both are checked against an independent source (``rosbags``' Jazzy type store) by
-``tests/test_ros2_types.py``, as are the bytes of each serialised message.
+Both are checked against an independent source (``rosbags``' Jazzy type store: the
+fields each ``.msg`` file declares, and the hash) by ``tests/test_ros2_types.py``, as
+are the bytes of each serialised message.
 
 `TOPICS` names every topic the bridge offers and the recorder writes, with its
 type and QoS; the converters (`odometry_message`, `transform_message`, ...)
@@ -26,8 +28,10 @@ Needs the ``ros2`` extra (``cyclonedds``).
 
 import dataclasses
 import hashlib
+import importlib.resources
 import json
 import math
+import re
 import time
 import typing
 from collections.abc import Iterable, Sequence
@@ -348,42 +352,6 @@ DIAGNOSTIC_WARN: Final = 1
 DIAGNOSTIC_ERROR: Final = 2
 DIAGNOSTIC_STALE: Final = 3
 
-#: The constants of each type that has some, as its ``.msg`` file declares them (they
-#: are part of the definition text, not of the type hash).
-_CONSTANTS: dict[type, tuple[tuple[str, str, int], ...]] = {
-    BatteryState: tuple(
-        ("uint8", f"POWER_SUPPLY_{group}_{name}", value)
-        for group, names in (
-            ("STATUS", ("UNKNOWN", "CHARGING", "DISCHARGING", "NOT_CHARGING", "FULL")),
-            (
-                "HEALTH",
-                (
-                    "UNKNOWN",
-                    "GOOD",
-                    "OVERHEAT",
-                    "DEAD",
-                    "OVERVOLTAGE",
-                    "UNSPEC_FAILURE",
-                    "COLD",
-                    "WATCHDOG_TIMER_EXPIRE",
-                    "SAFETY_TIMER_EXPIRE",
-                ),
-            ),
-            (
-                "TECHNOLOGY",
-                ("UNKNOWN", "NIMH", "LION", "LIPO", "LIFE", "NICD", "LIMN", "TERNARY", "VRLA"),
-            ),
-        )
-        for value, name in enumerate(names)
-    ),
-    DiagnosticStatus: (
-        ("byte", "OK", 0),
-        ("byte", "WARN", 1),
-        ("byte", "ERROR", 2),
-        ("byte", "STALE", 3),
-    ),
-}
-
 #: The fields that the ``.msg`` files declare ``byte`` (see :data:`_octet`).
 _ROS_BYTES: dict[type, frozenset[str]] = {DiagnosticStatus: frozenset({"level"})}
 
@@ -418,15 +386,6 @@ class _Field:
     array: int | None  # fixed length
     sequence: bool
     string_capacity: int = 0  # a bounded string's (``string<=N``)
-
-    @property
-    def msg_type(self) -> str:
-        base = self.base.replace("/msg/", "/") if self.nested is not None else self.base
-        if self.string_capacity:
-            base = f"string<={self.string_capacity}"
-        if self.array is not None:
-            return f"{base}[{self.array}]"
-        return f"{base}[]" if self.sequence else base
 
     def description(self) -> dict[str, Any]:
         type_id = _NESTED if self.nested is not None else _TYPE_IDS[self.base]
@@ -499,20 +458,56 @@ def _closure(cls: type) -> list[type]:
     return seen
 
 
-def _msg_text(cls: type) -> str:
-    lines = [f"{ctype} {cname}={value}" for ctype, cname, value in _CONSTANTS.get(cls, ())]
-    lines += [f"{f.msg_type} {f.name}" for f in _fields(cls)]
-    return "\n".join(lines) + "\n"
+#: rosbag2's patterns (``rosbag2_cpp``'s ``local_message_definition_source.cpp``): a ROS
+#: type name, and the type of each field or constant of a ``.msg`` text (a line's first
+#: word; a comment line starts with ``#`` and has none).
+_TYPE_NAME: Final = re.compile(r"^([a-zA-Z0-9_]+)/(?:msg/|srv/)?([a-zA-Z0-9_]+)$")
+_MSG_FIELD_TYPE: Final = re.compile(r"(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+")
+_PRIMITIVES: Final = frozenset(
+    ("bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
+     "int32", "uint32", "int64", "uint64", "string")
+)  # fmt: skip
+
+
+def _msg_file(name: str) -> str:
+    """The ``.msg`` file of the type ``name`` (``pkg/Type`` or ``pkg/msg/Type``), as
+    ROS 2 Jazzy installs it in ``share/pkg/msg/Type.msg``: its text, byte for byte."""
+    match = _TYPE_NAME.match(name)
+    if match is None:
+        raise ValueError(f"not a ROS type name: {name!r}")
+    package, base = match.groups()
+    path = importlib.resources.files(__package__).joinpath("ros2_msg", package, "msg")
+    return path.joinpath(f"{base}.msg").read_text(encoding="utf-8")
+
+
+def _dependencies(text: str, package: str) -> list[str]:
+    """The types a ``.msg`` text uses, as rosbag2 finds them: each line's first word
+    that is not a primitive, in its package if it names none, sorted (a ``std::set``)."""
+    found = set()
+    for match in _MSG_FIELD_TYPE.finditer(text):
+        word = match[1]
+        if word not in _PRIMITIVES:
+            found.add(word if "/" in word else f"{package}/{word}")
+    return sorted(found)
 
 
 def definition(cls: type) -> str:
     """The full message definition of ``cls`` as rosbag2 stores it in a ``ros2msg``
-    schema: its own ``.msg`` text, then each type it uses after a line of 80 ``=`` and
-    ``MSG: pkg/Type``."""
-    parts = [_msg_text(cls)]
-    for dep in _closure(cls)[1:]:
-        parts.append(f"{'=' * 80}\nMSG: {ros_name(dep).replace('/msg/', '/')}\n{_msg_text(dep)}")
-    return "".join(parts)
+    schema (``LocalMessageDefinitionSource::get_full_text``): its ``.msg`` file as it
+    is, then, depth first, each type that file uses (sorted by name, each once) after
+    a line break, a line of 80 ``=`` and ``MSG: pkg/Type``."""
+    seen: set[str] = set()
+
+    def full_text(name: str) -> str:
+        text = _msg_file(name)
+        result = text
+        for dependency in _dependencies(text, name.split("/", 1)[0]):
+            if dependency not in seen:
+                seen.add(dependency)
+                result += f"\n{'=' * 80}\nMSG: {dependency}\n{full_text(dependency)}"
+        return result
+
+    return full_text(ros_name(cls))
 
 
 def type_hash(cls: type) -> str:

@@ -14,9 +14,10 @@ Topics, for a device named ``chassis``::
     /chassis/raw/tx      every frame the host wrote, when it began to leave
     /chassis/commands    those frames decoded
     /chassis/{stream}    each stream (telemetry, power, odometry, events, ...) as JSON;
-                         a reading with the pack's ``voltage`` of a device given
-                         ``battery=BatteryModel(...)`` with ``battery_percentage`` and
-                         ``battery_level`` beside it (``null`` while not known)
+                         (`chassis_sdk.core.plain` writes them, with their JSON
+                         schemas); a reading with the pack's ``voltage`` of a device
+                         given ``battery=BatteryModel(...)`` with ``battery_percentage``
+                         and ``battery_level`` beside it (left out while not known)
     /chassis/pose        foxglove.PoseInFrame in frame "odom"
     /tf                  foxglove.FrameTransforms odom -> base_link
     /chassis/log         events as foxglove.Log
@@ -26,23 +27,20 @@ Topics, for a device named ``chassis``::
 from __future__ import annotations
 
 import base64
-import dataclasses
 import datetime
-import enum
 import json
 import logging
 import math
 import platform
 import socket
 import time
-import types
-import typing
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from ..core.battery import BatteryLevel
 from ..core.charge import battery_fields
 from ..core.notifier import Notifier
-from ..core.plain import plain
+from ..core.plain import json_schema, jsonable
 from .batch import AfterFrame
 
 if TYPE_CHECKING:
@@ -50,7 +48,7 @@ if TYPE_CHECKING:
 
     from ..core.device import Device
 
-__all__ = ["FoxgloveSink", "json_schema", "session_metadata"]
+__all__ = ["FoxgloveSink", "session_metadata"]
 
 _log = logging.getLogger("chassis_sdk.recording")
 _NS = 1_000_000_000
@@ -59,13 +57,24 @@ _BYTES_SCHEMA = {
     "properties": {"data": {"type": "string", "contentEncoding": "base64"}},
     "required": ["data"],
 }
-_LINK_SCHEMA = {"type": "object", "properties": {"state": {"type": "string"}}}
+_LINK_SCHEMA = {
+    "type": "object",
+    "properties": {"state": {"type": "string"}},
+    "required": ["state"],
+}
+#: The decoded commands: every type of command on one channel, each named by ``type``.
+_COMMAND_SCHEMA = {
+    "type": "object",
+    "properties": {"type": {"type": "string"}},
+    "required": ["type"],
+}
 #: Event kinds logged as warnings (the rest are information).
 _WARNINGS = ("engaged", "hit", "offline", "error", "low", "critical", "stale", "lost")
-#: The JSON schema of the state of charge beside a voltage (``battery_fields``).
+#: The JSON schema of the state of charge beside a voltage (``battery_fields``; both
+#: left out while it is not known).
 _CHARGE_SCHEMA = {
-    "battery_percentage": {"type": ["number", "null"], "minimum": 0, "maximum": 100},
-    "battery_level": {"enum": ["OK", "LOW", "CRITICAL", None]},
+    "battery_percentage": {"type": "number", "minimum": 0, "maximum": 100},
+    "battery_level": json_schema(BatteryLevel),
 }
 
 
@@ -75,66 +84,14 @@ def _needs_foxglove(what: str) -> ImportError:
     )
 
 
-# --- JSON schemas of messages -------------------------------------------------------------
-
-
-def json_schema(tp: Any) -> dict[str, Any]:
-    """A JSON schema for how `plain` renders a value of
-    type ``tp`` (a message dataclass, a NamedTuple, an enum, a number, ...)."""
-    if tp is bool:
-        return {"type": "boolean"}
-    if tp is int:
-        return {"type": "integer"}
-    if tp is float:
-        return {"type": "number"}
-    if tp is str:
-        return {"type": "string"}
-    if tp is bytes:
-        return {"type": "string", "contentEncoding": "base64"}
-    if tp is type(None):
-        return {"type": "null"}
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        return {"anyOf": [json_schema(a) for a in args]}
-    if origin in (tuple, list) or tp in (tuple, list):
-        items = [a for a in args if a is not Ellipsis]
-        if len(set(items)) == 1:
-            return {"type": "array", "items": json_schema(items[0])}
-        return {"type": "array"}
-    if isinstance(tp, type):
-        if issubclass(tp, enum.Flag):  # by name, "A|B" for several, a number if none
-            return {"type": ["string", "integer"]}
-        if issubclass(tp, enum.Enum):
-            return {"type": ["string", "integer"], "enum": [m.name for m in tp]}
-        if issubclass(tp, datetime.date):
-            return {"type": "string", "format": "date"}
-        if dataclasses.is_dataclass(tp) or (issubclass(tp, tuple) and hasattr(tp, "_fields")):
-            return _object_schema(tp)
-    return {}
-
-
-def _object_schema(cls: type) -> dict[str, Any]:
-    try:
-        hints = typing.get_type_hints(cls)
-    except (NameError, TypeError):
-        hints = {}
-    if dataclasses.is_dataclass(cls):
-        names = [f.name for f in dataclasses.fields(cls)]
-    else:
-        names = list(getattr(cls, "_fields", ()))
-    return {
-        "title": cls.__qualname__,
-        "type": "object",
-        "properties": {name: json_schema(hints.get(name, Any)) for name in names},
-    }
+# --- JSON schemas of messages (core.plain writes them: one encoding, one schema) ---------
 
 
 def _message_schema(msg: object) -> dict[str, Any]:
     schema = json_schema(type(msg))
     if schema.get("type") == "object":
         return schema
-    return {"type": "object", "properties": {"value": schema}}
+    return {"type": "object", "properties": {"value": schema}, "required": ["value"]}
 
 
 def session_metadata(device: Device[Any, Any]) -> dict[str, str]:
@@ -251,8 +208,8 @@ class FoxgloveSink:
             for command in decoder.feed(data, now):
                 if self._commands is None:
                     name = f"chassis_sdk.{self.device.device_name}.Command"
-                    self._commands = self._json_channel("commands", {"type": "object"}, name)
-                payload = {"type": type(command).__name__, **_fields(command)}
+                    self._commands = self._json_channel("commands", _COMMAND_SCHEMA, name)
+                payload = {"type": type(command).__name__, **jsonable(command)}
                 self._json(self._commands, payload, now)
 
     def _on_state(self, state: Any) -> None:
@@ -277,7 +234,7 @@ class FoxgloveSink:
                 channel = self._channels[stream] = self._json_channel(
                     stream, schema, _schema_name(self.device.device_name, msg)
                 )
-            payload = _fields(msg)
+            payload = jsonable(msg)
             if charge:
                 payload.update(battery_fields(self.device))
             self._json(channel, payload, now)
@@ -363,11 +320,6 @@ class FoxgloveSink:
     def _stamp(self, monotonic: float) -> Any:
         ns = self._ns(monotonic)
         return self._fm.Timestamp(sec=ns // _NS, nsec=ns % _NS)
-
-
-def _fields(msg: object) -> dict[str, Any]:
-    value = plain(msg)
-    return value if isinstance(value, dict) else {"value": value}
 
 
 def _jsonify(value: object) -> Any:

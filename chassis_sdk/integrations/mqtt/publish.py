@@ -357,8 +357,8 @@ class Publisher:
             await self.publish("link", state_payload(state.value), qos=1, retain=True)
         while events:
             event = events.popleft()
-            payload = {**outbound(event), "kind": event.kind.value}
-            await self.publish("events", json.dumps(payload).encode(), qos=1)
+            # The recording's JSON of it (kind by name), in wall time.
+            await self.publish("events", json.dumps(outbound(event)).encode(), qos=1)
         if lost and device.connection_state is ConnectionState.LOST:
             # LOST is final (``reconnect`` off, or the device's own tasks failed): its
             # streams have ended with the loss, and so does the bridge (an error of its

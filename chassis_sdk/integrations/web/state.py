@@ -150,7 +150,10 @@ class StateModel:
         if self.device.battery_model is None:
             return None
         fields = battery_fields(self.device)
-        return {"percentage": fields["battery_percentage"], "level": fields["battery_level"]}
+        return {
+            "percentage": fields.get("battery_percentage"),
+            "level": fields.get("battery_level"),
+        }
 
 
 def _finite_only(value: Any) -> Any:

@@ -138,7 +138,7 @@ function addEvent(event) {
 }
 
 function flagsOf(value) {
-  if (value === 0 || value === null || value === undefined) return [];
+  if (!value) return []; // "" when none is set
   return String(value).split("|");
 }
 
