@@ -337,7 +337,9 @@ def test_pack_model_is_opt_in_and_the_linear_battery_unchanged() -> None:
     fw = ChassisFirmware()
     assert fw.pack is None
     assert fw.battery_charge is None
-    assert fw.battery_voltage == pytest.approx(25.6 - 0.03 * 4 * 0.3)  # idle draw sags
+    assert fw.battery_voltage == pytest.approx(
+        fw.spec.battery_full - 0.03 * 4 * 0.3
+    )  # idle draw sags
 
 
 def test_pack_model_discharges_and_sags_under_acceleration() -> None:

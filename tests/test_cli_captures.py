@@ -74,7 +74,7 @@ def captures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         (("sim", "chassis", "--tcp", "http"), "--tcp"),
         (("replay", "x.mcap", "--as-device", "--tcp", "99999"), "port=99999 is out of range"),
         (("serve", "/dev/null", "--foxglove-port", "70000"), "port=70000 is out of range"),
-        (("web", "/dev/null", "--port", "70000"), "port=70000 is out of range"),
+        (("web", "/dev/null", "--http-port", "70000"), "port=70000 is out of range"),
     ],
 )
 async def test_a_tcp_port_out_of_range_is_refused_while_parsing(

@@ -119,7 +119,8 @@ MALFORMED = [
     ("[battery]\nlow = 5\ncritical = 10\n", r"\[battery\] "),
     ("[robot\n", r"not TOML"),
     ("[web]\nprot = 80\n", r"\[web\] prot: `chassis-sdk web` has no such option; did you mean"),
-    ("[web]\nport = 'eighty'\n", r"\[web\] port: "),
+    ("[web]\nhttp_port = 'eighty'\n", r"\[web\] http_port: "),
+    ("[web]\nport = 8080\n", r"\[web\] port = 8080: renamed http_port \(port is the serial port"),
     ("[ros2]\nmax_linear = -2\n", r"\[ros2\] max_linear: max_linear must be a finite number"),
     ("[ros2]\nstamped = 'yes'\n", r"\[ros2\] stamped: must be true or false"),
     ("[drive]\ndevice = 'mower'\n", r"\[drive\] device: must be one of 'chassis', 'board'"),
@@ -186,7 +187,7 @@ def test_flag_beats_environment_beats_file_beats_default(
     assert (args.port, args.max_linear, args.http_port) == (None, 0.5, 8080)  # type: ignore[attr-defined]
     write(
         home / "chassis-sdk.toml",
-        "[robot]\nport = '/dev/file'\n[limits]\nmax_linear = 0.3\n[web]\nport = 9000\n"
+        "[robot]\nport = '/dev/file'\n[limits]\nmax_linear = 0.3\n[web]\nhttp_port = 9000\n"
         "max_angular = 0.7\n[ros2]\nstamped = true\nno_tf = true\n",
     )
     args = parsed("web")
@@ -201,7 +202,7 @@ def test_flag_beats_environment_beats_file_beats_default(
     assert parsed("ros2", "--config", str(home / "chassis-sdk.toml")).no_tf is True  # type: ignore[attr-defined]
     monkeypatch.setenv("CHASSIS_SDK_PORT", "/dev/env")
     assert parsed("web").port == "/dev/env"  # type: ignore[attr-defined]
-    args = parsed("web", "/dev/flag", "--max-linear", "0.2", "--port", "9001")
+    args = parsed("web", "/dev/flag", "--max-linear", "0.2", "--http-port", "9001")
     assert (args.port, args.max_linear, args.http_port) == ("/dev/flag", 0.2, 9001)  # type: ignore[attr-defined]
     # --config may come before or after the command's name
     other = write(home / "other.toml", "[limits]\nmax_linear = 0.1\n")
@@ -217,7 +218,7 @@ def test_ports_lists_every_port_whatever_the_profile_names(home: Path) -> None:
 def test_config_prints_each_setting_with_its_source(
     home: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    write(home / "chassis-sdk.toml", "[limits]\nmax_linear = 0.3\n[web]\nport = 9000\n")
+    write(home / "chassis-sdk.toml", "[limits]\nmax_linear = 0.3\n[web]\nhttp_port = 9000\n")
     monkeypatch.setenv("CHASSIS_SDK_PORT", "/dev/env")
     assert main(["config", "web", "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
@@ -228,7 +229,7 @@ def test_config_prints_each_setting_with_its_source(
     assert tables["limits"]["max_angular"] == {"value": None, "source": "default"}
     assert tables["robot"]["port"] == {"value": "/dev/env", "source": "$CHASSIS_SDK_PORT"}
     web = shown["command"]["settings"]
-    assert web["port"] == {"value": 9000, "source": "[web] port"}
+    assert web["http_port"] == {"value": 9000, "source": "[web] http_port"}
     assert web["max_linear"] == {"value": 0.3, "source": "[limits] max_linear"}
     assert web["host"] == {"value": "127.0.0.1", "source": "default"}
     assert main(["config"]) == 0
@@ -338,7 +339,7 @@ def test_the_docs_name_exactly_the_keys_each_command_table_takes() -> None:
     rows = re.findall(r"^\| `\[([a-z0-9-]+)\]` \| [^|]+ \| ([^|]+) \|$", DOCS.read_text(), re.M)
     assert {name for name, _ in rows} == set(COMMAND_TABLES) == set(TABLE_KEYS)
     for name, keys in rows:
-        device_keys = {"port", "baudrate", "device"} - TABLE_KEYS[name]  # web's port is its own
+        device_keys = {"port", "baudrate", "device"}
         documented = set(re.findall(r"`([a-z_0-9]+)`", keys)) - device_keys
         assert documented == set(TABLE_KEYS[name]), name
         assert documented <= set(table_options(name, commands[name])), name
@@ -456,3 +457,78 @@ def test_the_blocking_api_builds_from_the_profile_too(home: Path) -> None:
     other = write(home / "b.toml", "[robot]\ndevice = 'chassis'\nport = 'p'\n")
     with pytest.raises(ProfileError, match=r"\[robot\] device is 'chassis', not 'board'"):
         sync.Board.from_config(other)
+
+
+# --- one meaning per name, defaults in effect, a charge that reads true (issue 44, item 10)
+
+
+def test_a_key_names_one_thing_in_every_table() -> None:
+    """``port``, ``baudrate`` and ``device`` are the device's in ``[robot]`` and in every
+    command's table: no command's option of that name means something else (``[web]
+    port`` was the page's TCP port, and a sed that set both ports broke the file)."""
+    from chassis_sdk.cli.profile import options_of
+
+    for name, parser in subparsers(build_parser()).items():
+        for key, action in options_of(parser).items():
+            if key in {"port", "baudrate", "device"}:
+                assert action.dest == key, f"[{name}] {key} is --{action.dest}, not the device's"
+
+
+def test_the_old_name_of_a_renamed_option_is_refused_naming_the_new(
+    home: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exited:
+        main(["web", "/dev/null", "--port", "9000"])
+    assert exited.value.code == 2
+    assert "--port: renamed: use --http-port" in capsys.readouterr().err
+    write(home / "chassis-sdk.toml", "[web]\nport = 9000\n")
+    assert main(["web", "/dev/null"]) == 2
+    err = capsys.readouterr().err
+    assert "[web] port = 9000: renamed http_port" in err, err
+    # A device path is the serial port, as in [robot] port.
+    write(home / "chassis-sdk.toml", "[web]\nport = '/dev/ttyUSB7'\nhttp_port = 9000\n")
+    args = parse(build_parser(), ["web"])
+    assert (args.port, args.http_port) == ("/dev/ttyUSB7", 9000)
+
+
+def test_config_does_not_list_battery_defaults_that_are_not_in_effect(
+    home: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["config", "--json"]) == 0
+    battery = json.loads(capsys.readouterr().out)["tables"]["battery"]
+    assert battery["low"]["value"] is None
+    assert all(row["source"].startswith("unused: no [battery] table") for row in battery.values())
+    assert main(["config"]) == 0
+    text = capsys.readouterr().out
+    assert "[battery]\n  not in effect (no [battery] table: no percentage is computed)" in text
+    assert main(["--config", str(EXAMPLE), "config", "--json"]) == 0
+    battery = json.loads(capsys.readouterr().out)["tables"]["battery"]
+    assert battery["low"] == {"value": 20, "source": "file"}
+    assert battery["hysteresis"] == {"value": 5.0, "source": "default"}
+
+
+def test_the_example_profile_reads_the_fresh_simulator_as_charged() -> None:
+    from chassis_sdk.devices.chassis.firmware import ChassisFirmware
+
+    model = load_profile(EXAMPLE).battery()
+    assert model is not None
+    voltage = ChassisFirmware().battery_voltage  # idle, as the simulator starts
+    percentage = None
+    for i in range(100):
+        percentage = model.update(voltage, 1.2, now=i * 0.1)
+    assert percentage is not None
+    assert percentage >= 90, f"a fresh simulator reads {percentage:.0f} % (low is {model.low})"
+
+
+@pytest.mark.integration
+async def test_info_says_the_charge_is_not_yet_known_or_why_there_is_none(home: Path) -> None:
+    from .support.cli import cli
+
+    profile = write(home / "battery.toml", "[battery]\nchemistry = 'lifepo4'\ncells = 8\n")
+    async with ChassisSimulator() as sim:
+        code, out, err = await cli("--config", str(profile), "info", sim.port, cwd=home)
+        assert code == 0, err
+        assert re.search(r"^battery      27\.\d V, state of charge not yet known", out, re.M), out
+        code, out, err = await cli("info", sim.port, cwd=home)
+        assert code == 0, err
+        assert "state of charge unknown (no [battery] in the profile)" in out, out

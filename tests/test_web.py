@@ -1008,7 +1008,7 @@ async def test_beyond_loopback_a_random_token_is_made() -> None:
 async def test_cli_web_serves_drives_and_sigterm_stops_the_robot() -> None:
     async with (
         ChassisSimulator() as sim,
-        running("web", sim.port, "--port", "0", "--command-timeout", "2") as cli_web,
+        running("web", sim.port, "--http-port", "0", "--command-timeout", "2") as cli_web,
     ):
         line = await asyncio.wait_for(cli_web.proc.stdout.readline(), 10)  # type: ignore[union-attr]
         assert b"dashboard of" in line, line
@@ -1029,7 +1029,7 @@ async def test_cli_web_read_only_writes_no_velocity_unless_a_page_stops() -> Non
     for press_stop in (False, True):
         async with (
             ChassisSimulator() as sim,
-            running("web", sim.port, "--port", "0", "--read-only") as cli_web,
+            running("web", sim.port, "--http-port", "0", "--read-only") as cli_web,
         ):
             line = await asyncio.wait_for(cli_web.proc.stdout.readline(), 10)  # type: ignore[union-attr]
             assert b"read-only" in line, line
@@ -1052,7 +1052,7 @@ async def test_cli_web_refuses_a_taken_port_in_one_line() -> None:
         served() as (_sim, _robot, web),
         ChassisSimulator() as other,
     ):
-        code, _, err = await cli("web", other.port, "--port", str(web.port), "--seconds", "1")
+        code, _, err = await cli("web", other.port, "--http-port", str(web.port), "--seconds", "1")
     assert code == 1
     assert err.strip().startswith("chassis-sdk: cannot serve on 127.0.0.1:")
     assert "\n" not in err.strip()

@@ -35,6 +35,7 @@ __all__ = [
     "Command",
     "Job",
     "Parser",
+    "Renamed",
     "UsageError",
     "arg_type",
     "chance",
@@ -93,6 +94,25 @@ class Parser(argparse.ArgumentParser):
                     f"invalid choice: {value!r}, did you mean {close[0]!r}? (choose from {listed})",
                 )
         super()._check_value(action, value)
+
+
+class Renamed(argparse.Action):
+    """An option that was renamed: given, it is refused naming the new spelling (hidden
+    from ``--help``, and from the profile's tables, which read the new name)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, *, new: str, **kw: Any) -> None:
+        kw.setdefault("default", argparse.SUPPRESS)
+        super().__init__(option_strings, f"_renamed_{dest}", nargs="?", **kw)
+        self.new = new
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        parser.error(f"argument {option_string}: renamed: use {self.new}")
 
 
 #: What a failed conversion says, for the converters whose own error is Python's.

@@ -16,6 +16,7 @@ from ..devices.board.messages import VelocityCommand
 from ..errors import RequestTimeoutError
 from .common import (
     DEMO_PATTERN,
+    battery_line,
     drive_for,
     explain_silence,
     first,
@@ -61,10 +62,11 @@ async def demo() -> None:
     out("done: the board stopped and the port is closed.")
 
 
-async def info(port: str, baudrate: int, timeout: float) -> None:
+async def info(port: str, baudrate: int, timeout: float, **options: Any) -> None:
     """LED and buzzer states, one IMU sample, the battery and a diagnosis; exit status 4
-    on a fault (`verdict`)."""
-    async with Board(port, baudrate=baudrate, request_timeout=timeout) as board:
+    on a fault (`verdict`). ``options`` are the `Board` keyword options (the profile's
+    ``battery=BatteryModel(...)``)."""
+    async with Board(port, baudrate=baudrate, request_timeout=timeout, **options) as board:
         port_lines(port)
         try:
             led = await board.get_led()
@@ -75,7 +77,7 @@ async def info(port: str, baudrate: int, timeout: float) -> None:
         imu = await first(board.imu(), timeout, "IMU samples (0x11)")
         out(f"imu          accel z {imu.accel.z:+.2f} g (about +1 at rest)")
         battery = await first(board.battery(), 2.0, "battery readings (0x13, 1 Hz)")
-        out(f"battery      {battery.voltage:.2f} V")
+        out(f"battery      {battery_line(battery.voltage, board)}")
         report = await board.diagnose()
         out(str(report))
     verdict(report)

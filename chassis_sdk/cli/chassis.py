@@ -14,6 +14,7 @@ from ..devices.chassis.messages import DriveVelocity, Telemetry
 from ..errors import ChassisError, RequestTimeoutError
 from .common import (
     DEMO_PATTERN,
+    battery_line,
     drive_for,
     explain_silence,
     first,
@@ -145,16 +146,18 @@ async def demo() -> None:
     out("done: the robot stopped and the port is closed.")
 
 
-async def info(port: str, baudrate: int, timeout: float) -> None:
-    """Versions, geometry, one telemetry frame, what each set status flag means and a
-    diagnosis; exit status 4 on a fault (`verdict`)."""
-    async with Chassis(port, baudrate=baudrate, request_timeout=timeout) as robot:
+async def info(port: str, baudrate: int, timeout: float, **options: Any) -> None:
+    """Versions, geometry, one telemetry frame, the battery, what each set status flag
+    means and a diagnosis; exit status 4 on a fault (`verdict`). ``options`` are the
+    `Chassis` keyword options (the profile's ``battery=BatteryModel(...)``)."""
+    async with Chassis(port, baudrate=baudrate, request_timeout=timeout, **options) as robot:
         port_lines(port)
         try:
             missing = await _print_info(robot)
         except RequestTimeoutError as exc:
             explain_silence(robot, exc)
-        await first(robot.telemetry(), timeout, "telemetry (0x81)")
+        t = await first(robot.telemetry(), timeout, "telemetry (0x81)")
+        out(f"battery      {battery_line(t.voltage, robot)}")
         report = await robot.diagnose()
         flags = explain_status(report.status or 0)
         flags += () if report.drivers is None else explain_drivers(report.drivers)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import anyio
 
 from ..core import compiled
+from ..core.charge import battery_text
 from ..core.device import Device
 from ..core.plain import jsonable
 from ..errors import ChassisError, ProtocolError, RequestTimeoutError
@@ -30,6 +31,7 @@ D = TypeVar("D", bound=Device[Any, Any])
 __all__ = [
     "DEMO_PATTERN",
     "WrongProtocolError",
+    "battery_line",
     "blocked_line",
     "drive_for",
     "driven",
@@ -90,6 +92,23 @@ def blocked_line(device: str, port: str, flags: Sequence[str]) -> str:
 
 class WrongProtocolError(ChassisError):
     """Bytes arrive, but none of them forms a frame of the expected protocol."""
+
+
+def battery_line(voltage: float, device: Device[Any, Any]) -> str:
+    """``info``'s battery line: the voltage and the state of charge, or why it shows
+    none. A model gives a percentage only after ``warmup`` seconds and ``min_readings``
+    readings, which a one-shot ``info`` rarely waits for: "not yet known" says so
+    rather than leaving the percentage out without a word."""
+    text = battery_text(voltage, device)
+    model = device.battery_model
+    if model is None:
+        return f"{text}, state of charge unknown (no [battery] in the profile)"
+    if device.battery_percentage is None:
+        return (
+            f"{voltage:.1f} V, state of charge not yet known (the model needs "
+            f"{model.warmup:g} s and {model.min_readings} readings; `monitor` shows it)"
+        )
+    return text
 
 
 def out(text: str = "") -> None:

@@ -25,6 +25,10 @@ __all__ = ["add_parser", "device_settings"]
 #: Device settings the environment can give the command line: (table, key) -> the
 #: option it is (:data:`~chassis_sdk.cli.profile.SHARED`), whose variables beat it.
 _SHARED_DEST = {where: dest for dest, where in SHARED.items()}
+#: Tables whose defaults take effect only when the table is written: without
+#: ``[battery]`` a device has no battery model, so no percentage is computed at all
+#: (the other tables' defaults are the device's own when they are left out).
+_ONLY_WHEN_WRITTEN = {"battery": "no [battery] table: no percentage is computed"}
 
 
 def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
@@ -40,10 +44,15 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def device_settings(profile: Profile) -> dict[str, list[Setting]]:
     """Each device table's settings: the value in effect for the command line and its
-    source (``"file"``, ``"$VARIABLE"`` or ``"default"``)."""
+    source (``"file"``, ``"$VARIABLE"``, ``"default"``, or ``"unused: ..."`` for a
+    table that is not in effect unless written, such as ``[battery]``)."""
     found: dict[str, list[Setting]] = {}
     for table, keys in DEVICE_TABLES.items():
         rows = []
+        if table in _ONLY_WHEN_WRITTEN and not profile.table(table):
+            note = _ONLY_WHEN_WRITTEN[table]
+            found[table] = [Setting(key, None, f"unused: {note}") for key in keys]
+            continue
         for key, spec in keys.items():
             dest = _SHARED_DEST.get((table, key))
             variable = from_environment(dest) if dest is not None else None
@@ -121,6 +130,10 @@ def _plain(value: Any) -> Any:
 def _show(title: str, rows: list[Setting], profile: Profile) -> None:
     out()
     out(title)
+    if rows and all(s.source.startswith("unused: ") for s in rows):
+        out(f"  not in effect ({rows[0].source.removeprefix('unused: ')}); its keys:")
+        out(f"  {', '.join(s.key for s in rows)}")
+        return
     width = max((len(s.key) for s in rows), default=0)
     for s in rows:
         value = "-" if s.value is None else _text(s.value)

@@ -47,7 +47,8 @@ class DeviceCommands:
 
     Attributes:
         demo: ``chassis-sdk demo --device NAME``: drives the simulator, narrating.
-        info: ``chassis-sdk info PORT``: ``info(port, baudrate, timeout)``.
+        info: ``chassis-sdk info PORT``: ``info(port, baudrate, timeout, **options)``,
+            the options being the device constructor's (the profile's battery model).
         monitor: ``chassis-sdk monitor PORT``: ``monitor(port, baudrate, seconds,
             as_json, **options)``, the options being the device constructor's (the
             profile's battery model, ``read_only=True``, ...).
@@ -58,7 +59,7 @@ class DeviceCommands:
     """
 
     demo: Callable[[], Coroutine[Any, Any, None]] | None = None
-    info: Callable[[str, int, float], Coroutine[Any, Any, None]] | None = None
+    info: Callable[..., Coroutine[Any, Any, None]] | None = None
     monitor: MonitorCommand | None = None
     plot: Callable[[Columns, Columns, Any], None] | None = None
 

@@ -11,10 +11,11 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..core.diagnosis import Diagnosis
 from ..devices import DeviceProfile, profile
+from ..devices.config import Profile
 from .arguments import device_arg, port_args, positive, require_port
 from .common import first_frame, out, port_lines
 from .devices import commands
@@ -48,17 +49,23 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
-    return info(profile(args.device), port, args.baudrate, args.timeout)
+    loaded: Profile = getattr(args, "profile", None) or Profile()
+    battery = loaded.battery()
+    options = {} if battery is None else {"battery": battery}
+    return info(profile(args.device), port, args.baudrate, args.timeout, **options)
 
 
-async def info(device: DeviceProfile, port: str, baudrate: int, timeout: float) -> None:
+async def info(
+    device: DeviceProfile, port: str, baudrate: int, timeout: float, **options: Any
+) -> None:
     """Print what ``device`` on ``port`` says about itself (generic: its first frame,
-    the link and the counters)."""
+    the link and the counters). ``options`` go to the device's constructor (the
+    profile's ``battery=BatteryModel(...)``, for the state of charge)."""
     own = commands(device.name).info
     if own is not None:
-        await own(port, baudrate, timeout)
+        await own(port, baudrate, timeout, **options)
         return
-    async with device.device(port, baudrate=baudrate, request_timeout=timeout) as dev:
+    async with device.device(port, baudrate=baudrate, request_timeout=timeout, **options) as dev:
         port_lines(port)
         out(f"device       {device.name}: {device.summary}")
         await first_frame(dev, max(timeout, 1.0), device.recognised_by)

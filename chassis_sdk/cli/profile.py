@@ -25,6 +25,7 @@ from ..devices.config import COMMAND_TABLES, Profile, ProfileError, did_you_mean
 from .arguments import ENV_BROKER, ENV_DEVICE, ENV_PORT, ENV_PROTOCOL
 
 __all__ = [
+    "RENAMED",
     "SHARED",
     "TABLE_KEYS",
     "Setting",
@@ -97,10 +98,16 @@ TABLE_KEYS: Mapping[str, frozenset[str]] = {
         "teleop": "max_linear max_angular command_timeout key_timeout speed joystick "
         "enable_button linear_axis angular_axis joy_scale_linear joy_scale_angular "
         "joy_deadzone joy_timeout",
-        "web": "host port read_only token_file allow_origin enable_button linear_axis "
+        "web": "host http_port read_only token_file allow_origin enable_button linear_axis "
         "angular_axis pad_scale max_linear max_angular command_timeout",
     }.items()
 }
+
+#: Keys that once meant something else in a command's table: (table, old key) -> the new
+#: key. One name has one meaning in every table (``port`` is the serial port, as in
+#: ``[robot] port``), so a value that can only have been meant the old way (a number for
+#: a port) is refused naming the new key rather than read as a device path.
+RENAMED: Mapping[tuple[str, str], str] = {("web", "port"): "http_port"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -274,6 +281,12 @@ def apply(parser: argparse.ArgumentParser, profile: Profile) -> None:
         own = profile.table(name)
         options = table_options(name, p)
         for key, value in own.items():
+            new = RENAMED.get((name, key))
+            if new is not None and not isinstance(value, str):
+                raise ProfileError(
+                    f"{profile.name}: [{name}] {key} = {value!r}: renamed {new} "
+                    f"({key} is the serial port here, as in [robot] {key})"
+                )
             found = options.get(key)
             if found is None:
                 raise ProfileError(_refusal(profile, name, key, options, options_of(p)))

@@ -11,6 +11,7 @@ from ..core.validation import check_int, check_real
 from ..devices import DeviceProfile, profile
 from .arguments import (
     TCP_PORT,
+    Renamed,
     arg_type,
     deadman_args,
     device_arg,
@@ -51,12 +52,14 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
         "--host", default="127.0.0.1", help="address to bind (default: this computer only)"
     )
     p.add_argument(
-        "--port",
-        dest="http_port",
+        "--http-port",
         type=TCP_PORT,
         default=8080,
         help="TCP port of the page (default 8080; 0: any free one)",
     )
+    # Was --port (and [web] port in a profile), which elsewhere is the serial port: one
+    # meaning per name, so the old spelling is refused naming the new one.
+    p.add_argument("--port", action=Renamed, new="--http-port", help=argparse.SUPPRESS)
     p.add_argument(
         "--read-only", action="store_true", help="show everything; offer only STOP and E-STOP"
     )

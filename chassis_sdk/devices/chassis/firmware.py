@@ -86,7 +86,10 @@ class ChassisSpec:
     command_timeout: float = 0.5
     max_acceleration: float = 1.5  #: m/s² per wheel
     max_wheel_speed: float = 2.0  #: m/s
-    battery_full: float = 25.6  #: V, open-circuit
+    #: V, open-circuit: a charged 8S LiFePO4 pack, 3.4 V a cell (``OCV_CURVES``' 100 %),
+    #: the pack `PackSpec()` models and the example profile describes. (25.6 V, the
+    #: pack's nominal voltage, is 3.2 V a cell at rest: a profile read it as 20 %.)
+    battery_full: float = 27.2
     battery_resistance: float = 0.03  #: Ω: sag per ampere drawn
     battery_drain: float = 0.0005  #: V per second of driving
     docking_step: float = 1.0  #: s per docking state
