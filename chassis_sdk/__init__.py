@@ -89,7 +89,8 @@ if TYPE_CHECKING:
         WheelDriver,
         WheelSpeeds,
     )
-    from .devices.config import Profile, ProfileError, load_profile, open_robot
+    from .devices.config import Profile, ProfileError, load_profile
+    from .devices.robot import open_robot
 
 #: Where each lazily imported name lives.
 _LAZY = {
@@ -117,7 +118,7 @@ _LAZY = {
     "Profile": ".devices.config",
     "ProfileError": ".devices.config",
     "load_profile": ".devices.config",
-    "open_robot": ".devices.config",
+    "open_robot": ".devices.robot",
     "Chassis": ".devices.chassis.device",
     "BatteryReading": ".devices.board.messages",
     "ImuSample": ".devices.board.messages",

@@ -532,3 +532,14 @@ async def test_info_says_the_charge_is_not_yet_known_or_why_there_is_none(home: 
         code, out, err = await cli("info", sim.port, cwd=home)
         assert code == 0, err
         assert "state of charge unknown (no [battery] in the profile)" in out, out
+
+
+def test_open_robot_of_a_named_device_refuses_a_profile_of_another(home: Path) -> None:
+    from chassis_sdk import Board, Chassis
+
+    write(home / "chassis-sdk.toml", "[robot]\ndevice = 'chassis'\nport = '/dev/ttyUSB3'\n")
+    assert type(open_robot(device="chassis")) is Chassis
+    with pytest.raises(ProfileError, match=r"\[robot\] device is 'chassis', not 'board'"):
+        open_robot(device="board")
+    write(home / "chassis-sdk.toml", "[robot]\nport = '/dev/ttyUSB3'\n")  # no device named
+    assert type(open_robot(device="board")) is Board

@@ -26,9 +26,9 @@ A key that is not one of these, a value of the wrong type and a value out of ran
 each a `ProfileError` of one line naming the file, the key and what is allowed.
 Unknown keys are errors, never ignored: a typo must not leave a limit unset.
 
-Nothing here opens a port. [`open_robot`][chassis_sdk.open_robot] builds the device the profile
-describes; ``Chassis.from_config()`` and ``Board.from_config()`` do the same for one
-class.
+Nothing here opens a port. [`open_robot`][chassis_sdk.open_robot] (in
+`chassis_sdk.devices.robot`) builds the device the profile describes;
+``Chassis.from_config()`` and ``Board.from_config()`` do the same for one class.
 """
 
 from __future__ import annotations
@@ -44,15 +44,12 @@ import typing
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Self, TypeAlias, get_args, get_origin
+from typing import Any, Literal, Self, TypeAlias, get_args, get_origin
 
 from ..core.battery import BatteryModel
 from ..core.calibration import Calibration
 from ..core.motion import MotionLimits
 from ..core.motion.safety import HAZARDS, Geofence, Reflex, SafetyPolicy
-
-if TYPE_CHECKING:
-    from ..core.device import Device
 
 __all__ = [
     "COMMAND_TABLES",
@@ -68,7 +65,8 @@ __all__ = [
     "find_profile",
     "load_profile",
     "locate_profile",
-    "open_robot",
+    "profile_device",
+    "profile_options",
     "update_profile",
     "user_profile_path",
 ]
@@ -538,21 +536,27 @@ def update_profile(
     os.replace(temporary, real)
 
 
-def open_robot(
-    config: str | os.PathLike[str] | Profile | None = None, **overrides: Any
-) -> Device[Any, Any]:
-    """The device the profile describes (``[robot] device``, default ``chassis``), not
-    yet open: use it as ``async with open_robot() as robot:``. ``overrides`` beat the
-    file (``port=``, ``limits=``, any option of the device's constructor).
+def profile_device(profile: Profile, device: str | None) -> str:
+    """The device ``profile`` describes (``[robot] device``, default ``chassis``), which
+    must be ``device`` when that is given.
 
     Raises:
-        ProfileError: The profile is wrong, or names no port and none is given.
+        ProfileError: The profile names another device than ``device``.
     """
-    from . import profile as device_profile
+    named = profile.get("robot", "device")
+    if named is not None and device is not None and named != device:
+        raise ProfileError(f"{profile.name}: [robot] device is {named!r}, not {device!r}")
+    return device or named or "chassis"
 
-    loaded = load_profile(config)
-    name = loaded.get("robot", "device", "chassis")
-    return device_profile(name).device(**_constructor_options(loaded, overrides))
+
+def profile_options(profile: Profile, overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword options (``port`` included) of the device ``profile`` describes,
+    ``overrides`` beating the file.
+
+    Raises:
+        ProfileError: The profile names no port and none is given.
+    """
+    return _constructor_options(profile, overrides)
 
 
 def _constructor_options(profile: Profile, overrides: Mapping[str, Any]) -> dict[str, Any]:
