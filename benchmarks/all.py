@@ -1,6 +1,6 @@
 """Run every benchmark and print its table (about 75 minutes; --quick: about 5).
 
-    pip install ".[all,fast,serialx,uvloop]" --group bench
+    pip install -e ".[all,fast,serialx,uvloop]" --group bench
     python benchmarks/all.py [--quick] [--runs K] [--json results.json]
     python benchmarks/goals.py results.json --write docs/figures.md
 

@@ -35,6 +35,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from chassis_sdk.errors import install_hint
 from chassis_sdk.protocol import (
     BoardDecoder,
     BoardEncoder,
@@ -151,7 +152,7 @@ def columns(cases: dict[str, tuple[Callable[[], Any], bytes, int]]) -> dict[str,
     try:
         from chassis_sdk.recording.columns import decode_joined
     except ImportError:
-        print("numpy is not installed (pip install '.[columns]'): no column figures")
+        print(f"numpy is not installed ({install_hint('columns')}): no column figures")
         return {}
     rates = {}
     for name, (dec, stream, _) in cases.items():

@@ -1,7 +1,7 @@
 """What recording costs: the recorder's CPU at 50 Hz, the size of an hour, and reading
 an hour back (about 1.5 minutes; --quick: about 30 s, a tenth of an hour).
 
-    pip install ".[all,fast]" --group bench
+    pip install -e ".[all,fast]" --group bench
     python benchmarks/recording.py [--quick]
 
 1. **CPU at 50 Hz**, one chassis streaming into an ``async for`` (the simulator in

@@ -2,7 +2,7 @@
 soon teleop moves the robot and how soon it stops, how odometry reaches Nav2, how long
 discovery takes, and what the bridge costs (about a minute; --quick: 30 s).
 
-    pip install ".[ros2]" --group bench; sh tools/system-deps.sh   # the Fast DDS peer's build
+    pip install -e ".[ros2]" --group bench; sh tools/system-deps.sh   # the Fast DDS peer's build
     python benchmarks/ros2.py [--quick] [--json FILE]
 
 The bridge (``Ros2Bridge``, Cyclone DDS) bridges a ``ChassisSimulator`` on a pty; the

@@ -2,7 +2,7 @@
 both event loops and both deliveries, beside the raw-reader floor (about 15 minutes;
 --quick: 32 chassis, about 1).
 
-    pip install ".[all,fast,serialx,uvloop]" --group bench
+    pip install -e ".[all,fast,serialx,uvloop]" --group bench
     python benchmarks/scaling.py [--quick] [--plot docs/img/scaling.svg]
 
 N chassis stream 50 Hz telemetry from another process (``_writer.py``: precomputed

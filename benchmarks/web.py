@@ -1,7 +1,7 @@
 """What the web dashboard costs and how fast it drives and stops (about a minute;
 --quick: 25 s).
 
-    pip install ".[web]" --group bench && sh tools/system-deps.sh   # aiohttp, Playwright, Chromium
+    pip install -e ".[web]" --group bench && sh tools/system-deps.sh # aiohttp, Playwright, Chromium
     python benchmarks/web.py [--quick] [--json FILE]
 
 1. **Cost at 50 Hz**: a simulated chassis (telemetry at 50 Hz) and its ``Chassis`` in a
@@ -37,6 +37,7 @@ from all import machine  # this directory's all.py
 from load import rss_bytes
 
 from chassis_sdk import Chassis
+from chassis_sdk.errors import install_hint
 from chassis_sdk.sim import ChassisSimulator
 
 SELF = os.path.abspath(__file__)
@@ -228,7 +229,8 @@ def main() -> int:
         import websockets  # noqa: F401
     except ImportError as exc:
         print(
-            f"web.py needs aiohttp, playwright and websockets: pip install '.[bench,test]' ({exc})"
+            "web.py needs aiohttp, playwright and websockets: "
+            f"{install_hint('web')} --group bench ({exc})"
         )
         return 1
     window = 3.0 if args.quick else 10.0

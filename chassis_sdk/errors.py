@@ -25,7 +25,18 @@ __all__ = [
     "PortOpenError",
     "ProtocolError",
     "RequestTimeoutError",
+    "install_hint",
 ]
+
+
+def install_hint(extra: str) -> str:
+    """The command that installs ``extra`` from the checkout: ``pip install -e ".[web]"``.
+
+    The one form of every hint the SDK prints for a missing extra (the command line's,
+    the library's): chassis-sdk is not on a package index, so ``chassis-sdk[web]``
+    cannot be installed by name; this runs in the repository's directory.
+    """
+    return f'pip install -e ".[{extra}]"'
 
 
 class ChassisError(Exception):

@@ -1,6 +1,6 @@
 """Serve the web dashboard of a chassis from your own program, beside your own logic.
 
-    pip install ".[web]"
+    pip install -e ".[web]"
     python examples/drive_from_a_browser.py [PORT] [SECONDS]
 
 Open the address it prints in a browser to watch the robot and drive it (joystick,

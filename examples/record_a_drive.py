@@ -1,6 +1,6 @@
 """Record a short drive to an MCAP file you can open in Foxglove (File > Open local file).
 
-    pip install ".[foxglove]"
+    pip install -e ".[foxglove]"
     python examples/record_a_drive.py [PORT] [FILE.mcap]
 
 `record=` records the whole session, both ways: the raw bytes with their receive times,

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from importlib import import_module
 
-from ..errors import ChassisError
+from ..errors import ChassisError, install_hint
 
 __all__ = ["EXTRAS", "install_hint", "require"]
 
@@ -26,11 +26,6 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "web": ("aiohttp",),
     "joystick": ("evdev",),
 }
-
-
-def install_hint(extra: str) -> str:
-    """The command that installs ``extra`` from the checkout: ``pip install -e ".[web]"``."""
-    return f'pip install -e ".[{extra}]"'
 
 
 def require(command: str, extra: str, *modules: str) -> None:

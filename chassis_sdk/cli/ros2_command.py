@@ -14,7 +14,7 @@ import sys
 import anyio
 
 from ..devices import DeviceProfile
-from ..errors import ChassisError
+from ..errors import ChassisError, install_hint
 from .common import driven, out, show_warnings
 
 __all__ = ["ros2"]
@@ -27,9 +27,7 @@ async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
         from ..integrations.ros2.dds import discovery_from_env
         from ..recording.ros2_types import Ros2Options
     except ImportError as exc:
-        raise ChassisError(
-            f"ros2 needs cyclonedds: pip install 'chassis-sdk[ros2]' ({exc})"
-        ) from None
+        raise ChassisError(f"ros2 needs cyclonedds: {install_hint('ros2')} ({exc})") from None
     try:  # before the device opens
         names = Ros2Options(namespace=args.namespace, frame_prefix=args.frame_prefix)
         namespace = names.namespace

@@ -20,7 +20,7 @@ import sys
 from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
-from ..errors import ChassisError, RequestTimeoutError
+from ..errors import ChassisError, RequestTimeoutError, install_hint
 
 __all__ = ["run"]
 
@@ -163,7 +163,7 @@ def loop_factory(use_uvloop: bool | None = None) -> Callable[[], asyncio.Abstrac
         uvloop = importlib.import_module("uvloop")  # an optional extra: not typed here
     except ImportError:
         if use_uvloop:
-            raise ImportError("uvloop=True needs it: pip install 'chassis-sdk[uvloop]'") from None
+            raise ImportError(f"uvloop=True needs it: {install_hint('uvloop')}") from None
         return None
     factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
     return factory

@@ -82,7 +82,7 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 import anyio
 import serial
 
-from ..errors import PortOpenError
+from ..errors import PortOpenError, install_hint
 from .linger import CLOSE_GRACE as CLOSE_GRACE
 from .linger import CLOSE_WAIT as CLOSE_WAIT
 from .linger import Linger, lingering, wait_lingering
@@ -141,7 +141,7 @@ def _load_backend() -> type[_Backend]:
         else:
             raise PortOpenError(
                 "no serial backend is installed: pip install pyserial-asyncio "
-                "(or the extras chassis-sdk[fast] or chassis-sdk[serialx])"
+                f"(or the extra fast or serialx: {install_hint('fast')})"
             )
     _Backend.module, _Backend.name = module, name
     if name == "serialx":

@@ -3,10 +3,10 @@ onto the device's motion core (every command they take passes it, through a sour
 their own) and its public API (streams, requests, commands, the observation API), each
 behind an extra:
 
-* `.mqtt`: the fleet bridge (``pip install 'chassis-sdk[mqtt]'``);
-* `.foxglove`: the live Foxglove server (``pip install 'chassis-sdk[foxglove]'``);
-* `.ros2`: the ROS 2 bridge on Cyclone DDS (``pip install 'chassis-sdk[ros2]'``);
-* `.web`: the web dashboard (``pip install 'chassis-sdk[web]'``);
+* `.mqtt`: the fleet bridge (``pip install -e ".[mqtt]"``);
+* `.foxglove`: the live Foxglove server (``pip install -e ".[foxglove]"``);
+* `.ros2`: the ROS 2 bridge on Cyclone DDS (``pip install -e ".[ros2]"``);
+* `.web`: the web dashboard (``pip install -e ".[web]"``);
 * `.inbound`: what every surface that takes commands from outside shares: strict
   command JSON, timestamps and freshness (its refusal reports are the core's
   ``chassis_sdk.core.refusals``);

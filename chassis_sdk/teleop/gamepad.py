@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..core.validation import check_real
-from ..errors import ChassisError
+from ..errors import ChassisError, install_hint
 
 __all__ = [
     "ABS_CODES",
@@ -49,7 +49,7 @@ __all__ = [
 ]
 
 #: The one-line error when evdev is missing.
-JOYSTICK_HINT = "--joystick needs evdev: pip install 'chassis-sdk[joystick]'"
+JOYSTICK_HINT = f"--joystick needs evdev: {install_hint('joystick')}"
 
 # Linux input event codes (linux/input-event-codes.h: the kernel's ABI, so they are
 # known here without evdev installed, and options are checked before anything opens).

@@ -1,4 +1,4 @@
-"""The live Foxglove server (``pip install 'chassis-sdk[foxglove]'``).
+"""The live Foxglove server (``pip install -e ".[foxglove]"``).
 
 * `server`: `FoxgloveServer`: channels, Teleop clients as motion-core sources, services;
 * `front`: the WebSocket front: Origin, Host and token checks before foxglove-sdk;

@@ -85,7 +85,7 @@ import anyio.to_thread
 
 from ...core.device import Device
 from ...core.motion import MotionSource
-from ...errors import ChassisError
+from ...errors import ChassisError, install_hint
 from ...recording.mcap import McapRecording
 from ...recording.sink import FoxgloveSink
 from ..inbound import CommandError, command_object
@@ -184,8 +184,7 @@ class FoxgloveServer:
             import websockets  # noqa: F401  (the front)
         except ImportError:
             raise ImportError(
-                "serving to Foxglove needs foxglove-sdk and websockets: "
-                "pip install 'chassis-sdk[foxglove]'"
+                "serving to Foxglove needs foxglove-sdk and websockets: " + install_hint("foxglove")
             ) from None
         if not isinstance(port, int) or isinstance(port, bool) or not 0 <= port <= 65535:
             raise ValueError(f"port must be 0..65535, got {port!r}")

@@ -1,4 +1,4 @@
-"""The MQTT bridge: a device on a fleet's broker (``pip install 'chassis-sdk[mqtt]'``).
+"""The MQTT bridge: a device on a fleet's broker (``pip install -e ".[mqtt]"``).
 
 * `bridge`: `MqttBridge`, the bridge;
 * `commands`: the commands it takes, sorted and acted on through its motion-core source;
