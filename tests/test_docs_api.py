@@ -26,15 +26,7 @@ README = ROOT / "README.md"
 #: recorders, the dashboard, the ROS 2 bridge): they still say ``chassis-sdk[X]``, to
 #: become `install_hint` there. Listed so that the test fails once one is fixed and the
 #: entry can go (a stale exception is refused too).
-OWNED_ELSEWHERE = {
-    "chassis_sdk/core/session.py",
-    "chassis_sdk/recording/sink.py",
-    "chassis_sdk/recording/ros2.py",
-    "chassis_sdk/recording/capture.py",
-    "chassis_sdk/integrations/web/__init__.py",
-    "chassis_sdk/integrations/web/server.py",
-    "chassis_sdk/integrations/ros2/__init__.py",
-}
+OWNED_ELSEWHERE: set[str] = set()
 
 
 def _public(cls: type[Any]) -> set[str]:

@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Generic, Protocol, Self, TypeVar, runtime_chec
 import anyio
 import anyio.lowlevel
 
-from ..errors import NotConnectedError, RequestTimeoutError
+from ..errors import NotConnectedError, RequestTimeoutError, install_hint
 from .dispatch import SLOW_CALLBACK, Broadcast, Listener, Streams, Subscription, first_match
 from .framing import FrameDecoder
 from .ports import parse_usb_identity
@@ -123,9 +123,7 @@ def _recording(
         import importlib.util
 
         if importlib.util.find_spec("foxglove") is None:
-            raise ValueError(
-                "record='*.mcap' needs foxglove-sdk: pip install 'chassis-sdk[foxglove]'"
-            )
+            raise ValueError(f"record='*.mcap' needs foxglove-sdk: {install_hint('foxglove')}")
     if _open_recorder is None:
         _find_recorder()
         if _open_recorder is None:

@@ -28,7 +28,7 @@ from ..core.supervisor import reopen
 from ..core.transport import Link, open_link
 from ..core.validation import check_real
 from ..devices import profile, profiles
-from ..errors import ChassisError
+from ..errors import ChassisError, install_hint
 from . import Recording
 from .jsonl import JsonlRecording, read_jsonl
 from .mcap import McapRecording
@@ -434,9 +434,7 @@ def _need_mcap() -> None:
     import importlib.util
 
     if importlib.util.find_spec("mcap") is None:
-        raise ImportError(
-            "reading MCAP needs the mcap package: pip install 'chassis-sdk[foxglove]'"
-        )
+        raise ImportError(f"reading MCAP needs the mcap package: {install_hint('foxglove')}")
 
 
 def mcap_metadata(path: str | Path) -> dict[str, str]:
@@ -516,7 +514,7 @@ def capture_columns(path: str | Path, device: str, *, commands: bool = False) ->
     try:
         from .columns import decode_joined
     except ImportError:
-        raise ValueError("capture_columns needs numpy: pip install 'chassis-sdk[plot]'") from None
+        raise ValueError(f"capture_columns needs numpy: {install_hint('plot')}") from None
     spec = profile(device)
     decoder = spec.codec.command_decoder() if commands else spec.codec.decoder()
     joined = _joined(path, sent=True) if commands else None

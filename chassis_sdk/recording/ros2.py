@@ -52,6 +52,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from ..core.notifier import Notifier
 from ..core.validation import check_real
+from ..errors import install_hint
 from .batch import AfterFrame
 from .mcap import FLUSH_INTERVAL
 from .sink import session_metadata
@@ -72,7 +73,7 @@ _RAW_DEPTH = 100
 
 
 def _needs_ros2(what: str) -> ImportError:
-    return ImportError(f"{what} needs cyclonedds and mcap: pip install 'chassis-sdk[ros2]'")
+    return ImportError(f"{what} needs cyclonedds and mcap: {install_hint('ros2')}")
 
 
 def offered_qos_profiles(spec: TopicSpec) -> str:

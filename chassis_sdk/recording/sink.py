@@ -41,6 +41,7 @@ from ..core.battery import BatteryLevel
 from ..core.charge import battery_fields
 from ..core.notifier import Notifier
 from ..core.plain import json_schema, jsonable
+from ..errors import install_hint
 from .batch import AfterFrame
 
 if TYPE_CHECKING:
@@ -79,9 +80,7 @@ _CHARGE_SCHEMA = {
 
 
 def _needs_foxglove(what: str) -> ImportError:
-    return ImportError(
-        f"{what} needs the foxglove-sdk package: pip install 'chassis-sdk[foxglove]'"
-    )
+    return ImportError(f"{what} needs the foxglove-sdk package: {install_hint('foxglove')}")
 
 
 # --- JSON schemas of messages (core.plain writes them: one encoding, one schema) ---------

@@ -1,4 +1,4 @@
-"""The web dashboard (``pip install 'chassis-sdk[web]'``).
+"""The web dashboard (the ``web`` extra: ``pip install -e ".[web]"``).
 
 * `server`: `WebDashboard`: the options, the lifetime, the wiring of the rest;
 * `page`: the per-page protocol, sans-IO: a page's message to an action (drive, stop,

@@ -87,7 +87,7 @@ import anyio
 from ...core.device import Device
 from ...core.validation import check_int, check_real
 from ...devices import profile
-from ...errors import ChassisError
+from ...errors import ChassisError, install_hint
 from ..access import check_allowed_origin, check_token, is_loopback
 from .http import Access
 from .page import (
@@ -168,9 +168,7 @@ class WebDashboard:
         try:
             from aiohttp import web
         except ImportError:
-            raise ImportError(
-                "the web dashboard needs aiohttp: pip install 'chassis-sdk[web]'"
-            ) from None
+            raise ImportError(f"the web dashboard needs aiohttp: {install_hint('web')}") from None
         if not isinstance(host, str) or not host:
             raise ValueError(f"host must be an address, got {host!r}")
         check_int(port, "port", low=0, high=65535)
