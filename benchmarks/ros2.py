@@ -708,8 +708,9 @@ def report(r: dict[str, Any], quick: bool) -> None:
         a, b = floor[key], bridge[key]
         print(f"{'  ' + label:<{WIDTH}}{a:{fmt}}{b:{fmt}}{b - a:{fmt}}")
     print(
-        f"  the bridge's CPU per odometry message (odom + /tf, and the 1 Hz battery and "
-        f"diagnostics): {per:.0f} us; {bridge['odometry_published'] / window:.1f} published/s, "
+        f"  the bridge's CPU per odometry message (odom + /tf + joint_states, and the 1 Hz "
+        f"battery and diagnostics): {per:.0f} us; "
+        f"{bridge['odometry_published'] / window:.1f} published/s, "
         f"{bridge['peer_received_hz']:.1f}/s at the peer, {bridge['dropped_writes']} dropped"
     )
     counters = alive["bridge"]
