@@ -294,15 +294,22 @@ def show_warnings(logger: str, command: str) -> None:
 
 @contextlib.asynccontextmanager
 async def driven(
-    device: DeviceProfile, port: str, args: argparse.Namespace, *, read_only: bool = False
+    device: DeviceProfile,
+    port: str,
+    args: argparse.Namespace,
+    *,
+    read_only: bool = False,
+    record: bool = True,
 ) -> AsyncIterator[Device[Any, Any]]:
     """The device a surface that moves the robot (``serve``, ``ros2``) drives, for the
     block: reconnecting through unplugs, within ``--max-linear``/``--max-angular``, under
     ``--command-timeout`` (``arguments.limit_args``, ``deadman_args``), with the
-    profile's limits, calibration and battery (`.profile.device_options`), and
-    proven to be this device (`first_frame`) before anything is done to it.
-    ``read_only``: a viewer's, which writes nothing."""
-    options = device_options(args, reconnect=True, read_only=read_only)
+    profile's limits, calibration and battery (`.profile.device_options`), recording
+    to ``--record`` (``arguments.record_arg``; ``record=False``: the caller records it
+    itself), and proven to be this device (`first_frame`) before anything is done to
+    it. ``read_only``: a viewer's, which writes nothing."""
+    file = getattr(args, "record", None) if record else None
+    options = device_options(args, reconnect=True, read_only=read_only, record=file)
     async with device.device(port, **options) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         yield dev

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 import anyio
 
@@ -44,14 +45,17 @@ async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
         hint = " (--token-file FILE, or --no-token)" if "needs a token" in str(exc) else ""
         raise ChassisError(f"{exc}{hint}") from None
     show_warnings("chassis_sdk.integrations.foxglove", "serve")  # the refusals
-    async with driven(device, port, args) as dev:
+    # FILE.mcap: the server's recorder, one sink for the file and the clients; any
+    # other name: the device's own record= (JSON lines), as every command records.
+    mcap = args.record if args.record and Path(args.record).suffix.lower() == ".mcap" else None
+    async with driven(device, port, args, record=mcap is None) as dev:
         try:
             server = FoxgloveServer(
                 dev,
                 host=args.host,
                 port=args.foxglove_port,
                 read_only=args.read_only,
-                record=args.record,
+                record=mcap,
                 allow_origins=origins,
                 token=token,
                 allow_no_token=args.no_token,
