@@ -395,6 +395,41 @@ async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
 
 
 @pytest.mark.integration
+async def test_a_board_page_is_told_e_stop_only_stops_and_sees_the_led_as_reported() -> None:
+    # Issue 44, item 7: E-STOP on a board only stops (the page is told before it is
+    # pressed), and the LED's and buzzer's state is the one the board reports.
+    async with (
+        served(board=True) as (sim, _robot, web),
+        page(web) as p,
+    ):
+        assert p.hello["estop"] is False
+        await p.wait(lambda: bool(p.states))
+        assert p.states[-1]["outputs"] == {}  # not known before a switch
+        await p.send(type="led", on=True)
+        await p.wait(lambda: p.states[-1]["outputs"].get("led") is True)
+        assert sim.firmware.led
+        await p.send(type="buzzer", on=False)
+        await p.wait(lambda: p.states[-1]["outputs"] == {"led": True, "buzzer": False})
+
+
+@pytest.mark.integration
+async def test_only_the_flags_that_stop_the_wheels_are_faults() -> None:
+    # REMOTE_OFFLINE is information (no remote control: normal under host control);
+    # SOFTWARE_ESTOP stops the wheels. The page colours by the state's `faults`.
+    async with (
+        served() as (_sim, robot, web),
+        page(web) as p,
+    ):
+        assert p.hello["estop"] is True
+        await p.wait(lambda: bool(p.states) and "telemetry" in p.states[-1]["streams"])
+        assert "REMOTE_OFFLINE" in p.states[-1]["streams"]["telemetry"]["status"]
+        assert p.states[-1]["faults"] == []
+        await robot.emergency_stop()
+        await p.wait(lambda: p.states[-1]["faults"] == ["SOFTWARE_ESTOP"])
+        assert "REMOTE_OFFLINE" in p.states[-1]["streams"]["telemetry"]["status"]
+
+
+@pytest.mark.integration
 async def test_the_state_of_charge_null_until_known_then_the_percentage_and_level() -> None:
     # A pack at 15 %: the model warms up for a second (null), then knows it: LOW.
     pack = PackSpec("li-ion", cells=7, charge=15.0)
