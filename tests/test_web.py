@@ -394,6 +394,37 @@ async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
         await p.wait(lambda: any("has no e-stop" in n.get("done", "") for n in p.notes))
 
 
+def test_a_server_on_every_address_is_shown_by_this_computer_s_name_and_its_own_port(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Issue 44, item 7: `web --host 0.0.0.0` printed a 127.0.0.1 link (another computer's
+    # own address there) and an ssh hint with port 8080 whatever the port.
+    from chassis_sdk.cli import common
+
+    monkeypatch.setattr("socket.gethostname", lambda: "robot7")
+    assert common.served_at("http", "0.0.0.0", 8099) == [
+        "http://robot7:8099/",
+        "http://127.0.0.1:8099/",
+    ]
+    assert common.served_at("ws", "::", 8765) == ["ws://robot7:8765/", "ws://[::1]:8765/"]
+    assert common.served_at("http", "10.0.0.5", 80) == ["http://10.0.0.5:80/"]
+    assert common.ssh_hint(8099) == "ssh -L 8099:127.0.0.1:8099 robot7"
+
+
+def test_serve_beyond_loopback_makes_a_token_as_web_does() -> None:
+    # Issue 44, item 7: serve refused without one (naming allow_no_token=True) where web
+    # made one.
+    from chassis_sdk.cli.serve_command import serve_token
+
+    token, made = serve_token("0.0.0.0", None, False)
+    assert made
+    assert token is not None
+    assert len(token) >= 16
+    assert serve_token("0.0.0.0", "given-token-of-16+", False) == ("given-token-of-16+", False)
+    assert serve_token("0.0.0.0", None, True) == (None, False)  # --no-token
+    assert serve_token("127.0.0.1", None, False) == (None, False)
+
+
 @pytest.mark.integration
 async def test_a_board_page_is_told_e_stop_only_stops_and_sees_the_led_as_reported() -> None:
     # Issue 44, item 7: E-STOP on a board only stops (the page is told before it is

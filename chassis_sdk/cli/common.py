@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import socket
 import stat
 import sys
 import time
@@ -40,8 +41,10 @@ __all__ = [
     "out",
     "progress_line",
     "read_secret_file",
+    "served_at",
     "show_warnings",
     "simulated",
+    "ssh_hint",
 ]
 
 #: (what, linear m/s, angular rad/s, seconds) of the demos' drive.
@@ -277,6 +280,28 @@ def read_secret_file(path: str, option: str) -> str:
     if not secret:
         raise ChassisError(f"{option} {path} is empty")
     return secret
+
+
+#: Hosts that bind every address of the computer.
+_WILDCARDS = ("0.0.0.0", "::", "")
+
+
+def served_at(scheme: str, host: str, port: int) -> list[str]:
+    """The addresses to print for a server bound to ``host``:``port``, the one to open
+    first: for a wildcard (``0.0.0.0``, ``::``) this computer's name, which another
+    computer reaches (127.0.0.1 there is that computer itself), then loopback, for a
+    browser on this one; for any other host, that host."""
+    if host in _WILDCARDS:
+        local = "[::1]" if host == "::" else "127.0.0.1"
+        return [f"{scheme}://{socket.gethostname()}:{port}/", f"{scheme}://{local}:{port}/"]
+    shown = f"[{host}]" if ":" in host else host
+    return [f"{scheme}://{shown}:{port}/"]
+
+
+def ssh_hint(port: int) -> str:
+    """The ssh command that brings the TCP ``port`` served on this computer to the same
+    port of the one ssh runs on (``http://127.0.0.1:PORT/`` there)."""
+    return f"ssh -L {port}:127.0.0.1:{port} {socket.gethostname()}"
 
 
 def show_warnings(logger: str, command: str) -> None:
