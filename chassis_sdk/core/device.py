@@ -74,6 +74,35 @@ _LINK_EVENTS = {
 }
 
 
+async def until_still(device: Device[Any, Any], log: logging.Logger) -> None:
+    """Return once an odometry sample of ``device`` shows the robot still (at most
+    `STILL_LINEAR`, `STILL_ANGULAR`), at most `SETTLE_LIMIT` s from now, and
+    sooner when no sample has come for `SETTLE_QUIET` s (a device that reports no
+    motion)."""
+    still = anyio.Event()
+    heard = time.monotonic()
+
+    def sample(odometry: Odometry) -> None:
+        nonlocal heard
+        heard = odometry.timestamp
+        if abs(odometry.linear) <= STILL_LINEAR and abs(odometry.angular) <= STILL_ANGULAR:
+            still.set()
+
+    listener = device.listen("odometry", sample)
+    try:
+        deadline = time.monotonic() + SETTLE_LIMIT
+        while not still.is_set():
+            now = time.monotonic()
+            end = min(deadline, heard + SETTLE_QUIET)
+            if now >= end:
+                log.info("%s: closed before the robot showed still", device.port)
+                return
+            with anyio.move_on_after(end - now):
+                await still.wait()
+    finally:
+        listener.close()
+
+
 class Device(Session[M, K]):
     """Base of every device ([`Chassis`][chassis_sdk.Chassis], [`Board`][chassis_sdk.Board],
     and any a device package adds). See those classes for the arguments.
@@ -214,30 +243,8 @@ class Device(Session[M, K]):
     async def _settle(self) -> None:
         # Only a recording of a session that drove waits: a capture that ended at
         # the zero frame would hold the command to stop but not the stop.
-        if self._recording is None or self.read_only or not self._motion.watchdog.wrote:
-            return
-        still = anyio.Event()
-        heard = time.monotonic()
-
-        def sample(odometry: Odometry) -> None:
-            nonlocal heard
-            heard = odometry.timestamp
-            if abs(odometry.linear) <= STILL_LINEAR and abs(odometry.angular) <= STILL_ANGULAR:
-                still.set()
-
-        listener = self.listen("odometry", sample)
-        try:
-            deadline = time.monotonic() + SETTLE_LIMIT
-            while not still.is_set():
-                now = time.monotonic()
-                until = min(deadline, heard + SETTLE_QUIET)
-                if now >= until:
-                    self._log.info("%s: closed before the robot showed still", self.port)
-                    return
-                with anyio.move_on_after(until - now):
-                    await still.wait()
-        finally:
-            listener.close()
+        if self._recording is not None and not self.read_only and self._motion.watchdog.wrote:
+            await until_still(self, self._log)
 
     def _on_state(self, old: ConnectionState, new: ConnectionState) -> None:
         if new in _LINK_DOWN:
