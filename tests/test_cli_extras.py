@@ -44,6 +44,14 @@ MISSING = [
     pytest.param(["plot", "{mcap}"], "numpy", "plot", "plot", id="plot-numpy"),
     pytest.param(["plot", "{mcap}"], "mcap", "plot", "foxglove", id="plot-mcap"),
     pytest.param(["bridge", NOPE, "--robot-id", "r1"], "aiomqtt", "bridge", "mqtt", id="bridge"),
+    pytest.param(
+        ["drive", NOPE, "--linear", "0.1", "--record", "{tmp}/x.mcap"], "foxglove",
+        "drive --record", "foxglove", id="drive-record-mcap",
+    ),
+    pytest.param(
+        ["teleop", NOPE, "--record", "{tmp}/x.mcap"], "foxglove", "teleop --record", "foxglove",
+        id="teleop-record-mcap",
+    ),
     pytest.param(["ros2", NOPE], "cyclonedds", "ros2", "ros2", id="ros2"),
     pytest.param(
         ["teleop", NOPE, "--joystick", "/dev/input/event0"], "evdev", "teleop --joystick",

@@ -394,6 +394,72 @@ async def test_a_board_page_offers_led_and_buzzer_and_shows_the_imu() -> None:
         await p.wait(lambda: any("has no e-stop" in n.get("done", "") for n in p.notes))
 
 
+def test_a_server_on_every_address_is_shown_by_this_computer_s_name_and_its_own_port(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Issue 44, item 7: `web --host 0.0.0.0` printed a 127.0.0.1 link (another computer's
+    # own address there) and an ssh hint with port 8080 whatever the port.
+    from chassis_sdk.cli import common
+
+    monkeypatch.setattr("socket.gethostname", lambda: "robot7")
+    assert common.served_at("http", "0.0.0.0", 8099) == [
+        "http://robot7:8099/",
+        "http://127.0.0.1:8099/",
+    ]
+    assert common.served_at("ws", "::", 8765) == ["ws://robot7:8765/", "ws://[::1]:8765/"]
+    assert common.served_at("http", "10.0.0.5", 80) == ["http://10.0.0.5:80/"]
+    assert common.ssh_hint(8099) == "ssh -L 8099:127.0.0.1:8099 robot7"
+
+
+def test_serve_beyond_loopback_makes_a_token_as_web_does() -> None:
+    # Issue 44, item 7: serve refused without one (naming allow_no_token=True) where web
+    # made one.
+    from chassis_sdk.cli.serve_command import serve_token
+
+    token, made = serve_token("0.0.0.0", None, False)
+    assert made
+    assert token is not None
+    assert len(token) >= 16
+    assert serve_token("0.0.0.0", "given-token-of-16+", False) == ("given-token-of-16+", False)
+    assert serve_token("0.0.0.0", None, True) == (None, False)  # --no-token
+    assert serve_token("127.0.0.1", None, False) == (None, False)
+
+
+@pytest.mark.integration
+async def test_a_board_page_is_told_e_stop_only_stops_and_sees_the_led_as_reported() -> None:
+    # Issue 44, item 7: E-STOP on a board only stops (the page is told before it is
+    # pressed), and the LED's and buzzer's state is the one the board reports.
+    async with (
+        served(board=True) as (sim, _robot, web),
+        page(web) as p,
+    ):
+        assert p.hello["estop"] is False
+        await p.wait(lambda: bool(p.states))
+        assert p.states[-1]["outputs"] == {}  # not known before a switch
+        await p.send(type="led", on=True)
+        await p.wait(lambda: p.states[-1]["outputs"].get("led") is True)
+        assert sim.firmware.led
+        await p.send(type="buzzer", on=False)
+        await p.wait(lambda: p.states[-1]["outputs"] == {"led": True, "buzzer": False})
+
+
+@pytest.mark.integration
+async def test_only_the_flags_that_stop_the_wheels_are_faults() -> None:
+    # REMOTE_OFFLINE is information (no remote control: normal under host control);
+    # SOFTWARE_ESTOP stops the wheels. The page colours by the state's `faults`.
+    async with (
+        served() as (_sim, robot, web),
+        page(web) as p,
+    ):
+        assert p.hello["estop"] is True
+        await p.wait(lambda: bool(p.states) and "telemetry" in p.states[-1]["streams"])
+        assert "REMOTE_OFFLINE" in p.states[-1]["streams"]["telemetry"]["status"]
+        assert p.states[-1]["faults"] == []
+        await robot.emergency_stop()
+        await p.wait(lambda: p.states[-1]["faults"] == ["SOFTWARE_ESTOP"])
+        assert "REMOTE_OFFLINE" in p.states[-1]["streams"]["telemetry"]["status"]
+
+
 @pytest.mark.integration
 async def test_the_state_of_charge_null_until_known_then_the_percentage_and_level() -> None:
     # A pack at 15 %: the model warms up for a second (null), then knows it: LOW.

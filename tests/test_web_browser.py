@@ -410,6 +410,47 @@ async def test_a_board_page_shows_the_imu_and_switches_the_led() -> None:
 
 @pytest.mark.integration
 @pytest.mark.browser
+async def test_the_page_tells_information_from_alarms_and_shows_what_a_board_reports() -> None:
+    # Issue 44, item 7: REMOTE_OFFLINE is not in SOFTWARE_ESTOP's red; the speed axis
+    # spans the limits before anything moves (not uPlot's 0-100); a board's E-STOP says
+    # it only stops; the LED shows the state the board reports.
+    async with (
+        served() as (_sim, robot, web),
+        chromium() as browser,
+        opened(browser, web.url) as page,
+    ):
+        offline = page.locator("#flags .flag", has_text="REMOTE_OFFLINE")
+        await expect(offline).to_have_class(re.compile(r"\binfo\b"))
+        await expect(page.locator("#estop")).to_have_text("E-STOP")
+        await page.wait_for_function("() => Boolean(window.chassisDashboard.plots.speed)")
+        y = await page.evaluate(
+            "() => { const y = window.chassisDashboard.plots.speed.scales.y; return [y.min, y.max]; }"
+        )
+        assert y[0] < 0 < y[1] <= 4, y  # the limits' span, not 0-100
+        await robot.emergency_stop()
+        estop = page.locator("#flags .flag", has_text="SOFTWARE_ESTOP")
+        await expect(estop).to_have_class(re.compile(r"\bbad\b"))
+        await expect(offline).to_have_class(re.compile(r"\binfo\b"))
+    async with (
+        served(board=True) as (sim, _robot, web),
+        chromium() as browser,
+        opened(browser, web.url) as page,
+    ):
+        await expect(page.locator("#estop")).to_have_text("E-STOP (stops only)")
+        await expect(page.locator("#estop-note")).to_contain_text("a board has no e-stop")
+        led = page.get_by_role("button", name="LED")
+        await expect(led).to_have_text("LED ?")
+        await led.click()
+        await expect(led).to_have_text("LED on")
+        assert sim.firmware.led
+        await led.click()
+        await expect(led).to_have_text("LED off")
+        await page.get_by_role("button", name="E-STOP").click()
+        await expect(page.locator("#done")).to_contain_text("a board has no e-stop")
+
+
+@pytest.mark.integration
+@pytest.mark.browser
 async def test_the_token_in_the_address_becomes_a_cookie() -> None:
     async with (
         served(web={"token": TOKEN}) as (_sim, _robot, web),

@@ -39,6 +39,7 @@ __all__ = [
     "UsageError",
     "arg_type",
     "chance",
+    "check_record",
     "deadman_args",
     "device_arg",
     "device_from_env",
@@ -46,6 +47,7 @@ __all__ = [
     "limit_args",
     "port_args",
     "positive",
+    "record_arg",
     "require_port",
 ]
 
@@ -206,6 +208,43 @@ def deadman_args(p: argparse.ArgumentParser, sender: str) -> None:
         help=f"stop this long after {sender}'s last message (s)",
     )
     p.add_argument("--seconds", type=positive("seconds"), help="stop after this long")
+
+
+def record_arg(p: argparse.ArgumentParser) -> None:
+    """``--record FILE`` (into ``args.record``), the one way every command that drives
+    (``drive``, ``move``/``turn``/``goto``, ``teleop``, ``web``, ``serve``, ``ros2``,
+    ``bridge``, ``calibrate``) records its session: the device's ``record=`` option,
+    so the command's own frames are in the file beside the device's, and the robot
+    coming to rest after the last zero (``chassis-sdk record`` cannot run beside a
+    command that drives: the port has one owner). The command calls `check_record`
+    before its port opens."""
+    p.add_argument(
+        "--record",
+        metavar="FILE",
+        help="also record the session, both ways, until the robot is still: FILE.jsonl "
+        "(raw bytes) or FILE.mcap (decoded too, for Foxglove; the foxglove extra)",
+    )
+
+
+def check_record(args: argparse.Namespace, command: str) -> str | None:
+    """The ``--record`` file of ``args`` (`record_arg`), checked before any port opens:
+    its directory exists and is writable, and for ``FILE.mcap`` the foxglove extra is
+    installed (`chassis_sdk.cli.extras.require`, as ``COMMAND --record``). ``None``
+    when not given.
+
+    Raises:
+        ChassisError: The file cannot be written, or the extra is missing (one line).
+    """
+    file: str | None = getattr(args, "record", None)
+    if file is None:
+        return None
+    from .captures import writable
+    from .extras import require
+
+    writable(file, "--record")
+    if os.path.splitext(file)[1].lower() == ".mcap":
+        require(f"{command} --record", "foxglove")
+    return file
 
 
 def device_from_env() -> tuple[str, str] | None:

@@ -12,7 +12,15 @@ from typing import TYPE_CHECKING
 from ..core.validation import check_real
 from ..devices import DeviceProfile, profile
 from ..integrations.inbound import check_topic_level
-from .arguments import ENV_BROKER, arg_type, device_arg, port_args, require_port
+from .arguments import (
+    ENV_BROKER,
+    arg_type,
+    check_record,
+    device_arg,
+    port_args,
+    record_arg,
+    require_port,
+)
 from .extras import install_hint, require
 
 if TYPE_CHECKING:
@@ -92,12 +100,14 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument("--password-file", help="a file holding the broker password")
     p.add_argument("--tls", action="store_true", help="TLS (implied by mqtts://)")
     p.add_argument("--cafile", help="CA certificates for TLS (default: the system's)")
+    record_arg(p)
     p.set_defaults(func=_start)
 
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     require("bridge", "mqtt")
+    check_record(args, "bridge")
     return _bridge(profile(args.device), port, args)
 
 

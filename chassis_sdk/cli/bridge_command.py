@@ -61,7 +61,8 @@ async def bridge(device: DeviceProfile, port: str, args: argparse.Namespace) -> 
     context = None
     if tls or args.tls:
         context = ssl.create_default_context(cafile=args.cafile)
-    async with device.device(port, **device_options(args, reconnect=True)) as dev:
+    options = device_options(args, reconnect=True, record=args.record)
+    async with device.device(port, **options) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         where = f"{args.prefix}/{args.robot_id}"
         out(f"bridging {port} ({device.name}) as {where} on {args.broker}")

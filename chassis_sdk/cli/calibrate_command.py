@@ -32,7 +32,16 @@ from ..core.odometry import wrap_angle
 from ..devices import DeviceProfile, profile
 from ..devices.config import find_profile, load_profile, update_profile
 from ..errors import ChassisError
-from .arguments import device_arg, finite, limit_args, port_args, positive, require_port
+from .arguments import (
+    check_record,
+    device_arg,
+    finite,
+    limit_args,
+    port_args,
+    positive,
+    record_arg,
+    require_port,
+)
 from .common import first_frame, out, progress_line
 from .profile import device_options
 
@@ -126,6 +135,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument(
         "--timeout", type=positive("timeout"), default=3.0, help="seconds to hear the device"
     )
+    record_arg(p)
     p.set_defaults(func=_start)
 
 
@@ -137,6 +147,7 @@ def _start(args: argparse.Namespace) -> Job:
     gyro = args.imu if args.imu is not None else _has_gyro(device.device)
     if args.measured is not None and not (args.what == "angular" and gyro):
         _believable(args)
+    check_record(args, "calibrate")
     return calibrate(device, port, args)
 
 
@@ -203,7 +214,7 @@ async def calibrate(device: DeviceProfile, port: str, args: argparse.Namespace) 
         speed = limit
     # The profile's limits (accelerations too) and deadman, under the flags; the
     # calibration is the one being measured against.
-    options = {**device_options(args), "calibration": current}
+    options = {**device_options(args, record=args.record), "calibration": current}
     async with device.device(port, **options) as dev:
         await first_frame(dev, args.timeout, device.recognised_by)
         use_gyro = False

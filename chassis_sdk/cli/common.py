@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import socket
 import stat
 import sys
 import time
@@ -42,8 +43,10 @@ __all__ = [
     "out",
     "progress_line",
     "read_secret_file",
+    "served_at",
     "show_warnings",
     "simulated",
+    "ssh_hint",
 ]
 
 #: (what, linear m/s, angular rad/s, seconds) of the demos' drive.
@@ -298,6 +301,28 @@ def read_secret_file(path: str, option: str) -> str:
     return secret
 
 
+#: Hosts that bind every address of the computer.
+_WILDCARDS = ("0.0.0.0", "::", "")
+
+
+def served_at(scheme: str, host: str, port: int) -> list[str]:
+    """The addresses to print for a server bound to ``host``:``port``, the one to open
+    first: for a wildcard (``0.0.0.0``, ``::``) this computer's name, which another
+    computer reaches (127.0.0.1 there is that computer itself), then loopback, for a
+    browser on this one; for any other host, that host."""
+    if host in _WILDCARDS:
+        local = "[::1]" if host == "::" else "127.0.0.1"
+        return [f"{scheme}://{socket.gethostname()}:{port}/", f"{scheme}://{local}:{port}/"]
+    shown = f"[{host}]" if ":" in host else host
+    return [f"{scheme}://{shown}:{port}/"]
+
+
+def ssh_hint(port: int) -> str:
+    """The ssh command that brings the TCP ``port`` served on this computer to the same
+    port of the one ssh runs on (``http://127.0.0.1:PORT/`` there)."""
+    return f"ssh -L {port}:127.0.0.1:{port} {socket.gethostname()}"
+
+
 def show_warnings(logger: str, command: str) -> None:
     """Print ``logger``'s warnings (refused connections or messages: already
     rate-limited) on stderr as ``chassis-sdk COMMAND: ...``: the CLI shows only errors
@@ -313,15 +338,22 @@ def show_warnings(logger: str, command: str) -> None:
 
 @contextlib.asynccontextmanager
 async def driven(
-    device: DeviceProfile, port: str, args: argparse.Namespace, *, read_only: bool = False
+    device: DeviceProfile,
+    port: str,
+    args: argparse.Namespace,
+    *,
+    read_only: bool = False,
+    record: bool = True,
 ) -> AsyncIterator[Device[Any, Any]]:
     """The device a surface that moves the robot (``serve``, ``ros2``) drives, for the
     block: reconnecting through unplugs, within ``--max-linear``/``--max-angular``, under
     ``--command-timeout`` (``arguments.limit_args``, ``deadman_args``), with the
-    profile's limits, calibration and battery (`.profile.device_options`), and
-    proven to be this device (`first_frame`) before anything is done to it.
-    ``read_only``: a viewer's, which writes nothing."""
-    options = device_options(args, reconnect=True, read_only=read_only)
+    profile's limits, calibration and battery (`.profile.device_options`), recording
+    to ``--record`` (``arguments.record_arg``; ``record=False``: the caller records it
+    itself), and proven to be this device (`first_frame`) before anything is done to
+    it. ``read_only``: a viewer's, which writes nothing."""
+    file = getattr(args, "record", None) if record else None
+    options = device_options(args, reconnect=True, read_only=read_only, record=file)
     async with device.device(port, **options) as dev:
         await first_frame(dev, 3.0, device.recognised_by)
         yield dev

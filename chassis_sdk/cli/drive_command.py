@@ -23,11 +23,13 @@ from .arguments import (
     DRIVE_CEILING_LINEAR,
     UsageError,
     arg_type,
+    check_record,
     device_arg,
     finite,
     limit_args,
     port_args,
     positive,
+    record_arg,
     require_port,
 )
 from .common import blocked_line, first_frame, out
@@ -73,6 +75,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument(
         "--timeout", type=positive("timeout"), default=2.0, help="seconds to hear the device"
     )
+    record_arg(p)
     p.set_defaults(func=_start)
 
 
@@ -80,6 +83,7 @@ def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     if args.linear is None and args.angular is None:
         raise UsageError("give a velocity: --linear V and/or --angular W")
+    check_record(args, "drive")
     return drive(profile(args.device), port, args)
 
 
@@ -114,7 +118,7 @@ async def drive(device: DeviceProfile, port: str, args: argparse.Namespace) -> N
     )
     blocked: tuple[str, ...] = ()
     try:
-        async with device.device(port, **device_options(args)) as dev:
+        async with device.device(port, **device_options(args, record=args.record)) as dev:
             # Only a device that answers in its own protocol is driven.
             await first_frame(dev, args.timeout, device.recognised_by)
             # The firmware takes a command while e-stopped and ignores it: say so first.

@@ -18,11 +18,13 @@ from ..core.odometry import Odometry, wrap_angle
 from ..devices import DeviceProfile, profile
 from ..errors import MotionBlockedError
 from .arguments import (
+    check_record,
     device_arg,
     finite,
     limit_args,
     port_args,
     positive,
+    record_arg,
     require_port,
 )
 from .common import first, first_frame, out, progress_line
@@ -87,21 +89,25 @@ def _common(p: argparse.ArgumentParser, names: Sequence[str]) -> None:
         default=DEFAULT_TIMEOUT,
         help="seconds before it gives up and stops; default %(default)s",
     )
+    record_arg(p)
 
 
 # One function per command (as every command has: none falls through to another).
 def _start_move(args: argparse.Namespace) -> Job:
     args.goal = "move"
+    check_record(args, "move")
     return move(profile(args.device), require_port(args), args)
 
 
 def _start_turn(args: argparse.Namespace) -> Job:
     args.goal = "turn"
+    check_record(args, "turn")
     return move(profile(args.device), require_port(args), args)
 
 
 def _start_goto(args: argparse.Namespace) -> Job:
     args.goal = "goto"
+    check_record(args, "goto")
     return move(profile(args.device), require_port(args), args)
 
 
@@ -177,7 +183,7 @@ async def move(device: DeviceProfile, port: str, args: argparse.Namespace) -> No
     """
     call, what = _call(args)
     try:
-        async with device.device(port, **device_options(args)) as dev:
+        async with device.device(port, **device_options(args, record=args.record)) as dev:
             await first_frame(dev, 3.0, device.recognised_by)
             blocked = dev.motion_blocked()
             if blocked:

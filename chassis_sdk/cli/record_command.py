@@ -10,6 +10,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import anyio
+
 from ..errors import ChassisError
 from ..recording import capture
 from .arguments import device_arg, port_args, positive, require_port
@@ -33,8 +35,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument(
         "--seconds",
         type=positive("seconds"),
-        default=10.0,
-        help="how long to record, in seconds (default %(default)s)",
+        help="how long to record, in seconds (default: until Ctrl-C)",
     )
     device_arg(p, names, detected=True)
     p.add_argument(
@@ -74,10 +75,16 @@ def _start(args: argparse.Namespace) -> Job:
 
 
 async def record(
-    port: str, path: str | os.PathLike[str], seconds: float, baudrate: int, device: str | None
+    port: str,
+    path: str | os.PathLike[str],
+    seconds: float | None,
+    baudrate: int,
+    device: str | None,
 ) -> None:
     """Record ``port`` into ``path`` (a file name, or a recording chosen with its
-    options: `chassis_sdk.recording.ros2.rosbag`) for ``seconds``, showing progress.
+    options: `chassis_sdk.recording.ros2.rosbag`) for ``seconds`` (``None``: until
+    Ctrl-C or SIGTERM, like ``candump -l`` and ``ros2 bag record``; the file is closed
+    whole and what was recorded is said), showing progress.
 
     Raises:
         ChassisError: The link was lost and not restored before the end, or no frame
@@ -85,10 +92,13 @@ async def record(
             file is kept, but it is not the recording that was meant.
     """
     show = progress_line(f"recording {os.fspath(path)}")
+    until = f"/{seconds:g} s" if seconds is not None else " s (Ctrl-C to stop)"
+    so_far = [0, 0.0]
 
     def progress(n_bytes: int, elapsed: float, up: bool) -> None:
+        so_far[:] = [n_bytes, elapsed]
         link = "" if up else "  LINK LOST, reconnecting"
-        show(f"{n_bytes:,} bytes, {elapsed:4.1f}/{seconds:g} s{link}", not up)
+        show(f"{n_bytes:,} bytes, {elapsed:4.1f}{until}{link}", not up)
 
     try:
         cap = await capture.record(
@@ -98,6 +108,11 @@ async def record(
         raise
     except OSError as exc:  # the file, not the port (the port's are ChassisErrors)
         raise ChassisError(f"cannot write {os.fspath(path)}: {exc.strerror or exc}") from None
+    except (anyio.get_cancelled_exc_class(), KeyboardInterrupt):
+        # Ctrl-C, SIGTERM: the file was closed whole; say what it holds.
+        if so_far[1]:
+            show.done(f"recorded {so_far[0]:,} bytes over {so_far[1]:.1f} s to {os.fspath(path)}")
+        raise
     show.done(
         f"recorded {cap.bytes:,} bytes in {cap.chunks} chunks over {cap.seconds:.1f} s "
         f"to {os.fspath(path)}"

@@ -1,12 +1,15 @@
-"""``chassis-sdk replay``: decode a capture and print its messages, or, with
-``--as-device``, serve its bytes on a pty (or TCP) as the device sent them."""
+"""``chassis-sdk replay``: decode a capture and print its messages (the host's
+commands among them, marked ``>``, where the capture holds them: a session recorded
+with ``--record`` or ``record=``), or, with ``--as-device``, serve its bytes on a pty
+(or TCP) as the device sent them."""
 
 from __future__ import annotations
 
 import argparse
+import heapq
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING
 
 import anyio
@@ -68,15 +71,29 @@ def _start(args: argparse.Namespace) -> Job:
     return None
 
 
-def replay_line(t: float, msg: object) -> str:
+def replay_line(t: float, msg: object, sent: bool = False) -> str:
     """A decoded message as ``replay`` prints it: its time, its type and its fields the
     way ``monitor`` shows them (names for flags and enums, numbers to three
-    decimals)."""
-    return f"{t:10.3f}  {type(msg).__name__}: {brief(jsonable(msg))}"
+    decimals); a command the host ``sent`` is marked ``>``."""
+    mark = "> " if sent else ""
+    return f"{t:10.3f}  {mark}{type(msg).__name__}: {brief(jsonable(msg))}"
+
+
+def _messages(path: str, device: str) -> Iterator[tuple[float, bool, object]]:
+    """``(t, sent, message)`` of the capture in time order: what the device sent, and
+    what the host sent where the capture holds it (the frames written: a session
+    recorded by its application; a passive capture has none)."""
+    received = ((t, False, msg) for t, msg in capture.decode_capture(path, device))
+    if next(capture.read_capture(path, sent=True), None) is None:
+        return received
+    sent = ((t, True, msg) for t, msg in capture.decode_capture(path, device, commands=True))
+    # Both directions share the capture's clock; at one time, the host's frame first.
+    return heapq.merge(sent, received, key=lambda item: item[0])
 
 
 def replay(path: str, device: str | None, as_json: bool) -> None:
-    """Print every message of the capture ``path`` (of ``device``, else detected).
+    """Print every message of the capture ``path`` (of ``device``, else detected),
+    the host's commands among them where the capture holds them (``sent`` in JSON).
 
     Raises:
         ChassisError: The capture holds no frames of that device.
@@ -86,12 +103,13 @@ def replay(path: str, device: str | None, as_json: bool) -> None:
     lines: list[str] = []
     # Streamed: decoded as read, written a thousand lines at a time (a line per write
     # and a flush per line cost more than the decoding).
-    for t, msg in capture.decode_capture(path, proto):
-        count += 1
+    for t, sent, msg in _messages(path, proto):
+        count += not sent
         if as_json:
-            lines.append(json.dumps({"t": t, "type": type(msg).__name__, **jsonable(msg)}))
+            item = {"t": t, "type": type(msg).__name__, **jsonable(msg)}
+            lines.append(json.dumps({**item, "sent": True} if sent else item))
         else:
-            lines.append(replay_line(t, msg))
+            lines.append(replay_line(t, msg, sent))
         if len(lines) == 1000:
             sys.stdout.write("\n".join(lines) + "\n")
             lines.clear()

@@ -9,7 +9,16 @@ from typing import TYPE_CHECKING
 
 from ..core.validation import check_int
 from ..devices import DeviceProfile, profile
-from .arguments import arg_type, deadman_args, device_arg, limit_args, port_args, require_port
+from .arguments import (
+    arg_type,
+    check_record,
+    deadman_args,
+    device_arg,
+    limit_args,
+    port_args,
+    record_arg,
+    require_port,
+)
 from .extras import install_hint, require
 
 if TYPE_CHECKING:
@@ -73,12 +82,14 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     )
     limit_args(p, "cmd_vel's linear.x and angular.z")
     deadman_args(p, "a cmd_vel writer")
+    record_arg(p)
     p.set_defaults(func=_start)
 
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     require("ros2", "ros2")
+    check_record(args, "ros2")
     return _ros2(profile(args.device), port, args)
 
 

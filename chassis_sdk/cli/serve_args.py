@@ -8,7 +8,16 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from ..devices import DeviceProfile, profile
-from .arguments import TCP_PORT, deadman_args, device_arg, limit_args, port_args, require_port
+from .arguments import (
+    TCP_PORT,
+    check_record,
+    deadman_args,
+    device_arg,
+    limit_args,
+    port_args,
+    record_arg,
+    require_port,
+)
 from .extras import install_hint, require
 
 if TYPE_CHECKING:
@@ -41,7 +50,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     p.add_argument(
         "--no-token", action="store_true", help="allow --host beyond loopback without a token"
     )
-    p.add_argument("--record", metavar="FILE.mcap", help="also record the session")
+    record_arg(p)
     limit_args(p, "Teleop's velocity")
     deadman_args(p, "Teleop")
     p.set_defaults(func=_start)
@@ -50,6 +59,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     require("serve", "foxglove")
+    check_record(args, "serve")
     return _serve(profile(args.device), port, args)
 
 

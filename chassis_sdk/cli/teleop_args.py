@@ -15,11 +15,13 @@ from ..teleop.gamepad import ABS_CODES, BTN_CODES, event_code
 from ..teleop.keys import KEY_TIMEOUT, MAX_KEY_TIMEOUT
 from .arguments import (
     arg_type,
+    check_record,
     deadman_args,
     device_arg,
     finite,
     limit_args,
     port_args,
+    record_arg,
     require_port,
 )
 from .extras import install_hint, require
@@ -131,6 +133,7 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
             "only: a stick held exactly still counts; 0: never; default %(default)s)"
         ),
     )
+    record_arg(p)
     p.set_defaults(func=_start)
 
 
@@ -138,6 +141,7 @@ def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     if args.joystick:
         require("teleop --joystick", "joystick")
+    check_record(args, "teleop")
     if not sys.stdin.isatty():  # before anything opens: nothing is written
         raise ChassisError(
             "teleop reads keys from a terminal, and stdin is not one (over ssh: ssh -t)"

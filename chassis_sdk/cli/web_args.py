@@ -13,10 +13,12 @@ from .arguments import (
     TCP_PORT,
     Renamed,
     arg_type,
+    check_record,
     deadman_args,
     device_arg,
     limit_args,
     port_args,
+    record_arg,
     require_port,
 )
 from .extras import install_hint, require
@@ -90,12 +92,14 @@ def add_parser(sub: Subparsers, names: Sequence[str]) -> None:
     )
     limit_args(p, "what the page may ask for")
     deadman_args(p, "the page")
+    record_arg(p)
     p.set_defaults(func=_start)
 
 
 def _start(args: argparse.Namespace) -> Job:
     port = require_port(args)
     require("web", "web")
+    check_record(args, "web")
     return _web(profile(args.device), port, args)
 
 

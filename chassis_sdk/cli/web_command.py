@@ -17,7 +17,7 @@ import anyio
 
 from ..devices import DeviceProfile
 from ..errors import ChassisError
-from .common import driven, out, read_secret_file, show_warnings
+from .common import driven, out, read_secret_file, served_at, show_warnings, ssh_hint
 
 __all__ = ["web"]
 
@@ -62,21 +62,26 @@ async def web(device: DeviceProfile, port: str, args: argparse.Namespace) -> Non
         )
         async with dashboard:
             mode = "read-only" if args.read_only else "drive by hand"
-            out(f"dashboard of {port} ({device.name}) at {dashboard.url} ({mode}); Ctrl-C to quit")
+            # Bound to every address (0.0.0.0), the page is opened from elsewhere by
+            # this computer's name; 127.0.0.1 is for a browser on this one.
+            links = served_at("http", args.host, dashboard.port)
+            also = f" (on this computer: {links[1]})" if len(links) > 1 else ""
+            out(f"dashboard of {port} ({device.name}) at {links[0]}{also} ({mode}); Ctrl-C to quit")
             if dashboard.token is not None and token is None:
                 # A token made now is printed once, as Jupyter does: the page swaps it
                 # for a cookie. One from --token-file is never printed (a service's
                 # output goes to its journal).
-                print(f"open {dashboard.login_url}", file=sys.stderr)
+                print(f"open {links[0]}?token={dashboard.token}", file=sys.stderr)
             elif token is not None:
                 print(
-                    f"open {dashboard.url}?token=<the token in {args.token_file}>",
+                    f"open {links[0]}?token=<the token in {args.token_file}>",
                     file=sys.stderr,
                 )
             if not is_loopback(args.host):
                 print(
                     "chassis-sdk web: the page is plain HTTP: on a network you do not "
-                    "trust, reach it over SSH instead (ssh -L 8080:127.0.0.1:8080 robot)",
+                    f"trust, reach it over SSH instead ({ssh_hint(dashboard.port)}, then "
+                    f"open http://127.0.0.1:{dashboard.port}/ there)",
                     file=sys.stderr,
                 )
             with anyio.move_on_after(args.seconds):  # None: until Ctrl-C or SIGTERM

@@ -56,6 +56,15 @@ _POSITIVE: dict[str, Any] = {"low": 0, "low_open": True}
 _CONNECTING = ConnectionState.CONNECTING
 #: States in which the link is gone: motion is blocked (``LINK_LOST``) until it is back.
 _LINK_DOWN = frozenset({ConnectionState.RECONNECTING, ConnectionState.LOST})
+#: Closing a recorded session that drove: the port stays open after the final zero
+#: until a velocity sample shows the robot still (at most these m/s and rad/s: below
+#: the wire's 1 mm/s), so the stop is in the recording; at most `SETTLE_LIMIT` s in
+#: all, and no more than `SETTLE_QUIET` s without a sample (a device that reports no
+#: motion).
+STILL_LINEAR = 0.0005
+STILL_ANGULAR = 0.005
+SETTLE_LIMIT = 2.0
+SETTLE_QUIET = 0.5
 #: State -> the event entering it makes (CONNECTED only when coming back).
 _LINK_EVENTS = {
     ConnectionState.STALE: EventKind.LINK_STALE,
@@ -63,6 +72,35 @@ _LINK_EVENTS = {
     ConnectionState.LOST: EventKind.LINK_LOST,
     ConnectionState.CONNECTED: EventKind.LINK_RESTORED,
 }
+
+
+async def until_still(device: Device[Any, Any], log: logging.Logger) -> None:
+    """Return once an odometry sample of ``device`` shows the robot still (at most
+    `STILL_LINEAR`, `STILL_ANGULAR`), at most `SETTLE_LIMIT` s from now, and
+    sooner when no sample has come for `SETTLE_QUIET` s (a device that reports no
+    motion)."""
+    still = anyio.Event()
+    heard = time.monotonic()
+
+    def sample(odometry: Odometry) -> None:
+        nonlocal heard
+        heard = odometry.timestamp
+        if abs(odometry.linear) <= STILL_LINEAR and abs(odometry.angular) <= STILL_ANGULAR:
+            still.set()
+
+    listener = device.listen("odometry", sample)
+    try:
+        deadline = time.monotonic() + SETTLE_LIMIT
+        while not still.is_set():
+            now = time.monotonic()
+            end = min(deadline, heard + SETTLE_QUIET)
+            if now >= end:
+                log.info("%s: closed before the robot showed still", device.port)
+                return
+            with anyio.move_on_after(end - now):
+                await still.wait()
+    finally:
+        listener.close()
 
 
 class Device(Session[M, K]):
@@ -201,6 +239,12 @@ class Device(Session[M, K]):
     def _on_fenced(self) -> None:
         self._motion.arbiter.stop()
         self._watchdog.clear()
+
+    async def _settle(self) -> None:
+        # Only a recording of a session that drove waits: a capture that ended at
+        # the zero frame would hold the command to stop but not the stop.
+        if self._recording is not None and not self.read_only and self._motion.watchdog.wrote:
+            await until_still(self, self._log)
 
     def _on_state(self, old: ConnectionState, new: ConnectionState) -> None:
         if new in _LINK_DOWN:

@@ -166,6 +166,9 @@ class _LinkHooks(Generic[M]):
         if final:
             session._streams.fail(error)
 
+    async def settle(self) -> None:
+        await self._session._settle()
+
 
 class Session(abc.ABC, Generic[M, K]):
     """A device's port side: see the module. The options are the device's (see
@@ -262,6 +265,11 @@ class Session(abc.ABC, Generic[M, K]):
     def _make_command_decoder(self) -> FrameDecoder[Any] | None:
         """A decoder of what the *host* writes (``None``: recordings keep raw bytes)."""
         return None
+
+    async def _settle(self) -> None:
+        """Closing, the final zero gone and the port still open: wait (bounded) for
+        what should be read before it closes. Nothing here; a device that knows its
+        motion keeps a recording going until the robot is still."""
 
     def _reply_quarantine(self) -> float:
         """The least time a key whose reply is overdue stays out of use (see

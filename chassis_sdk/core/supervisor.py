@@ -112,6 +112,12 @@ class Supervised(Fenced, Protocol[M]):
         waits on it; ``final``: no reconnect follows, so end the streams too."""
         ...
 
+    async def settle(self) -> None:
+        """Closing: the final zero has left and the port is still open (writers
+        fenced off, frames still read); return when the port may close. Bounded: a
+        recording keeps the robot coming to rest (see ``Device._settle``)."""
+        ...
+
 
 async def reopen(
     open_once: Callable[[], Awaitable[T]],
@@ -643,8 +649,10 @@ class LinkSupervisor(Generic[M]):
 
     async def _shut_down(self, link: Link[M] | None, runner: asyncio.Task[Any]) -> None:
         try:
-            if link is not None:
-                await link.drain(DRAIN_TIMEOUT)
+            # The zero left: what the device shows next may still be worth reading
+            # (bounded by the owner) before the port closes; not if it is not reading.
+            if link is not None and await link.drain(DRAIN_TIMEOUT):
+                await self._owner.settle()
             self._closing.set()
             # The runner first: a reconnect in progress is cancelled, and whatever
             # link is installed once it has stopped is the one to close.

@@ -162,13 +162,13 @@ async def record(
     port: str,
     path: str | os.PathLike[str],
     *,
-    seconds: float,
+    seconds: float | None,
     baudrate: int = 115200,
     progress: Progress | None = None,
     device: str | None = None,
 ) -> Capture:
-    """Record what the device sends for ``seconds`` into a capture file; it never
-    writes to the port.
+    """Record what the device sends for ``seconds`` (``None``: until cancelled) into a
+    capture file; it never writes to the port.
 
     The format is the file's suffix: ``.mcap`` (raw bytes with receive times, every
     stream decoded, odometry and events; see `chassis_sdk.recording.sink`; needs
@@ -192,7 +192,9 @@ async def record(
         port: Device path, pty path or ``socket://host:port``.
         path: The capture file to write (``.mcap``, else JSON lines), or a
             `RecordTarget` (``rosbag(...)``).
-        seconds: How long to listen.
+        seconds: How long to listen; ``None``: until the call is cancelled (Ctrl-C),
+            when the file is closed whole (cancelling it with a number works too).
+            A JSON-lines capture reaches the disk at least once a second either way.
         baudrate: Serial speed.
         progress: Called about twice a second, and at once when the link drops or
             comes back, with (bytes so far, seconds so far, link up).
@@ -219,7 +221,7 @@ async def record(
         # the bytes this recorder hands it, and its recording holds them all.
         decoding = profile(device).device(port, baudrate=baudrate)
     start = time.monotonic()
-    end = start + seconds
+    end = math.inf if seconds is None else start + seconds
     total = chunks = disconnects = 0
     watch = _FrameWatch(device)
     warned = False
@@ -257,6 +259,8 @@ async def record(
 
             while (now := time.monotonic()) < end:
                 report()
+                if isinstance(writer, JsonlRecording):  # a quiet port: its last lines too
+                    writer.flush()
                 if not warned and watch.heard is None and now - start >= SILENCE_WARNING:
                     warned = True
                     _log.warning("after %g s, %s", SILENCE_WARNING, watch.why(port, total))

@@ -6,12 +6,19 @@ the start, "data": hex}``, one per frame the host wrote, ``{"t": ..., "tx": hex}
 a line ``{"t": ..., "event": "disconnected"}`` (or ``"reconnected"``) where the link
 dropped or came back. Plain text, so captures can be diffed, trimmed and attached to
 bug reports; the raw bytes both ways, from which everything else can be decoded again.
+
+What a hard kill loses: the file is written through a buffer and flushed to the file
+when the header is written and then at least once every `FLUSH_INTERVAL` (1 s) while
+lines come, so ``kill -9`` or a power cut loses at most the last second (before, a
+kill two seconds in could leave an empty file). A file cut in the middle of a line is
+read up to the line before it.
 """
 
 from __future__ import annotations
 
 import datetime
 import json
+import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +29,16 @@ from ..core.notifier import Notifier
 if TYPE_CHECKING:
     from ..core.device import Device
 
-__all__ = ["JsonlRecording", "read_jsonl"]
+__all__ = ["FLUSH_INTERVAL", "JsonlRecording", "read_jsonl"]
+
+#: The most time (seconds) a line of a JSON-lines capture waits in the buffer before it
+#: is flushed to the file (the MCAP recorder's interval too).
+FLUSH_INTERVAL = 1.0
+
+#: The readers' logger (a capture cut short is a warning the commands show).
+_log = logging.getLogger("chassis_sdk.recording.capture")
+#: Files found cut in the middle of a line, warned about once.
+_CUT: set[Path] = set()
 
 
 class JsonlRecording:
@@ -45,8 +61,9 @@ class JsonlRecording:
         device: Device[Any, Any] | None = None,
     ) -> None:
         self.path = path
-        self._start = time.monotonic()
-        # Small buffered local writes; a thread per chunk would cost more.
+        self._start = self._flushed = time.monotonic()
+        # Small buffered local writes (a thread per chunk would cost more), flushed at
+        # least once a second: what a hard kill can lose is bounded.
         self._file: IO[str] = path.open("w", encoding="utf-8")
         self._line(
             {
@@ -56,6 +73,7 @@ class JsonlRecording:
                 "started": datetime.datetime.now(datetime.UTC).isoformat(),
             }
         )
+        self.flush()  # the header at once: a file killed early is still a capture
         self._notifier: Notifier | None = None
         self._up = True
         if device is not None:
@@ -65,6 +83,15 @@ class JsonlRecording:
 
     def _line(self, item: dict[str, object]) -> None:
         self._file.write(json.dumps(item) + "\n")
+        if time.monotonic() - self._flushed >= FLUSH_INTERVAL:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write what the buffer holds to the file now (a recorder that goes quiet
+        calls it, so the last lines do not wait for the next one)."""
+        self._flushed = time.monotonic()
+        if not self._file.closed:
+            self._file.flush()
 
     def _t(self, now: float) -> float:
         return round(now - self._start, 6)
@@ -104,10 +131,15 @@ def read_jsonl(path: str | Path, *, sent: bool = False) -> Iterator[tuple[float,
     key = "tx" if sent else "data"
     with Path(path).open(encoding="utf-8") as f:
         try:
-            header = f.readline(1 << 16)
+            header: str | None = f.readline(1 << 16)
         except UnicodeDecodeError:
-            header = ""
-        if not _header_ok(header):
+            header = None
+        if header == "":
+            raise ValueError(
+                f"{path} is empty: no capture was written to it (a recorder killed "
+                "before its first flush, or a file made by something else)"
+            )
+        if header is None or not _header_ok(header):
             raise ValueError(f"not a chassis-sdk capture (neither JSON lines nor MCAP): {path}")
         for n, line in enumerate(f, start=2):
             if not line.strip():
@@ -117,6 +149,11 @@ def read_jsonl(path: str | Path, *, sent: bool = False) -> Iterator[tuple[float,
                 if field == key:
                     yield t, bytes.fromhex(value)
             except (ValueError, KeyError, TypeError):
+                if not line.endswith("\n"):  # the last line, cut by a hard kill
+                    if Path(path).resolve() not in _CUT:  # once per file, however often read
+                        _CUT.add(Path(path).resolve())
+                        _log.warning("%s ends in the middle of a line: read up to there", path)
+                    return
                 raise ValueError(f"{path}:{n}: not a capture line") from None
 
 

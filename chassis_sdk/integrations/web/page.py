@@ -144,6 +144,8 @@ class Terms:
     rate: float
     gamepad: GamepadMapping
     features: Mapping[str, Any]
+    #: Whether the device has an e-stop; without one, E-STOP only stops (and says so).
+    estop: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -274,6 +276,7 @@ class Page:
             "read_only": terms.read_only or self.stop_only,
             "stop_only": self.stop_only,
             "actions": self.actions,
+            "estop": terms.estop,
             "max_linear": terms.max_linear,
             "max_angular": terms.max_angular,
             "command_timeout": terms.command_timeout,

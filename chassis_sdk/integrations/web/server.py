@@ -209,6 +209,7 @@ class WebDashboard:
             rate=self.rate,
             gamepad=self.gamepad,
             features=features,
+            estop=hasattr(device, "emergency_stop"),
         )
         #: Errors caught in the dashboard's own tasks and callbacks (logged with their
         #: traceback: each of a task, the first of each callback).

@@ -211,7 +211,7 @@ class PageSockets:
             device: Any = self._device
             if not hasattr(device, "emergency_stop"):
                 client.source.stop()
-                client.page.done(f"stop (a {device.device_name} has no e-stop)")
+                client.page.done(f"E-STOP stopped the robot: a {device.device_name} has no e-stop")
                 return
             await device.emergency_stop()
             client.page.done("estop")
@@ -251,7 +251,9 @@ class PageSockets:
         async def run() -> None:
             try:
                 with anyio.fail_after(_REQUEST_TIMEOUT):
-                    await call(*args)
+                    reported = await call(*args)
+                if kind in ("led", "buzzer") and isinstance(reported, bool):
+                    self._model.outputs[kind] = reported  # what the device says, every page
                 client.page.done(kind)
             except (ChassisError, ValueError, TimeoutError) as exc:
                 self._refuse(client, f"{kind} not done: {exc}")

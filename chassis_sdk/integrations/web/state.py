@@ -47,6 +47,9 @@ class StateModel:
         self.device = device
         self._streams = tuple(streams)
         self._on_error = on_error
+        #: The LED's and buzzer's state as the device last reported it (the reply to a
+        #: page's switch), by name; absent while not known.
+        self.outputs: dict[str, bool] = {}
         #: The pages open: each is given every event as it comes.
         self.pages: set[Page] = set()
         self.events: deque[dict[str, Any]] = deque(maxlen=EVENTS_KEPT)
@@ -134,6 +137,10 @@ class StateModel:
             "odometry": latest.get("odometry"),
             "battery": self._charge(),
             "estop": estop,
+            # The flags that stop the wheels (faults, e-stops): the page shows these as
+            # alarms, and the rest (REMOTE_OFFLINE under host control) as information.
+            "faults": list(device.motion_blocked()),
+            "outputs": dict(self.outputs),
             "refused": refused,
             "commands": commands,
             "clients": len(self.pages),

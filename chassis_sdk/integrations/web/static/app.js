@@ -23,8 +23,8 @@ const state = {
   speed: { t: [], linCmd: [], linMeas: [], angCmd: [], angMeas: [] },
   path: { x: [], y: [] },
   plots: {},
-  led: false,
-  buzzer: false,
+  led: null, // as the device last reported it (null: not known yet)
+  buzzer: null,
 };
 window.chassisDashboard = state; // for the curious (and the tests)
 
@@ -68,6 +68,12 @@ function onHello(hello) {
   const mode = hello.stop_only ? " · stop only: the page limit is reached" : hello.read_only ? " · read-only" : "";
   $("mode").textContent = `${hello.port}${mode} · deadman ${hello.command_timeout} s`;
   for (const id of ["release", "clear_faults", "led", "buzzer"]) $(id).hidden = !offers(id);
+  // Without an e-stop (a board), E-STOP stops the robot and nothing more: say so on it.
+  const note = `a ${hello.device} has no e-stop: E-STOP only stops it`;
+  $("estop").textContent = hello.estop === false ? "E-STOP (stops only)" : "E-STOP";
+  $("estop").title = hello.estop === false ? note : "engage the device's e-stop";
+  $("estop-note").textContent = note;
+  $("estop-note").hidden = hello.estop !== false;
   $("drive").hidden = !offers("drive");
   $("pad-enable").textContent = `buttons[${hello.gamepad.enable_button}]`;
   state.path = { x: [], y: [] };
@@ -95,7 +101,9 @@ function onState(s) {
   $("refused").textContent = String(s.refused);
   for (const note of s.notes || []) {
     if (note.refused) $("refusal").textContent = `latest: ${note.refused}`;
+    if (note.done) $("done").textContent = `done: ${note.done}`;
   }
+  showOutputs(s.outputs || {});
   for (const event of s.events || []) addEvent(event);
   if (odo) {
     $("pose").textContent = `x ${fixed(odo.x)} m, y ${fixed(odo.y)} m, heading ${fixed(odo.heading * 180 / Math.PI, 0)}°`;
@@ -105,7 +113,7 @@ function onState(s) {
       if (state.path.x.length > 2000) { state.path.x.shift(); state.path.y.shift(); }
     }
   }
-  showStatus(s.streams);
+  showStatus(s.streams, s.faults || []);
   showCharge(s.battery);
   showStreams(s.streams);
   const sp = state.speed;
@@ -156,7 +164,20 @@ function showCharge(charge) {
   $("charge-bar").style.width = known ? `${Math.min(100, Math.max(0, charge.percentage))}%` : "0%";
 }
 
-function showStatus(streams) {
+// The LED and buzzer as the device reported them (the reply to the last switch).
+function showOutputs(outputs) {
+  for (const id of ["led", "buzzer"]) {
+    const on = typeof outputs[id] === "boolean" ? outputs[id] : null;
+    state[id] = on;
+    const button = $(id);
+    button.setAttribute("aria-pressed", String(on === true));
+    button.textContent = `${id === "led" ? "LED" : "buzzer"} ${on === null ? "?" : on ? "on" : "off"}`;
+  }
+}
+
+// A flag that stops the wheels (the server's `faults`) is an alarm; any other
+// (REMOTE_OFFLINE: no remote control, normal under host control) is information.
+function showStatus(streams, faults) {
   const t = streams.telemetry;
   const battery = streams.battery || t;
   $("battery").textContent = battery ? `${fixed(battery.voltage, 1)} V` : "-";
@@ -165,8 +186,9 @@ function showStatus(streams) {
     const names = flagsOf(t.status);
     flags.replaceChildren(...(names.length ? names : ["OK"]).map((name) => {
       const span = document.createElement("span");
-      span.className = names.length ? "flag" : "flag ok";
+      span.className = !names.length ? "flag ok" : faults.includes(name) ? "flag bad" : "flag info";
       span.textContent = name;
+      span.title = faults.includes(name) ? "stops the wheels" : "information";
       return span;
     }));
     if (t.docking && t.docking !== "NONE" && t.docking !== 0) {
@@ -249,6 +271,14 @@ function plotWidth(id) {
   return Math.max(260, $(id).parentElement.clientWidth - 24);
 }
 
+function speedRange(_u, min, max) {
+  const h = state.hello;
+  const limit = h ? Math.max(h.max_linear, h.max_angular) : 1;
+  const lo = Number.isFinite(min) ? Math.min(min, -limit) : -limit;
+  const hi = Number.isFinite(max) ? Math.max(max, limit) : limit;
+  return [lo, hi];
+}
+
 function drawPlots() {
   if (typeof uPlot === "undefined") return;
   const sp = state.speed;
@@ -256,7 +286,9 @@ function drawPlots() {
   if (!state.plots.speed) {
     state.plots.speed = new uPlot({
       width: plotWidth("speed-plot"), height: 180, legend: { show: true, live: false },
-      scales: { x: { time: true } },
+      // Before anything moves every value is 0, where uPlot's default range is 0-100:
+      // the axis spans at least the page's limits.
+      scales: { x: { time: true }, y: { range: speedRange } },
       series: [
         {},
         { label: "linear cmd", stroke: "#1769aa", dash: [6, 4], width: 1.5 },
@@ -436,11 +468,9 @@ function setUp() {
   $("release").addEventListener("click", () => send({ type: "release" }));
   $("clear_faults").addEventListener("click", () => send({ type: "clear_faults" }));
   for (const id of ["led", "buzzer"]) {
-    $(id).addEventListener("click", () => {
-      state[id] = !state[id];
-      $(id).setAttribute("aria-pressed", String(state[id]));
-      send({ type: id, on: state[id] });
-    });
+    // Switches to the other state than the one reported; the button shows the
+    // device's answer when it comes (showOutputs), not what was asked.
+    $(id).addEventListener("click", () => send({ type: id, on: state[id] !== true }));
   }
   $("scale").addEventListener("input", () => { $("scale-out").textContent = `${Math.round(scale() * 100)} %`; });
   setInterval(tick, SEND_MS);
