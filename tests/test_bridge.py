@@ -409,7 +409,7 @@ async def test_the_fleet_console_lists_every_robot_and_stops_them_all() -> None:
         text = out.decode()
         assert proc.returncode == 0, err.decode()
         lines = {line.split()[0]: line for line in text.splitlines()[1:] if line.strip()}
-        assert "chassis  ONLINE            connected     25." in lines["r1"]
+        assert "chassis  ONLINE            connected     27." in lines["r1"]
         assert "board    ONLINE            connected     " in lines["b2"]
         assert "sent cmd/stop to 2 robot(s)" in text
         await until(lambda: drives(sim)[-1] == DriveVelocity(0, 0.0))

@@ -236,7 +236,7 @@ async def test_chassis_line_noise_is_counted_skipped_and_survived(tcp_port: int 
         # Every frame that got through is a real one (checksums hold the rest back).
         for t in frames:
             assert ChassisStatus.REMOTE_OFFLINE in t.status
-            assert 20.0 < t.voltage < 26.0
+            assert 20.0 < t.voltage < 28.0  # the simulator's pack: 27.2 V full
         info = await robot.get_chassis_info()
         assert info.track_width == 0.725
         counts, stats = sim.fault_counts, robot.stats

@@ -118,7 +118,7 @@ def _make(device: str) -> Firmware:
         pytest.param("chassis", [], "reset", "ok: firmware rebooting (silent for 0.5 s)",
                      lambda fw: fw.resets == 1 and fw.booting(NOW + 0.4), id="reset"),
         pytest.param("chassis", [], "status",
-                     "ok: true pose x=0.000 m y=0.000 m heading=0.0°; status REMOTE_OFFLINE; battery 25.",
+                     "ok: true pose x=0.000 m y=0.000 m heading=0.0°; status REMOTE_OFFLINE; battery 27.",
                      lambda fw: True, id="status-chassis"),
         pytest.param("board", ["tilt 10"], "status",
                      "ok: true pose x=0.000 m y=0.000 m heading=0.0°; tilt pitch 10° roll 0°; battery 12.",
