@@ -151,7 +151,7 @@ async def test_nav2_gets_odometry_at_the_telemetry_rate_with_frames_stamps_and_c
     ):
         await robot.set_velocity(0.2, 0.1, duration=10.0)  # a moving pose
         async with (
-            await start_peer("sub", "odometry", "rt/odom", "--duration", "4") as nav2,
+            await start_peer("sub", "odometry", "rt/odom", "--duration", "2") as nav2,
             await start_peer("sub", "tf", "rt/tf", "--count", "20") as tf,
         ):
             await nav2.wait_for("matched", 15.0)
