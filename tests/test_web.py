@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import itertools
 import json
 import math
@@ -663,16 +664,30 @@ async def test_closing_the_dashboard_while_pages_drive_leaves_zero_the_last_fram
             senders = [asyncio.create_task(keep_driving(p)) for p in pages]
             await until(lambda: moving(sim), 2.0)
             await asyncio.sleep(0.3)
+            before = len(_drives(sim))
             await web.aclose()
-            await asyncio.sleep(0.1)  # what must not happen: a velocity after the zero
             assert robot.commanded_velocity is None
+            # The zero reaches the device (waited for: a loaded computer takes a while),
+            # then what must not happen: a velocity after it.
+            await until(functools.partial(_zero_since, sim, before), 2.0)
+            await asyncio.sleep(0.1)
+            after = _drives(sim)[before:]
+            first_zero = next(i for i, c in enumerate(after) if c.linear_mm == 0)
+            assert [c.linear_mm for c in after[first_zero:]] == [0] * (len(after) - first_zero)
             assert not moving(sim)
-            drives = [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
-            assert drives[-1].linear_mm == 0
             for task in senders:
                 task.cancel()
             for p in pages:
                 await p.ws.close()
+
+
+def _drives(sim: ChassisSimulator) -> list[DriveVelocity]:
+    return [c for _, c in sim.firmware.received if isinstance(c, DriveVelocity)]
+
+
+def _zero_since(sim: ChassisSimulator, index: int) -> bool:
+    """Whether a zero drive frame came after the first ``index``."""
+    return any(c.linear_mm == 0 for c in _drives(sim)[index:])
 
 
 async def stack_page(web: WebDashboard) -> Page:
