@@ -193,7 +193,11 @@ async def test_wheel_mode_frames_are_divided_by_the_linear_scale() -> None:
         # And the calibrated odometry is where the robot truly is.
         x, y, heading = sim.firmware.pose
         assert (reported.x, reported.y) == pytest.approx((x, y), rel=0.01, abs=0.002)
-        assert reported.heading == pytest.approx(heading, rel=0.01)
+        # 2 %: odometry integrates on the host's receive times, and under CI's load
+        # (six workers on two cores) this 0.3 s turn's heading erred by up to 1.3 %
+        # (once in about ten runs, before and after the burst fix alike); a wrong
+        # calibration scale errs by 25 %.
+        assert reported.heading == pytest.approx(heading, rel=0.02)
 
 
 @pytest.mark.integration
