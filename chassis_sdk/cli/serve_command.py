@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import secrets
 import sys
 from pathlib import Path
 
@@ -33,11 +32,9 @@ def serve_token(host: str, token: str | None, no_token: bool) -> tuple[str | Non
     beyond loopback and without ``--no-token``, a new one (printed once, as ``web``
     prints its own: a command-line user is never told of ``allow_no_token=True``);
     else none."""
-    from ..integrations.access import is_loopback
+    from ..integrations.access import made_token
 
-    if token is not None or no_token or is_loopback(host):
-        return token, False
-    return secrets.token_urlsafe(24), True
+    return made_token(host, token, none=no_token)
 
 
 async def serve(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:

@@ -10,6 +10,7 @@ page in the operator's browser must not reach the robot unless it is let in).
 from __future__ import annotations
 
 import ipaddress
+import secrets
 from collections.abc import Iterable
 from urllib.parse import parse_qs, urlsplit
 
@@ -19,6 +20,7 @@ __all__ = [
     "check_token",
     "given_tokens",
     "is_loopback",
+    "made_token",
     "origin_key",
 ]
 
@@ -34,6 +36,16 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False  # a host name: it may resolve to anything
+
+
+def made_token(host: str, token: str | None, *, none: bool = False) -> tuple[str | None, bool]:
+    """The token a server on ``host`` requires, and whether it was made now: the one
+    given; else, beyond loopback and unless ``none`` (serve without one), a new one,
+    which the caller shows once (the dashboard and ``chassis-sdk serve`` alike); else
+    none."""
+    if token is not None or none or is_loopback(host):
+        return token, False
+    return secrets.token_urlsafe(24), True
 
 
 def origin_key(origin: str) -> str:

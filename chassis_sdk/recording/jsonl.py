@@ -31,8 +31,8 @@ if TYPE_CHECKING:
 
 __all__ = ["FLUSH_INTERVAL", "JsonlRecording", "read_jsonl"]
 
-#: The most time (seconds) a line of a JSON-lines capture waits in the buffer before it
-#: is flushed to the file (the MCAP recorder's interval too).
+#: The most time (seconds) a line of a capture waits in the buffer before it is flushed
+#: to the file: a JSON-lines capture's, and an MCAP recording's chunk (recording.mcap).
 FLUSH_INTERVAL = 1.0
 
 #: The readers' logger (a capture cut short is a warning the commands show).

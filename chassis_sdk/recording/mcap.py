@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .jsonl import FLUSH_INTERVAL
 from .sink import FoxgloveSink, _needs_foxglove, session_metadata
 
 if TYPE_CHECKING:
@@ -24,9 +25,6 @@ if TYPE_CHECKING:
     from ..core.device import Device
 
 __all__ = ["FLUSH_INTERVAL", "McapRecording"]
-
-#: How often (seconds) an MCAP recording finishes its chunk and flushes it to disk.
-FLUSH_INTERVAL = 1.0
 
 
 class McapRecording:

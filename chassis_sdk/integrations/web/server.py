@@ -77,7 +77,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import secrets
 from collections.abc import Awaitable, Callable, Iterable
 from types import TracebackType
 from typing import Any, Self
@@ -88,7 +87,7 @@ from ...core.device import Device
 from ...core.validation import check_int, check_real
 from ...devices import profile
 from ...errors import ChassisError, install_hint
-from ..access import check_allowed_origin, check_token, is_loopback
+from ..access import check_allowed_origin, check_token, made_token
 from .http import Access
 from .page import (
     DEFAULT_MAX_ANGULAR,
@@ -177,9 +176,7 @@ class WebDashboard:
         origins = frozenset(check_allowed_origin(o) for o in allow_origins)
         if token is not None:
             check_token(token)
-        elif not is_loopback(host):
-            token = secrets.token_urlsafe(24)
-        self._token = token
+        self._token, _ = made_token(host, token)
         timeout = command_timeout if command_timeout is not None else device.command_timeout
         timeout = 0.5 if timeout is None else timeout
         timeout = check_real(timeout, "command_timeout", low=0, low_open=True, unit="s")
