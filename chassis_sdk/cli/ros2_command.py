@@ -14,20 +14,19 @@ import sys
 import anyio
 
 from ..devices import DeviceProfile
-from ..errors import ChassisError, install_hint
+from ..errors import ChassisError
 from .common import driven, out, show_warnings
 
 __all__ = ["ros2"]
 
 
 async def ros2(device: DeviceProfile, port: str, args: argparse.Namespace) -> None:
-    """Bridge until Ctrl-C, SIGTERM or ``--seconds``."""
-    try:
-        from ..integrations.ros2 import Ros2Bridge
-        from ..integrations.ros2.dds import discovery_from_env
-        from ..recording.ros2_types import Ros2Options
-    except ImportError as exc:
-        raise ChassisError(f"ros2 needs cyclonedds: {install_hint('ros2')} ({exc})") from None
+    """Bridge until Ctrl-C, SIGTERM or ``--seconds`` (the ros2 extra was checked before:
+    `chassis_sdk.cli.extras.require`)."""
+    from ..integrations.ros2 import Ros2Bridge
+    from ..integrations.ros2.dds import discovery_from_env
+    from ..recording.ros2_types import Ros2Options
+
     try:  # before the device opens
         names = Ros2Options(namespace=args.namespace, frame_prefix=args.frame_prefix)
         namespace = names.namespace
