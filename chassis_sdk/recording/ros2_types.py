@@ -1000,6 +1000,7 @@ class Translator:
         )
         self._angles = [0.0] * len(self._joint_names)
         self._last_joints = -math.inf
+        self._telemetry_battery = False
         self.options = options
         #: The state-of-charge estimator read for each ``battery_state``, or ``None``.
         self.battery = battery
@@ -1019,7 +1020,9 @@ class Translator:
         if "battery" in names:
             table["battery"] = (("battery_state",), self._battery)
         if "telemetry" in names:
-            keys = () if "battery" in names else ("battery_state",)
+            # The battery from telemetry's voltage, when no battery stream gives it.
+            self._telemetry_battery = "battery" not in names
+            keys = ("battery_state",) if self._telemetry_battery else ()
             if geometry is not None:
                 keys += ("joint_states",)
             if keys:
@@ -1088,7 +1091,7 @@ class Translator:
 
     def _telemetry(self, telemetry: Any, epoch: float) -> list[tuple[str, Any]]:
         out = self._joints(telemetry, epoch) if self.geometry is not None else []
-        if "battery_state" not in self._table["telemetry"][0]:
+        if not self._telemetry_battery:
             return out
         voltage = getattr(telemetry, "voltage", None)
         at = telemetry.timestamp or time.monotonic()
