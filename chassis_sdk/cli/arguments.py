@@ -11,10 +11,12 @@ loop there and then (returning ``None``), or returns the coroutine that
 from __future__ import annotations
 
 import argparse
+import ast
 import difflib
 import os
+import re
 from collections.abc import Callable, Coroutine, Sequence
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import TYPE_CHECKING, Any, NoReturn, TypeAlias
 
 from ..core.validation import check_int, check_probability, check_real
 
@@ -78,24 +80,63 @@ class UsageError(Exception):
     argparse does, with the command's usage and exit status 2."""
 
 
+#: argparse's refusal of a word that is not one of the choices (its wording from 3.11 on).
+_INVALID_CHOICE = re.compile(
+    r"(?P<head>argument (?P<name>.+?): invalid choice: )"
+    r"(?P<value>'(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\")(?P<rest> \(choose from .*)",
+    re.S,
+)
+
+
+def _action_name(action: argparse.Action) -> str:
+    """The name argparse's messages give ``action`` (``--device``, ``COMMAND``, ...)."""
+    if action.option_strings:
+        return "/".join(action.option_strings)
+    if action.metavar not in (None, argparse.SUPPRESS):
+        return str(action.metavar)
+    return str(action.dest)
+
+
 class Parser(argparse.ArgumentParser):
     """The parser of ``chassis-sdk`` and of each command (subparsers take their parent's
     class): a word that is not one of the choices (a command, a device, ``start``/``stop``)
     is refused with the closest choice, if one is close (``did you mean 'monitor'?``),
-    as Python 3.14's ``suggest_on_error`` does."""
+    as Python 3.14's ``suggest_on_error`` does. (Through argparse's public hooks: the
+    actions with choices are kept as they are added, and `error` adds the suggestion.)"""
 
-    def _check_value(self, action: argparse.Action, value: Any) -> None:
-        choices = action.choices
-        if choices is not None and isinstance(value, str) and value not in choices:
-            names = [str(choice) for choice in choices]
-            close = difflib.get_close_matches(value, names, n=1)
-            if close:
-                listed = ", ".join(map(repr, names))
-                raise argparse.ArgumentError(
-                    action,
-                    f"invalid choice: {value!r}, did you mean {close[0]!r}? (choose from {listed})",
-                )
-        super()._check_value(action, value)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        #: The arguments added to this parser itself (not to its groups) that take one
+        #: of a set of words, the commands among them.
+        self.choosing: list[argparse.Action] = []
+        super().__init__(*args, **kwargs)
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        if action.choices is not None:
+            self.choosing.append(action)
+        return action
+
+    def add_subparsers(self, **kwargs: Any) -> Any:
+        action = super().add_subparsers(**kwargs)
+        self.choosing.append(action)
+        return action
+
+    def error(self, message: str) -> NoReturn:
+        found = _INVALID_CHOICE.fullmatch(message)
+        if found is not None:
+            value = ast.literal_eval(found["value"])
+            for action in self.choosing:
+                if _action_name(action) != found["name"] or action.choices is None:
+                    continue
+                names = [str(choice) for choice in action.choices]
+                close = difflib.get_close_matches(value, names, n=1)
+                if close:
+                    message = (
+                        f"{found['head']}{found['value']}, did you mean {close[0]!r}?"
+                        f"{found['rest']}"
+                    )
+                break
+        super().error(message)
 
 
 class Renamed(argparse.Action):
